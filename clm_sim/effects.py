@@ -1,0 +1,363 @@
+"""The vocabulary of physical force effects, shared by the simulator, the models and the diagnosis.
+
+Each effect is a small frozen dataclass with named SI parameters. It knows three things:
+
+* ``force(y, v, u)``: the force (N) it adds to what the motor must supply, in the inverse-model sign
+  convention ``u = m*a + fv*v + fc*sign(v) + fk*y + sum(effect.force)``; in the plant it enters
+  with the opposite sign (``m*a = u - ... - sum(effect.force)``);
+* ``regressors(y, v, u)``: the columns it contributes to a linear-in-the-parameters model when its
+  nonlinear parameters (periods, velocities) are held fixed, and ``from_coefficients`` to rebuild the
+  effect from the least-squares coefficients of those columns;
+* ``lower(terms)``: how it appears in the compiled simulator, as primitive terms of
+  :class:`KernelTerms` (position harmonics, motor-force ripple, a position polynomial, Stribeck
+  friction, direction-dependent friction, a constant force).
+
+``EFFECTS`` maps a config ``type:`` to its class; it is the only place names are resolved.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from clm_sim.errors import UserError
+
+
+@dataclass
+class KernelTerms:
+    """Primitive force terms the compiled simulator understands, as float64 arrays.
+
+    ``harmonic_*``: additive position-periodic forces ``amp*sin(k*y + phase)`` (N, rad/m, rad).
+    ``ripple_*``: motor-force modulation, motor force ``u*(1 + sum amp*sin(k*y + phase))``.
+    ``poly_coef``: additive ``sum c_i*(y - poly_center)**i`` (N/m**i), ``i = 0..len-1``.
+    ``stribeck_*``: ``sign(v)*static*exp(-(|v|/velocity)**exponent)`` (N, m/s, -).
+    ``asym``: extra friction per direction ``[coulomb_pos, coulomb_neg, viscous_pos, viscous_neg]``.
+    ``offset``: a constant force (N).
+    """
+
+    harmonic_amp: list = field(default_factory=list)
+    harmonic_k: list = field(default_factory=list)
+    harmonic_phase: list = field(default_factory=list)
+    ripple_amp: list = field(default_factory=list)
+    ripple_k: list = field(default_factory=list)
+    ripple_phase: list = field(default_factory=list)
+    poly_coef: list = field(default_factory=list)
+    poly_center: float = 0.0
+    stribeck_static: list = field(default_factory=list)
+    stribeck_velocity: list = field(default_factory=list)
+    stribeck_exponent: list = field(default_factory=list)
+    asym: list = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+    offset: float = 0.0
+
+    def arrays(self) -> tuple:
+        """The terms as contiguous float64 arrays, in the order the kernel takes them."""
+        f = lambda x: np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1))  # noqa: E731
+        return (
+            f(self.harmonic_amp), f(self.harmonic_k), f(self.harmonic_phase),
+            f(self.ripple_amp), f(self.ripple_k), f(self.ripple_phase),
+            f(self.poly_coef if self.poly_coef else [0.0]), float(self.poly_center),
+            float(self.offset),
+            f(self.stribeck_static), f(self.stribeck_velocity), f(self.stribeck_exponent),
+            f(self.asym),
+        )
+
+
+def _check_positive(where: str, **values: float) -> None:
+    for key, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise UserError(f"{where}: {key} must be a finite number > 0, got {value!r}")
+
+
+def _check_finite(where: str, **values: float) -> None:
+    for key, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value)):
+            raise UserError(f"{where}: {key} must be a finite number, got {value!r}")
+
+
+def _amplitude_phase(c_sin: float, c_cos: float) -> tuple[float, float]:
+    """``a*sin(x) + b*cos(x) = A*sin(x + phi)``; returns ``(A, phi)`` with ``A >= 0``."""
+    return float(math.hypot(c_sin, c_cos)), float(math.atan2(c_cos, c_sin))
+
+
+@dataclass(frozen=True)
+class Effect:
+    """Base of all effects; subclasses set ``type`` and ``nonlinear`` (parameters a search must find)."""
+
+    type: ClassVar[str] = ""
+    nonlinear: ClassVar[tuple[str, ...]] = ()
+    aliases: ClassVar[dict[str, str]] = {}  # config name -> field name, where a field would clash
+
+    def force(self, y: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def regressors(self, y: np.ndarray, v: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def from_coefficients(self, coef: dict[str, float]) -> "Effect":
+        raise NotImplementedError
+
+    def lower(self, terms: KernelTerms) -> None:
+        raise NotImplementedError
+
+    def parameters(self) -> dict[str, float]:
+        """Named parameters in SI units, as a config or a report writes them."""
+        return {k: v for k, v in self.__dict__.items()}
+
+    def as_config(self) -> dict:
+        return {"type": self.type, **{k: (list(v) if isinstance(v, tuple) else v)
+                                      for k, v in self.parameters().items()}}
+
+
+@dataclass(frozen=True)
+class Cogging(Effect):
+    """Position-periodic force from magnet/iron attraction: ``amplitude*sin(2*pi*y/period + phase)``.
+
+    amplitude in N, period in m (the magnet pitch or a fraction of it), phase in rad.
+    """
+
+    amplitude: float = 1.0
+    period: float = 0.016
+    phase: float = 0.0
+    type: ClassVar[str] = "cogging"
+    nonlinear: ClassVar[tuple[str, ...]] = ("period",)
+
+    def __post_init__(self):
+        _check_finite("cogging", amplitude=self.amplitude, phase=self.phase)
+        _check_positive("cogging", period=self.period)
+
+    def _arg(self, y):
+        return 2.0 * np.pi * np.asarray(y) / self.period
+
+    def force(self, y, v, u):
+        return self.amplitude * np.sin(self._arg(y) + self.phase)
+
+    def regressors(self, y, v, u):
+        x = self._arg(y)
+        return {"cogging_sin": np.sin(x), "cogging_cos": np.cos(x)}
+
+    def from_coefficients(self, coef):
+        amp, phase = _amplitude_phase(coef["cogging_sin"], coef["cogging_cos"])
+        return Cogging(amplitude=amp, period=self.period, phase=phase)
+
+    def lower(self, terms):
+        terms.harmonic_amp.append(self.amplitude)
+        terms.harmonic_k.append(2.0 * math.pi / self.period)
+        terms.harmonic_phase.append(self.phase)
+
+
+@dataclass(frozen=True)
+class ForceRipple(Effect):
+    """Commutation ripple: the motor delivers ``u*(1 + amplitude*sin(2*pi*y/period + phase))``.
+
+    amplitude is a fraction of the commanded force (0.01 = 1 %), period in m, phase in rad. The
+    motor must then supply about ``-amplitude*sin(...)*u`` extra, which is ``force``.
+    """
+
+    amplitude: float = 0.01
+    period: float = 0.032
+    phase: float = 0.0
+    type: ClassVar[str] = "force_ripple"
+    nonlinear: ClassVar[tuple[str, ...]] = ("period",)
+
+    def __post_init__(self):
+        _check_finite("force_ripple", amplitude=self.amplitude, phase=self.phase)
+        _check_positive("force_ripple", period=self.period)
+        if not abs(self.amplitude) < 0.5:
+            raise UserError(f"force_ripple: amplitude is a fraction of the motor force and must be "
+                            f"below 0.5, got {self.amplitude!r}")
+
+    def _arg(self, y):
+        return 2.0 * np.pi * np.asarray(y) / self.period
+
+    def force(self, y, v, u):
+        # Exact inverse of u_motor = u*(1+rho): u = rest/(1+rho) = rest - rho*u.
+        return -self.amplitude * np.sin(self._arg(y) + self.phase) * np.asarray(u)
+
+    def regressors(self, y, v, u):
+        x = self._arg(y)
+        return {"ripple_sin": -np.asarray(u) * np.sin(x), "ripple_cos": -np.asarray(u) * np.cos(x)}
+
+    def from_coefficients(self, coef):
+        amp, phase = _amplitude_phase(coef["ripple_sin"], coef["ripple_cos"])
+        return ForceRipple(amplitude=amp, period=self.period, phase=phase)
+
+    def lower(self, terms):
+        terms.ripple_amp.append(self.amplitude)
+        terms.ripple_k.append(2.0 * math.pi / self.period)
+        terms.ripple_phase.append(self.phase)
+
+
+@dataclass(frozen=True)
+class CableSlab(Effect):
+    """Position-dependent force of the cable carrier: ``sum coefficients[i]*(y - center)**i``.
+
+    ``coefficients`` in N/m**i for i = 0, 1, 2, ...; ``center`` in m (where the cable loop is
+    relaxed). The constant and linear terms are what a LIP absorbs as offset and stiffness; the
+    higher terms model the carrier's bending loop, whose force grows faster towards the stroke ends.
+    """
+
+    coefficients: tuple[float, ...] = (0.0, 10.0, 0.0, 2000.0)
+    center: float = 0.0
+    type: ClassVar[str] = "cable_slab"
+
+    def __post_init__(self):
+        object.__setattr__(self, "coefficients", tuple(float(c) for c in self.coefficients))
+        if not self.coefficients:
+            raise UserError("cable_slab: coefficients must hold at least one number")
+        _check_finite("cable_slab", center=self.center,
+                      **{f"coefficients[{i}]": c for i, c in enumerate(self.coefficients)})
+
+    def force(self, y, v, u):
+        return np.polynomial.polynomial.polyval(np.asarray(y) - self.center, self.coefficients)
+
+    def regressors(self, y, v, u):
+        d = np.asarray(y) - self.center
+        return {f"cable_{i}": d**i for i in range(2, len(self.coefficients))}
+
+    def from_coefficients(self, coef):
+        c = [0.0, 0.0] + [coef[f"cable_{i}"] for i in range(2, len(self.coefficients))]
+        return CableSlab(coefficients=tuple(c), center=self.center)
+
+    def lower(self, terms):
+        if any(terms.poly_coef) and terms.poly_center != self.center:
+            raise UserError("plant: two cable_slab effects need the same center")
+        n = max(len(terms.poly_coef), len(self.coefficients))
+        old = list(terms.poly_coef) + [0.0] * (n - len(terms.poly_coef))
+        terms.poly_coef[:] = [a + b for a, b in zip(old, list(self.coefficients) + [0.0] * n)]
+        terms.poly_center = self.center
+
+
+@dataclass(frozen=True)
+class Stribeck(Effect):
+    """Friction peak at low speed: ``sign(v)*static*exp(-(|v|/velocity)**exponent)``.
+
+    ``static`` (N) is the peak *above* the Coulomb level, so the breakaway force is
+    ``coulomb + static``; ``velocity`` (m/s) is the Stribeck velocity; ``exponent`` is usually 2.
+    """
+
+    static: float = 2.0
+    velocity: float = 0.002
+    exponent: float = 2.0
+    type: ClassVar[str] = "stribeck"
+    nonlinear: ClassVar[tuple[str, ...]] = ("velocity",)
+
+    def __post_init__(self):
+        _check_finite("stribeck", static=self.static)
+        _check_positive("stribeck", velocity=self.velocity, exponent=self.exponent)
+        if self.static < 0:
+            raise UserError(f"stribeck: static must be >= 0 N, got {self.static!r}")
+
+    def _shape(self, v):
+        v = np.asarray(v)
+        return np.sign(v) * np.exp(-((np.abs(v) / self.velocity) ** self.exponent))
+
+    def force(self, y, v, u):
+        return self.static * self._shape(v)
+
+    def regressors(self, y, v, u):
+        return {"stribeck": self._shape(v)}
+
+    def from_coefficients(self, coef):
+        return Stribeck(static=max(coef["stribeck"], 0.0), velocity=self.velocity,
+                        exponent=self.exponent)
+
+    def lower(self, terms):
+        terms.stribeck_static.append(self.static)
+        terms.stribeck_velocity.append(self.velocity)
+        terms.stribeck_exponent.append(self.exponent)
+
+
+@dataclass(frozen=True)
+class FrictionAsymmetry(Effect):
+    """Extra friction per direction of motion, on top of the plant's symmetric ``fc`` and ``fv``.
+
+    Moving in +y the motor supplies ``coulomb_pos + viscous_pos*v`` more; moving in -y it supplies
+    ``-coulomb_neg + viscous_neg*v`` more (N and N*s/m). At rest the breakaway force grows by
+    ``coulomb_pos`` (pushing +) or ``coulomb_neg`` (pushing -).
+    """
+
+    coulomb_pos: float = 0.0
+    coulomb_neg: float = 0.0
+    viscous_pos: float = 0.0
+    viscous_neg: float = 0.0
+    type: ClassVar[str] = "friction_asymmetry"
+
+    def __post_init__(self):
+        _check_finite("friction_asymmetry", coulomb_pos=self.coulomb_pos,
+                      coulomb_neg=self.coulomb_neg, viscous_pos=self.viscous_pos,
+                      viscous_neg=self.viscous_neg)
+
+    def force(self, y, v, u):
+        v = np.asarray(v)
+        pos, neg = v > 0, v < 0
+        return (pos * (self.coulomb_pos + self.viscous_pos * v)
+                + neg * (-self.coulomb_neg + self.viscous_neg * v))
+
+    def regressors(self, y, v, u):
+        v = np.asarray(v)
+        pos, neg = (v > 0).astype(float), (v < 0).astype(float)
+        return {"asym_coulomb_pos": pos, "asym_coulomb_neg": -neg,
+                "asym_viscous_pos": pos * v, "asym_viscous_neg": neg * v}
+
+    def from_coefficients(self, coef):
+        return FrictionAsymmetry(coulomb_pos=coef["asym_coulomb_pos"],
+                                 coulomb_neg=coef["asym_coulomb_neg"],
+                                 viscous_pos=coef["asym_viscous_pos"],
+                                 viscous_neg=coef["asym_viscous_neg"])
+
+    def lower(self, terms):
+        terms.asym = [a + b for a, b in zip(terms.asym, (self.coulomb_pos, self.coulomb_neg,
+                                                         self.viscous_pos, self.viscous_neg))]
+
+
+@dataclass(frozen=True)
+class ForceOffset(Effect):
+    """A constant force the motor must supply (N): gravity on a tilted axis, a cable preload, an
+    amplifier offset."""
+
+    force_n: float = 0.0
+    type: ClassVar[str] = "force_offset"
+    aliases: ClassVar[dict[str, str]] = {"force": "force_n"}
+
+    def __post_init__(self):
+        _check_finite("force_offset", force_n=self.force_n)
+
+    def force(self, y, v, u):
+        return np.full(np.shape(y), self.force_n, dtype=float)
+
+    def regressors(self, y, v, u):
+        return {"offset": np.ones(np.shape(y))}
+
+    def from_coefficients(self, coef):
+        return ForceOffset(force_n=coef["offset"])
+
+    def parameters(self):
+        return {"force": self.force_n}
+
+    def lower(self, terms):
+        terms.offset += self.force_n
+
+
+EFFECTS: dict[str, type[Effect]] = {
+    cls.type: cls for cls in (Cogging, ForceRipple, CableSlab, Stribeck, FrictionAsymmetry,
+                              ForceOffset)
+}
+
+
+def lower_effects(effects) -> KernelTerms:
+    """Collect the kernel terms of a sequence of effects."""
+    terms = KernelTerms()
+    for effect in effects:
+        effect.lower(terms)
+    return terms
+
+
+def total_force(effects, y, v, u) -> np.ndarray:
+    """Sum of the effects' forces (N, inverse-model sign), vectorised over samples."""
+    out = np.zeros(np.shape(y), dtype=float)
+    for effect in effects:
+        out = out + effect.force(y, v, u)
+    return out

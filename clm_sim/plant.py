@@ -1,0 +1,93 @@
+"""The coreless linear motor: rigid mass with friction, stiffness and named parasitic effects.
+
+``m*a = u_motor - fv*v - fc*sign(v) - fk*y - sum(effect forces)``, read through an encoder.
+
+Defaults are the CLM identified in the PGNN paper (m 18.8 kg, fv 172 N*s/m, fc 7.21 N, fk ~ 0) plus
+the parasitic forces an ironless linear motor on ball-bearing guides with a cable carrier has
+(see ``default_effects`` and the README): no cogging (there is no iron to attract the magnets), a
+1 % commutation force ripple over the magnet pitch, a cable-carrier force of a few newtons that
+stiffens towards the stroke ends, and a small Stribeck peak from the guides.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from clm_sim.effects import CableSlab, Effect, ForceRipple, Stribeck, lower_effects, total_force
+from clm_sim.errors import UserError
+
+THETA_NAMES = ("mass", "viscous", "coulomb", "stiffness")
+
+
+def default_effects() -> tuple[Effect, ...]:
+    """Parasitic forces of a typical ironless CLM stage; each choice is argued in the README."""
+    return (
+        ForceRipple(amplitude=0.01, period=0.024, phase=0.0),
+        CableSlab(coefficients=(0.0, 10.0, 0.0, 2000.0), center=0.0),
+        Stribeck(static=1.0, velocity=0.001, exponent=2.0),
+    )
+
+
+@dataclass(frozen=True)
+class Plant:
+    """Motor parameters in SI units and the encoder that reads it.
+
+    mass: kg; viscous: N*s/m; coulomb: N; stiffness: N/m; effects: parasitic forces;
+    encoder_resolution: m per count (0 = ideal position); substeps: integration sub-steps per
+    sample (halving the sub-step must move the trajectory by less than one count; tested).
+    """
+
+    mass: float = 18.8
+    viscous: float = 172.0
+    coulomb: float = 7.21
+    stiffness: float = 0.0
+    effects: tuple[Effect, ...] = field(default_factory=default_effects)
+    encoder_resolution: float = 1e-7
+    substeps: int = 4
+
+    def __post_init__(self):
+        object.__setattr__(self, "effects", tuple(self.effects))
+        checks = {"mass": (self.mass, False), "viscous": (self.viscous, True),
+                  "coulomb": (self.coulomb, True), "encoder_resolution":
+                  (self.encoder_resolution, True)}
+        for key, (value, zero_ok) in checks.items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value)):
+                raise UserError(f"plant: {key} must be a finite number, got {value!r}")
+            if value < 0 or (value == 0 and not zero_ok):
+                raise UserError(f"plant: {key} must be {'>= 0' if zero_ok else '> 0'}, "
+                                f"got {value!r}")
+        if not (isinstance(self.stiffness, (int, float)) and math.isfinite(self.stiffness)):
+            raise UserError(f"plant: stiffness must be a finite number, got {self.stiffness!r}")
+        if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 1000):
+            raise UserError(f"plant: substeps must be an integer in 1..1000, got {self.substeps!r}")
+
+    def theta(self) -> dict[str, float]:
+        """The LIP parameters ``{mass, viscous, coulomb, stiffness}``."""
+        return {name: float(getattr(self, name)) for name in THETA_NAMES}
+
+    def inverse_force(self, y, v, a, u=None) -> np.ndarray:
+        """Force (N) the motor must supply for the motion ``(y, v, a)``; ``u`` feeds force ripple."""
+        y, v, a = (np.asarray(z, dtype=float) for z in (y, v, a))
+        base = self.mass * a + self.viscous * v + self.coulomb * np.sign(v) + self.stiffness * y
+        return base + total_force(self.effects, y, v, base if u is None else u)
+
+    def substep_matrices(self, ts: float) -> tuple[float, np.ndarray, np.ndarray]:
+        """``(h, ad, bd)``: exact propagation of the linear part over one sub-step of ``h`` s
+        for a constant force, ``[y, v] <- ad @ [y, v] + bd * F``."""
+        h = ts / self.substeps
+        a = np.array([[0.0, 1.0], [-self.stiffness / self.mass, -self.viscous / self.mass]])
+        m = np.zeros((3, 3))
+        m[:2, :2] = a
+        m[1, 2] = 1.0 / self.mass
+        e = scipy.linalg.expm(m * h)
+        return h, np.ascontiguousarray(e[:2, :2]), np.ascontiguousarray(e[:2, 2])
+
+    def kernel_args(self, ts: float) -> tuple:
+        """Positional arguments of :func:`clm_sim.kernel.plant_step` after ``(x, v, u)``."""
+        h, ad, bd = self.substep_matrices(ts)
+        return (h, self.substeps, ad, bd, float(self.mass), float(self.viscous),
+                float(self.coulomb), float(self.stiffness), *lower_effects(self.effects).arrays())

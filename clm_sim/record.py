@@ -1,0 +1,225 @@
+"""The logged run: one record type for simulated and measured data, and its files.
+
+Every signal is a 1-D float64 array of the same length, sampled at ``t`` (s):
+``r`` reference (m), ``y`` measured position (m), ``y_true`` true position (m, NaN if unknown),
+``u`` total force applied to the plant (N), ``u_fb`` feedback part, ``u_ff`` feedforward part,
+``dither`` injected excitation (N, NaN if unknown), ``e = r - y`` (m). ``meta`` holds the resolved
+config, seed and versions.
+
+Files: NPZ (native, signals plus ``meta`` as JSON), CSV (header of column names; ``meta`` as JSON in
+a sidecar ``.meta.json``), and MATLAB ``.mat`` (signals as column vectors, ``meta`` as a JSON string).
+Measured records need only ``t, r, y, u``; columns can be renamed and scaled on load.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from clm_sim.errors import UserError
+
+SIGNALS = ("t", "r", "y", "y_true", "u", "u_fb", "u_ff", "dither", "e")
+REQUIRED = ("t", "r", "y", "u")
+MIN_SAMPLES = 200
+
+
+@dataclass(frozen=True)
+class Run:
+    """A logged closed-loop run; see the module docstring for the signals and their units."""
+
+    t: np.ndarray
+    r: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    y_true: np.ndarray | None = None
+    u_fb: np.ndarray | None = None
+    u_ff: np.ndarray | None = None
+    dither: np.ndarray | None = None
+    e: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        n = np.shape(self.t)[0] if np.ndim(self.t) == 1 else -1
+        for name in SIGNALS:
+            value = getattr(self, name)
+            if value is None:
+                value = self.r - self.y if name == "e" else np.full(n, np.nan)
+            value = np.ascontiguousarray(value, dtype=np.float64)
+            if value.ndim != 1 or value.shape[0] != n:
+                raise ValueError(f"run signal {name!r} must be 1-D of length {n}, "
+                                 f"got shape {value.shape}")
+            object.__setattr__(self, name, value)
+
+    @property
+    def ts(self) -> float:
+        """Sample time (s), from the time stamps."""
+        return float((self.t[-1] - self.t[0]) / (len(self.t) - 1))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def signals(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self, name) for name in SIGNALS}
+
+    def slice(self, start: int, stop: int | None = None) -> "Run":
+        """The samples ``start:stop`` as a new run (same meta)."""
+        return Run(**{k: v[start:stop] for k, v in self.signals().items()}, meta=self.meta)
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Write through a temporary file in the same folder, then rename: never a half-written file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def save_npz(run: Run, path: Path) -> None:
+    """Save as NPZ: one array per signal plus ``meta`` (JSON text)."""
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, meta=np.array(json.dumps(run.meta, default=str)),
+                                **run.signals())
+    _atomic_write(path, write)
+
+
+def save_csv(run: Run, path: Path) -> None:
+    """Save as CSV with a header of signal names; ``meta`` goes to ``<path>.meta.json``."""
+    path = Path(path)
+    data = np.column_stack([run.signals()[k] for k in SIGNALS])
+    _atomic_write(path, lambda tmp: np.savetxt(tmp, data, delimiter=",", header=",".join(SIGNALS),
+                                               comments="", fmt="%.17g"))
+    meta = path.with_name(path.name + ".meta.json")
+    _atomic_write(meta, lambda tmp: tmp.write_text(json.dumps(run.meta, indent=1, default=str)))
+
+
+def save_mat(run: Run, path: Path) -> None:
+    """Save as MATLAB .mat: column vectors named as the signals, ``meta`` as a JSON string."""
+    import scipy.io
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            scipy.io.savemat(fh, {**{k: v[:, None] for k, v in run.signals().items()},
+                                  "meta": json.dumps(run.meta, default=str)})
+    _atomic_write(path, write)
+
+
+def _read_columns(path: Path) -> dict[str, np.ndarray]:
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".csv":
+            with open(path, encoding="utf-8") as fh:
+                header = fh.readline().strip()
+            if not header:
+                raise UserError(f"{path}: empty file, expected a CSV header such as 't,r,y,u'")
+            names = [h.strip().lstrip("#").strip() for h in header.split(",")]
+            if any(n and n[0] in "0123456789-+." for n in names):
+                raise UserError(f"{path}: the first line must be a header of column names "
+                                f"(t, r, y, u), got numbers")
+            data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
+                                 invalid_raise=True, ndmin=2)
+            if data.size == 0:
+                raise UserError(f"{path}: no data rows after the header")
+            if data.shape[1] != len(names):
+                raise UserError(f"{path}: header has {len(names)} columns, rows have "
+                                f"{data.shape[1]}")
+            return {n: data[:, i] for i, n in enumerate(names)}
+        if suffix == ".npz":
+            with np.load(path, allow_pickle=False) as z:
+                return {k: np.asarray(z[k]) for k in z.files if k != "meta"}
+        if suffix == ".mat":
+            import scipy.io
+            d = scipy.io.loadmat(path)
+            return {k: np.asarray(v) for k, v in d.items() if not k.startswith("__")}
+    except UserError:
+        raise
+    except FileNotFoundError:
+        raise UserError(f"{path}: file not found") from None
+    except Exception as exc:  # a truncated or foreign file: say so in one line
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise UserError(f"{path}: cannot read as {suffix[1:].upper()} ({first})") from None
+    raise UserError(f"{path}: unknown record format {suffix!r}; expected .csv, .npz or .mat")
+
+
+def load_record(path, columns: dict[str, str] | None = None,
+                scale: dict[str, float] | None = None, min_samples: int = MIN_SAMPLES) -> Run:
+    """Load a measured or simulated record and check it.
+
+    Parameters
+    ----------
+    path : CSV with a header, NPZ, or MAT file holding at least ``t, r, y, u`` (s, m, m, N).
+    columns : map from signal name to the name in the file, e.g. ``{"y": "qm", "u": "vir"}``.
+    scale : factor per signal applied after loading, e.g. ``{"u": 35.15}`` (V to N); a value may
+        also name a scalar variable of the file (``{"u": "gtau"}``).
+    min_samples : shortest record accepted.
+
+    Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
+    inf, time stamps that are not strictly increasing and uniform, or a record that is too short.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise UserError(f"{path}: file not found")
+    raw = _read_columns(path)
+    columns = dict(columns or {})
+    out = {}
+    for name in SIGNALS:
+        key = columns.get(name, name)
+        if key not in raw:
+            if name in REQUIRED:
+                have = ", ".join(sorted(raw)) or "none"
+                raise UserError(f"{path}: missing column {key!r} (signal {name}); "
+                                f"columns present: {have}")
+            continue
+        value = np.asarray(raw[key], dtype=float)
+        if value.ndim > 1:
+            if min(value.shape) != 1:
+                raise UserError(f"{path}: column {key!r} must be a vector, got shape "
+                                f"{value.shape}")
+            value = value.ravel()
+        out[name] = value
+    for name, factor in (scale or {}).items():
+        if name not in out:
+            raise UserError(f"{path}: cannot scale {name!r}: no such signal")
+        if isinstance(factor, str):
+            if factor not in raw or np.size(raw[factor]) != 1:
+                raise UserError(f"{path}: scale for {name!r} names {factor!r}, which is not a "
+                                f"scalar in the file")
+            factor = float(np.asarray(raw[factor], dtype=float).ravel()[0])
+        out[name] = out[name] * float(factor)
+    n = len(out["t"])
+    for name, value in out.items():
+        if len(value) != n:
+            raise UserError(f"{path}: column {columns.get(name, name)!r} has {len(value)} "
+                            f"samples, t has {n}")
+        bad = ~np.isfinite(value)
+        if bad.any() and name in REQUIRED:
+            raise UserError(f"{path}: column {columns.get(name, name)!r} holds NaN or inf "
+                            f"(first at row {int(np.argmax(bad))})")
+    if n < min_samples:
+        raise UserError(f"{path}: record too short: {n} samples, need at least {min_samples}")
+    dt = np.diff(out["t"])
+    if not (dt > 0).all():
+        raise UserError(f"{path}: column {columns.get('t', 't')!r} must be strictly increasing "
+                        f"(row {int(np.argmax(dt <= 0)) + 1} is not)")
+    ts = (out["t"][-1] - out["t"][0]) / (n - 1)
+    if np.max(np.abs(dt - ts)) > 1e-3 * ts:
+        raise UserError(f"{path}: column {columns.get('t', 't')!r} is not uniformly sampled "
+                        f"(steps from {dt.min():.6g} to {dt.max():.6g} s)")
+    meta = {"source": str(path)}
+    if path.suffix.lower() == ".npz":
+        with np.load(path, allow_pickle=False) as z:
+            if "meta" in z.files:
+                try:
+                    meta = {**json.loads(str(z["meta"])), "source": str(path)}
+                except ValueError:
+                    pass
+    return Run(**out, meta=meta)

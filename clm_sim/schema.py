@@ -1,0 +1,152 @@
+"""Strict construction of frozen dataclasses from YAML mappings.
+
+``build(cls, mapping, where)`` checks every key against the dataclass fields and every value
+against the field's annotation; an unknown key, a wrong type or a value the class refuses is a
+``UserError`` that names the full key path (``plant.effects[1].period``). Effects are resolved
+through ``clm_sim.effects.EFFECTS`` by their ``type:``; nothing else maps strings to code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from pathlib import Path
+
+import yaml
+
+from clm_sim.effects import EFFECTS, Effect
+from clm_sim.errors import UserError
+
+
+def load_yaml(path) -> dict:
+    """Read a YAML mapping safely; one-line errors for a missing file or bad syntax."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UserError(f"{path}: file not found") from None
+    except (IsADirectoryError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: cannot read ({type(exc).__name__})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark else ""
+        raise UserError(f"{path}: invalid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: expected a mapping of keys at the top level, "
+                        f"got {type(data).__name__}")
+    return data
+
+
+def _type_name(tp) -> str:
+    return getattr(tp, "__name__", str(tp)).replace("typing.", "")
+
+
+def _convert(tp, value, key: str):
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is typing.Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for arg in (a for a in args if a is not type(None)):
+            try:
+                return _convert(arg, value, key)
+            except UserError as exc:
+                errors.append(str(exc))
+        raise UserError(errors[0] if len(errors) == 1 else
+                        f"{key}: expected {' or '.join(_type_name(a) for a in args)}, "
+                        f"got {value!r}")
+    if origin is typing.Literal:
+        if value not in args:
+            raise UserError(f"{key}: expected one of {', '.join(map(repr, args))}, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise UserError(f"{key}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise UserError(f"{key}: expected a finite number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise UserError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise UserError(f"{key}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise UserError(f"{key}: expected a string, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise UserError(f"{key}: expected a list, got {value!r}")
+        item = args[0]
+        return tuple(_convert(item, v, f"{key}[{i}]") for i, v in enumerate(value))
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise UserError(f"{key}: expected a mapping, got {value!r}")
+        kt, vt = args
+        return {_convert(kt, k, f"{key}"): _convert(vt, v, f"{key}.{k}") for k, v in value.items()}
+    if isinstance(tp, type) and issubclass(tp, Effect):
+        return build_effect(value, key)
+    if dataclasses.is_dataclass(tp):
+        return build(tp, value, key)
+    raise TypeError(f"schema: unsupported annotation {tp!r} at {key}")
+
+
+def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
+    """An instance of dataclass ``cls`` from ``mapping``; errors name ``key`` and the field."""
+    if mapping is None:
+        mapping = {}
+    if not isinstance(mapping, dict):
+        raise UserError(f"{key}: expected a mapping, got {mapping!r}")
+    aliases = dict(aliases or {}, **getattr(cls, "aliases", {}))
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    kwargs = {}
+    for name, value in mapping.items():
+        attr = aliases.get(name, name)
+        if not isinstance(name, str) or attr not in fields:
+            known = ", ".join(sorted(set(fields) - set(aliases.values()) | set(aliases)))
+            raise UserError(f"{key}.{name}: unknown key; known keys: {known}")
+        kwargs[attr] = _convert(hints[attr], value, f"{key}.{name}")
+    try:
+        return cls(**kwargs)
+    except UserError as exc:
+        raise UserError(f"{key}: {exc}") from None
+    except TypeError as exc:  # a required field is missing
+        raise UserError(f"{key}: {exc}") from None
+
+
+def build_effect(mapping, key: str) -> Effect:
+    """An effect from ``{type: NAME, **parameters}`` through the ``EFFECTS`` registry."""
+    if not isinstance(mapping, dict) or "type" not in mapping:
+        raise UserError(f"{key}: an effect needs a 'type:' (one of {', '.join(EFFECTS)})")
+    name = mapping["type"]
+    if name not in EFFECTS:
+        raise UserError(f"{key}.type: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+    return build(EFFECTS[name], {k: v for k, v in mapping.items() if k != "type"}, key)
+
+
+def to_plain(obj):
+    """A dataclass (or nested structure of them) as plain YAML-able data, effects with ``type``."""
+    if isinstance(obj, Effect):
+        return obj.as_config()
+    if dataclasses.is_dataclass(obj):
+        out = {}
+        rename = {v: k for k, v in getattr(type(obj), "aliases", {}).items()}
+        for f in dataclasses.fields(obj):
+            out[rename.get(f.name, f.name)] = to_plain(getattr(obj, f.name))
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [to_plain(v) for v in obj]
+    if isinstance(obj, dict):
+        return {k: to_plain(v) for k, v in obj.items()}
+    return obj

@@ -1,0 +1,1 @@
+"""Feedback and feedforward controllers, and how the feedforwards are identified."""

@@ -1,0 +1,95 @@
+"""Linear-in-the-parameters (LIP) inverse-dynamics feedforward, identified by least squares.
+
+``u = m*a + fv*v + fc*sign(v) + fk*y`` (+ the regressors of any named effects whose nonlinear
+parameters are fixed, e.g. a cogging period). Closed-form least squares on the aligned, filtered
+features of :class:`clm_sim.features.FeatureMap`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from clm_sim.effects import Effect
+from clm_sim.errors import UserError
+from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
+from clm_sim.plant import THETA_NAMES
+
+
+def _effect_columns(effects, y, v, u) -> dict[str, np.ndarray]:
+    cols: dict[str, np.ndarray] = {}
+    for effect in effects:
+        for name, col in effect.regressors(y, v, u).items():
+            if name in cols:
+                raise UserError(f"lip: two effects contribute the same regressor {name!r}")
+            cols[name] = col
+    return cols
+
+
+@dataclass
+class LIPFeedforward:
+    """LIP model; ``fit`` learns ``theta_`` (named, SI units), ``predict``/``feedforward`` use it.
+
+    features: the preprocessing (filter, alignment); effects: extra named effects whose linear
+    coefficients are identified alongside ``theta`` (their nonlinear parameters stay fixed).
+    """
+
+    features: FeatureMap = field(default_factory=FeatureMap)
+    effects: tuple[Effect, ...] = ()
+
+    def _design(self, y, v, a, u):
+        cols = _effect_columns(self.effects, y, v, u)
+        return np.column_stack([lip_regressors(y, v, a), *cols.values()]), list(cols)
+
+    def fit(self, *, y: np.ndarray, u: np.ndarray, ts: float) -> "LIPFeedforward":
+        """Identify from measured positions ``y`` (m) and applied forces ``u`` (N)."""
+        yf, v, a = self.features.motion(y, ts)
+        ue = edge_force(u)
+        phi, extra = self._design(yf, v, a, ue)
+        keep = self.features.fit_slice(len(yf))
+        phi = self.features.regression_filter(phi, ts)[keep]
+        target = self.features.regression_filter(ue, ts)[keep]
+        scale = np.linalg.norm(phi, axis=0)
+        if np.any(scale == 0) or np.linalg.matrix_rank(phi / scale) < phi.shape[1]:
+            raise UserError("lip: the record does not excite all parameters (a regressor is "
+                            "zero or collinear); it needs motion in both directions")
+        coef, *_ = np.linalg.lstsq(phi / scale, target, rcond=None)
+        coef = coef / scale
+        resid = target - phi @ coef
+        dof = max(len(target) - len(coef), 1)
+        cov = np.linalg.pinv(phi.T @ phi) * (resid @ resid / dof)
+        names = list(THETA_NAMES) + extra
+        self.theta_ = {n: float(c) for n, c in zip(THETA_NAMES, coef)}
+        self.coef_ = {n: float(c) for n, c in zip(names, coef)}
+        self.std_ = {n: float(s) for n, s in zip(names, np.sqrt(np.clip(np.diag(cov), 0, None)))}
+        self.effects_ = tuple(e.from_coefficients(self.coef_) for e in self.effects)
+        self.residual_rms_ = float(np.sqrt(np.mean(resid**2)))
+        self.ts_ = float(ts)
+        return self
+
+    def _check_fitted(self):
+        if not hasattr(self, "theta_"):
+            raise RuntimeError("LIPFeedforward: call fit() before predict()")
+
+    def predict(self, *, y: np.ndarray, ts: float, u: np.ndarray | None = None) -> np.ndarray:
+        """Force (N) at the sample instants for positions ``y``; ``u`` feeds force-ripple terms."""
+        self._check_fitted()
+        yf, v, a = self.features.motion(y, ts)
+        th = self.theta_
+        out = th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v) + th["stiffness"] * yf
+        if self.effects_:
+            base = out if u is None else edge_force(u)
+            for e in self.effects_:
+                out = out + e.force(yf, v, base)
+        return out
+
+    def feedforward(self, r: np.ndarray, ts: float) -> np.ndarray:
+        """The held input (N) per sample that tracks reference ``r`` (m)."""
+        return held_force(self.predict(y=r, ts=ts))
+
+    def to_json(self) -> dict:
+        self._check_fitted()
+        return {"kind": "lip", **self.theta_, "std": self.std_, "coefficients": self.coef_,
+                "residual_rms_n": self.residual_rms_,
+                "effects": [e.as_config() for e in self.effects_]}

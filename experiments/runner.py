@@ -1,0 +1,182 @@
+"""Turn an experiment config into results: training run, identification, replays, table, figures.
+
+    config -> plant + PID + references -> closed-loop training run (dithered, logged)
+           -> LIP (and PGNN) identification -> replay on each reference -> table, figures
+
+Everything is written into a temporary sibling of the output folder and moved into place at the
+end, so an interrupted or failed run never leaves a half-written result.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from clm_sim import __version__
+from clm_sim.errors import UserError
+from clm_sim.loop import simulate
+from clm_sim.record import save_npz
+from controllers.lip import LIPFeedforward
+from controllers.pid import design_pid
+from experiments import figures, table
+from experiments.config import ExperimentConfig, FeedforwardSpec, resolved
+
+# Purposes of the child random streams; the numbers are part of the reproducibility contract.
+STREAM_TRAINING_DITHER = 0
+STREAM_NETWORK = 1
+
+
+def stream(seed: int, purpose: int, index: int = 0) -> np.random.SeedSequence:
+    """The random stream for one purpose, independent of how many rows a config has."""
+    return np.random.SeedSequence(entropy=seed, spawn_key=(purpose, index))
+
+
+class Progress:
+    """Timed progress lines on stderr (silent when ``quiet``)."""
+
+    def __init__(self, quiet: bool = False):
+        self.quiet = quiet
+        self.start = time.perf_counter()
+
+    def __call__(self, message: str) -> None:
+        if not self.quiet:
+            print(f"[{time.perf_counter() - self.start:7.1f} s] {message}", file=sys.stderr,
+                  flush=True)
+
+
+def versions() -> dict[str, str]:
+    import control
+    import numba
+    import scipy
+    out = {"clm_sim": __version__, "numpy": np.__version__, "scipy": scipy.__version__,
+           "control": control.__version__, "numba": numba.__version__,
+           "python": sys.version.split()[0]}
+    try:
+        import torch
+        out["torch"] = torch.__version__
+    except ImportError:
+        pass
+    return out
+
+
+def training_reference(config: ExperimentConfig) -> np.ndarray:
+    """The training reference, its profile repeated ``training.repeats`` times."""
+    spec = config.references[config.training.reference]
+    r = spec.sample(config.ts).r
+    if config.training.repeats > 1 and r[0] != r[-1]:
+        raise UserError(f"training.repeats: reference {config.training.reference!r} must end "
+                        f"where it starts to be repeated")
+    return np.concatenate([np.tile(r[:-1], config.training.repeats), r[-1:]])
+
+
+def fit_feedforwards(spec: FeedforwardSpec, config: ExperimentConfig, train, lip, progress):
+    """The fitted models of one table row (one per seed; ``[None]`` for feedback only)."""
+    if spec.kind == "none":
+        return [None]
+    if spec.kind == "lip":
+        return [lip]
+    from controllers.pgnn import fit_pgnn  # torch is imported only when a PGNN is asked for
+    models = []
+    for s in range(spec.seeds):
+        progress(f"  training {spec.label()} seed {s + 1}/{spec.seeds}")
+        models.append(fit_pgnn(spec, config.features, train, lip, config.ts,
+                               stream(config.seed, STREAM_NETWORK, s)))
+    return models
+
+
+def slug(text: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")
+
+
+def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
+                   config_path: str | None = None) -> list[dict]:
+    """Run ``config`` and write its results into ``out`` (replaced atomically). Returns rows."""
+    progress = Progress(quiet)
+    out = Path(out)
+    if out.exists() and any(out.iterdir()) and not (out / "config.resolved.yaml").exists():
+        raise UserError(f"{out}: output folder exists and does not hold clm-sim results; "
+                        f"choose another --out")
+    tmp = out.with_name(f".{out.name}.partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    (tmp / "runs").mkdir(parents=True)
+    (tmp / "params").mkdir()
+    (tmp / "figures").mkdir()
+    try:
+        rows = _run(config, tmp, progress, config_path)
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    progress(f"results in {out}/ (table.md, table.json, figures/)")
+    return rows
+
+
+def _run(config: ExperimentConfig, out: Path, progress, config_path) -> list[dict]:
+    ts = config.ts
+    meta = {"config": resolved(config), "seed": config.seed, "versions": versions(),
+            "config_path": config_path}
+    (out / "config.resolved.yaml").write_text(yaml.safe_dump(resolved(config), sort_keys=False))
+
+    plant = config.plant
+    pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
+                     design=config.controller, ts=ts)
+    progress(pid.summary())
+    (out / "controller.json").write_text(json.dumps({
+        "crossover_hz": pid.crossover_hz, "phase_margin_deg": pid.phase_margin_deg,
+        "gain_margin_db": pid.gain_margin_db, "b": pid.b.tolist(), "a": pid.a.tolist(),
+        "kp": pid.kp, "ki": pid.ki, "kd": pid.kd, "tau_d": pid.tau_d}, indent=1))
+
+    r_train = training_reference(config)
+    rng = np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER))
+    dither = config.training.dither.draw(len(r_train), rng)
+    progress(f"training run on {config.training.reference}: {len(r_train)} samples "
+             f"({len(r_train) * ts:.1f} s) with dither {config.training.dither.std_n:g} N")
+    train = simulate(plant, pid, r_train, ts, dither=dither, meta={**meta, "run": "training"})
+    save_npz(train, out / "runs" / "training.npz")
+
+    lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
+    progress("LIP: " + ", ".join(f"{k} {v:.4g}" for k, v in lip.theta_.items()))
+    (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
+
+    refs = {name: config.references[name].sample(ts).r for name in config.replay}
+    rows, shown = [], {}
+    for spec in config.feedforwards:
+        models = fit_feedforwards(spec, config, train, lip, progress)
+        per_seed, thetas = [], []
+        for s, model in enumerate(models):
+            metrics = {}
+            for name, r in refs.items():
+                u_ff = None if model is None else model.feedforward(r, ts)
+                run = simulate(plant, pid, r, ts, u_ff=u_ff,
+                               meta={**meta, "run": f"replay {spec.label()} on {name}", "seed": s})
+                metrics[name] = table.tracking_metrics(run.e)
+                if s == 0:
+                    shown.setdefault(spec.label(), {})[name] = run
+                    save_npz(run, out / "runs" / f"replay_{slug(spec.label())}_{name}.npz")
+            per_seed.append(metrics)
+            if model is not None:
+                thetas.append(dict(model.theta_))
+                if spec.kind == "pgnn":
+                    model.save(out / "params" / f"{slug(spec.label())}_seed{s}")
+        row = table.make_row(spec, per_seed, thetas)
+        rows.append(row)
+        progress(f"{spec.label()}: " + ", ".join(
+            f"MAE {name} {row['mae'][name]['mean'] * 1e6:.3f} µm" for name in refs))
+
+    (out / "table.json").write_text(table.to_json(rows))
+    (out / "table.md").write_text(table.to_markdown(rows))
+    (out / "table.csv").write_text(table.to_csv(rows))
+    for name in refs:
+        figures.tracking_errors(shown, name, out / "figures" / f"tracking_{name}.png")
+        figures.feedforward_signals(shown, name, out / "figures" / f"feedforward_{name}.png")
+    return rows
