@@ -46,6 +46,18 @@ def _cmd_identify(args) -> int:
     return 0
 
 
+def _cmd_export(args) -> int:
+    from clm_sim.record import load_record, save_csv, save_mat
+
+    run = load_record(args.run)
+    out = Path(args.out) if args.out else Path(args.run).with_suffix("." + args.to)
+    if out.suffix.lower() != "." + args.to:
+        raise UserError(f"{out}: --to {args.to} needs a .{args.to} file name")
+    (save_csv if args.to == "csv" else save_mat)(run, out)
+    print(f"wrote {out} ({len(run)} samples)")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="clm-sim", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -60,6 +72,11 @@ def parser() -> argparse.ArgumentParser:
     ident.add_argument("--lowpass-hz", type=float, default=250.0,
                        help="zero-phase low-pass before differencing, Hz (0 = none)")
     ident.set_defaults(func=_cmd_identify)
+    export = sub.add_parser("export", help="convert a logged run (.npz) to CSV or MATLAB .mat")
+    export.add_argument("run", help="run record, e.g. results/lip_baseline/runs/training.npz")
+    export.add_argument("--to", choices=("csv", "mat"), default="csv", help="target format")
+    export.add_argument("--out", help="target file (default: the run's name with the new suffix)")
+    export.set_defaults(func=_cmd_export)
     return p
 
 
