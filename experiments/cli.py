@@ -31,7 +31,7 @@ def _cmd_identify(args) -> int:
     from controllers.lip import LIPFeedforward
 
     run = load_record(args.data)
-    features = FeatureMap(lowpass_hz=None if args.lowpass_hz <= 0 else args.lowpass_hz)
+    features = FeatureMap(regression_lowpass_hz=None if args.lowpass_hz <= 0 else args.lowpass_hz)
     lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
     out = Path(args.out) if args.out else Path(".")
     out.mkdir(parents=True, exist_ok=True)
@@ -70,7 +70,7 @@ def parser() -> argparse.ArgumentParser:
     ident.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
     ident.add_argument("--out", help="folder for lip.json (default: current folder)")
     ident.add_argument("--lowpass-hz", type=float, default=250.0,
-                       help="zero-phase low-pass before differencing, Hz (0 = none)")
+                       help="zero-phase parallel filter of the regression, Hz (0 = none)")
     ident.set_defaults(func=_cmd_identify)
     export = sub.add_parser("export", help="convert a logged run (.npz) to CSV or MATLAB .mat")
     export.add_argument("run", help="run record, e.g. results/lip_baseline/runs/training.npz")
