@@ -297,16 +297,17 @@ class FrictionAsymmetry(Effect):
                 + neg * (-self.coulomb_neg + self.viscous_neg * v))
 
     def regressors(self, y, v, u):
+        # Only the part a LIP with fc*sign(v) and fv*v cannot absorb is identifiable: the
+        # direction-odd terms |sign v| (Coulomb, (c_pos - c_neg)/2) and |v| (viscous,
+        # (v_pos - v_neg)/2). During motion |sign v| = 1, so the Coulomb part equals a constant
+        # force (ForceOffset); only standstill samples (v = 0) tell the two apart.
         v = np.asarray(v)
-        pos, neg = (v > 0).astype(float), (v < 0).astype(float)
-        return {"asym_coulomb_pos": pos, "asym_coulomb_neg": -neg,
-                "asym_viscous_pos": pos * v, "asym_viscous_neg": neg * v}
+        return {"asym_coulomb": np.abs(np.sign(v)), "asym_viscous": np.abs(v)}
 
     def from_coefficients(self, coef):
-        return FrictionAsymmetry(coulomb_pos=coef["asym_coulomb_pos"],
-                                 coulomb_neg=coef["asym_coulomb_neg"],
-                                 viscous_pos=coef["asym_viscous_pos"],
-                                 viscous_neg=coef["asym_viscous_neg"])
+        """The antisymmetric effect with those coefficients (its symmetric part is fc, fv)."""
+        c, d = coef.get("asym_coulomb", 0.0), coef.get("asym_viscous", 0.0)
+        return FrictionAsymmetry(coulomb_pos=c, coulomb_neg=-c, viscous_pos=d, viscous_neg=-d)
 
     def lower(self, terms):
         terms.asym = [a + b for a, b in zip(terms.asym, (self.coulomb_pos, self.coulomb_neg,
