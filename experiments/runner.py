@@ -99,6 +99,7 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
                    config_path: str | None = None) -> list[dict]:
     """Run ``config`` and write its results into ``out`` (replaced atomically). Returns rows."""
     progress = Progress(quiet)
+    preflight(config)
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not (out / "config.resolved.yaml").exists():
         raise UserError(f"{out}: output folder exists and does not hold clm-sim results; "
@@ -121,20 +122,46 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
     return rows
 
 
-def _run(config: ExperimentConfig, out: Path, progress, config_path) -> list[dict]:
+def preflight(config: ExperimentConfig) -> None:
+    """Cheap cross-field checks that would otherwise fail only after the training run.
+
+    Raises ``UserError`` for a filter at or above the Nyquist frequency or a training reference
+    that cannot be repeated. Controller design is not checked here: an unstable design is a
+    result (a sweep records it as a failed task), not a malformed config.
+    """
+    nyquist = 0.5 / config.ts
+    for key in ("regression_lowpass_hz", "position_lowpass_hz"):
+        value = getattr(config.features, key)
+        if value is not None and value >= nyquist:
+            raise UserError(f"features.{key}: {value:g} Hz is at or above the Nyquist frequency "
+                            f"{nyquist:g} Hz of ts = {config.ts:g} s")
+    training_reference(config)
+
+
+def run_task(config: ExperimentConfig, *, progress=None) -> list[dict]:
+    """The table rows of ``config``, computed without writing any file (one sweep task)."""
+    preflight(config)
+    return _run(config, None, progress or Progress(quiet=True), None)
+
+
+def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> list[dict]:
+    """Compute the rows of ``config``; with ``out`` also write runs, parameters and figures."""
     ts = config.ts
     meta = {"config": resolved(config), "seed": config.seed, "versions": versions(),
             "config_path": config_path}
-    (out / "config.resolved.yaml").write_text(yaml.safe_dump(resolved(config), sort_keys=False))
+    if out is not None:
+        (out / "config.resolved.yaml").write_text(yaml.safe_dump(resolved(config),
+                                                                 sort_keys=False))
 
     plant = config.plant
     pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
                      design=config.controller, ts=ts)
     progress(pid.summary())
-    (out / "controller.json").write_text(json.dumps({
-        "crossover_hz": pid.crossover_hz, "phase_margin_deg": pid.phase_margin_deg,
-        "gain_margin_db": pid.gain_margin_db, "b": pid.b.tolist(), "a": pid.a.tolist(),
-        "kp": pid.kp, "ki": pid.ki, "kd": pid.kd, "tau_d": pid.tau_d}, indent=1))
+    if out is not None:
+        (out / "controller.json").write_text(json.dumps({
+            "crossover_hz": pid.crossover_hz, "phase_margin_deg": pid.phase_margin_deg,
+            "gain_margin_db": pid.gain_margin_db, "b": pid.b.tolist(), "a": pid.a.tolist(),
+            "kp": pid.kp, "ki": pid.ki, "kd": pid.kd, "tau_d": pid.tau_d}, indent=1))
 
     r_train = training_reference(config)
     rng = np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER))
@@ -142,11 +169,13 @@ def _run(config: ExperimentConfig, out: Path, progress, config_path) -> list[dic
     progress(f"training run on {config.training.reference}: {len(r_train)} samples "
              f"({len(r_train) * ts:.1f} s) with dither {config.training.dither.std_n:g} N")
     train = simulate(plant, pid, r_train, ts, dither=dither, meta={**meta, "run": "training"})
-    save_npz(train, out / "runs" / "training.npz")
+    if out is not None:
+        save_npz(train, out / "runs" / "training.npz")
 
     lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
     progress("LIP: " + ", ".join(f"{k} {v:.4g}" for k, v in lip.theta_.items()))
-    (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
+    if out is not None:
+        (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
 
     refs = {name: config.references[name].sample(ts).r for name in config.replay}
     rows, shown = [], {}
@@ -160,19 +189,21 @@ def _run(config: ExperimentConfig, out: Path, progress, config_path) -> list[dic
                 run = simulate(plant, pid, r, ts, u_ff=u_ff,
                                meta={**meta, "run": f"replay {spec.label()} on {name}", "seed": s})
                 metrics[name] = table.tracking_metrics(run.e)
-                if s == 0:
+                if s == 0 and out is not None:
                     shown.setdefault(spec.label(), {})[name] = run
                     save_npz(run, out / "runs" / f"replay_{slug(spec.label())}_{name}.npz")
             per_seed.append(metrics)
             if model is not None:
                 thetas.append(dict(model.theta_))
-                if spec.kind == "pgnn":
+                if spec.kind == "pgnn" and out is not None:
                     model.save(out / "params" / f"{slug(spec.label())}_seed{s}")
         row = table.make_row(spec, per_seed, thetas)
         rows.append(row)
         progress(f"{spec.label()}: " + ", ".join(
             f"MAE {name} {row['mae'][name]['mean'] * 1e6:.3f} µm" for name in refs))
 
+    if out is None:
+        return rows
     (out / "table.json").write_text(table.to_json(rows))
     (out / "table.md").write_text(table.to_markdown(rows))
     (out / "table.csv").write_text(table.to_csv(rows))

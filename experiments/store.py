@@ -1,0 +1,102 @@
+"""A content-addressed, crash-safe store of sweep task results.
+
+Each task's result is one JSON file ``<root>/<key>.json`` where ``key`` hashes the task's resolved
+config and the code version, so a re-run finds finished tasks and a code change recomputes them.
+Files are written atomically (temporary file in the same folder, ``fsync``, ``os.replace``,
+``fsync`` of the folder): a reader, or a sweep resumed after ``SIGKILL``, sees either the whole
+file or none of it. Temporary files are dot-files and never count as results.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from functools import lru_cache
+from pathlib import Path
+
+from clm_sim import __version__
+
+_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
+# The sources a task result depends on: physics, controllers, and the runner chain that turns a
+# config into table rows. Sweep, CLI and figure code do not change a task's numbers.
+_RESULT_SOURCES = ("clm_sim", "controllers", "experiments/config.py", "experiments/runner.py",
+                   "experiments/table.py")
+
+
+@lru_cache(maxsize=1)
+def code_version() -> str:
+    """``<clm_sim.__version__>+<hash of the sources that compute task results>``."""
+    digest = hashlib.sha256()
+    for entry in _RESULT_SOURCES:
+        path = _PACKAGE_ROOT / entry
+        files = sorted(path.rglob("*.py")) if path.is_dir() else [path]
+        for f in files:
+            if f.exists():
+                digest.update(f.relative_to(_PACKAGE_ROOT).as_posix().encode() + b"\0")
+                digest.update(f.read_bytes() + b"\0")
+    return f"{__version__}+{digest.hexdigest()[:12]}"
+
+
+def task_key(resolved_config: dict, version: str | None = None) -> str:
+    """Hash of a resolved config (plain data) and the code version: the task's storage key."""
+    text = json.dumps({"config": resolved_config, "code": version or code_version()},
+                      sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that no reader ever sees a partial file, even after a crash."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    _fsync_dir(path.parent)
+
+
+def _fsync_dir(folder: Path) -> None:
+    # Makes the rename itself durable; not supported on every platform (e.g. Windows).
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+class ResultStore:
+    """Task results under ``root``, one JSON document per key."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+
+    def open(self) -> "ResultStore":
+        """Create the folder and remove temporary files left by a killed writer."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        for tmp in self.root.glob(".*.tmp*"):
+            tmp.unlink(missing_ok=True)
+        return self
+
+    def path(self, key: str) -> Path:
+        return self.root / f"{key}.json"
+
+    def get(self, key: str) -> dict | None:
+        """The stored result of ``key``, or ``None`` if the task has not finished."""
+        try:
+            return json.loads(self.path(key).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return None
+
+    def put(self, key: str, result: dict) -> None:
+        atomic_write_bytes(self.path(key), json.dumps(result, indent=1, allow_nan=False).encode())
