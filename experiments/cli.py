@@ -1,6 +1,7 @@
 """The ``clm-sim`` command: ``run`` an experiment config, ``identify`` a LIP from a record.
 
 User mistakes (``UserError``) print one line on stderr and exit with code 2, never a traceback.
+``sweep`` exits with 1 when some tasks failed (the table is still written and lists them).
 """
 
 from __future__ import annotations
@@ -17,6 +18,11 @@ def _cmd_run(args) -> int:
     from experiments.config import load_config
     from experiments.runner import run_experiment
 
+    from clm_sim.schema import load_yaml
+
+    if "sweep" in load_yaml(args.config):
+        raise UserError(f"{args.config}: has a 'sweep:' section; run it with "
+                        f"'clm-sim sweep {args.config}'")
     config = load_config(args.config)
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
@@ -58,6 +64,37 @@ def _cmd_export(args) -> int:
     return 0
 
 
+def _cmd_sweep(args) -> int:
+    from experiments.sweep import check_output, load_sweep, run_sweep
+
+    sweep = load_sweep(args.config)  # every grid point checked before anything runs
+    out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
+    check_output(out)
+    outcome = run_sweep(sweep, out, backend=args.backend, workers=args.workers,
+                        scheduler=args.scheduler, retry_failed=args.retry_failed,
+                        quiet=args.quiet)
+    print(f"{outcome.total} tasks: {outcome.computed} run now, {outcome.reused} reused from "
+          f"{out}/tasks, {len(outcome.failures)} failed, {outcome.unfinished} unfinished")
+    for f in outcome.failures:
+        point = ", ".join(f"{k}={f[k]}" for k in sweep.grid) or "config"
+        print(f"  FAILED {point}: {f['error']}")
+    if outcome.stopped:
+        print(f"sweep stopped: {outcome.stopped}; run the same command again to resume")
+    if not outcome.unfinished:
+        print(f"results in {out}/ (table.md, table.json, figures/)")
+    return outcome.exit_code
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="clm-sim", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -77,6 +114,19 @@ def parser() -> argparse.ArgumentParser:
     export.add_argument("--to", choices=("csv", "mat"), default="csv", help="target format")
     export.add_argument("--out", help="target file (default: the run's name with the new suffix)")
     export.set_defaults(func=_cmd_export)
+    sweep = sub.add_parser("sweep", help="run a grid of experiments (a config with a 'sweep:' "
+                           "section) in parallel, resumably")
+    sweep.add_argument("config", help="experiment YAML file with a sweep: grid")
+    sweep.add_argument("--out", help="output folder (default results/<config name>); "
+                       "re-running into it resumes")
+    sweep.add_argument("--workers", type=_workers, help="parallel tasks (default: all cores)")
+    sweep.add_argument("--backend", choices=("local", "dask"), default="local",
+                       help="local processes, or Dask (pip install 'clm-sim[cluster]')")
+    sweep.add_argument("--scheduler", help="Dask scheduler address (default: a LocalCluster)")
+    sweep.add_argument("--retry-failed", action="store_true",
+                       help="recompute tasks stored as failed")
+    sweep.add_argument("--quiet", action="store_true", help="no progress lines")
+    sweep.set_defaults(func=_cmd_sweep)
     return p
 
 
