@@ -9,6 +9,7 @@ through ``clm_sim.effects.EFFECTS`` by their ``type:``; nothing else maps string
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -101,6 +102,12 @@ def _convert(tp, value, key: str):
     raise TypeError(f"schema: unsupported annotation {tp!r} at {key}")
 
 
+@functools.lru_cache(maxsize=None)
+def _type_hints(cls) -> dict:
+    # Resolving string annotations compiles them each time; sweeps build thousands of configs.
+    return typing.get_type_hints(cls)
+
+
 def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
     """An instance of dataclass ``cls`` from ``mapping``; errors name ``key`` and the field."""
     if mapping is None:
@@ -108,7 +115,7 @@ def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
     if not isinstance(mapping, dict):
         raise UserError(f"{key}: expected a mapping, got {mapping!r}")
     aliases = dict(aliases or {}, **getattr(cls, "aliases", {}))
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     kwargs = {}
     for name, value in mapping.items():
