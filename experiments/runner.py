@@ -125,17 +125,24 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
 def preflight(config: ExperimentConfig) -> None:
     """Cheap cross-field checks that would otherwise fail only after the training run.
 
-    Raises ``UserError`` for a filter at or above the Nyquist frequency or a training reference
-    that cannot be repeated. Controller design is not checked here: an unstable design is a
-    result (a sweep records it as a failed task), not a malformed config.
+    Raises ``UserError`` for PID design parameters out of range, a filter at or above the
+    Nyquist frequency or a training reference that cannot be repeated. The design itself (0.3 s)
+    is not made here: an unstable design is a result (a sweep records it as a failed task).
     """
+    from controllers.pid import _check as check_pid_design
+
+    check_pid_design(config.plant.mass, config.plant.viscous, config.plant.stiffness,
+                     config.controller, config.ts)
     nyquist = 0.5 / config.ts
     for key in ("regression_lowpass_hz", "position_lowpass_hz"):
         value = getattr(config.features, key)
         if value is not None and value >= nyquist:
             raise UserError(f"features.{key}: {value:g} Hz is at or above the Nyquist frequency "
                             f"{nyquist:g} Hz of ts = {config.ts:g} s")
-    training_reference(config)
+    points = config.references[config.training.reference].points_m
+    if config.training.repeats > 1 and points[0] != points[-1]:  # as training_reference, unsampled
+        raise UserError(f"training.repeats: reference {config.training.reference!r} must end "
+                        f"where it starts to be repeated")
 
 
 def run_task(config: ExperimentConfig, *, progress=None) -> list[dict]:

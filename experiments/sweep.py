@@ -156,7 +156,11 @@ def _axis(values, where: str) -> list:
             raise UserError(f"{where}.{kind}: {num} points exceed the limit of {MAX_TASKS}")
         grid = (np.geomspace(start, stop, num) if kind == "logspace"
                 else np.linspace(start, stop, num))
-        return [float(f"{v:.12g}") for v in grid]
+        values = [float(f"{v:.12g}") for v in grid]
+        if kind == "linspace" and all(isinstance(v, int) for v in spec[:2]) \
+                and all(v.is_integer() for v in values):
+            return [int(v) for v in values]  # an integer axis (seeds, neurons) stays integer
+        return values
     if not isinstance(values, list) or not values:
         raise UserError(f"{where}: expected a non-empty list of values, got {values!r}")
     seen = []
