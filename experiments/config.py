@@ -114,9 +114,11 @@ class ExperimentConfig:
     def __post_init__(self):
         if not (0 < self.ts <= 0.1):
             raise UserError(f"ts: expected a sample time in (0, 0.1] s, got {self.ts!r}")
-        for key in (self.training.reference, *self.replay):
-            if key not in self.references:
-                raise UserError(f"reference {key!r} is not defined under 'references' "
+        uses = [("training.reference", self.training.reference)]
+        uses += [(f"replay[{i}]", name) for i, name in enumerate(self.replay)]
+        for key, name in uses:
+            if name not in self.references:
+                raise UserError(f"{key}: reference {name!r} is not defined under 'references' "
                                 f"(defined: {', '.join(self.references)})")
         if not self.feedforwards:
             raise UserError("feedforwards: expected at least one entry")
