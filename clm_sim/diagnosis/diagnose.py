@@ -1,0 +1,82 @@
+"""The diagnosis end to end: residual -> named causes -> extended model -> out-of-sample gain."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from clm_sim.diagnosis.extend import extended_plant, gains, joint_fit
+from clm_sim.diagnosis.model import SimulationModel
+from clm_sim.diagnosis.residual import DiagnosisSettings, Residual, source_of
+from clm_sim.diagnosis.search import forward_select
+from clm_sim.effects import Effect
+from clm_sim.errors import UserError
+from clm_sim.plant import Plant
+from clm_sim.record import Run
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`diagnose`: ``findings`` (ranked), ``gain`` (out of sample), the
+    ``extended`` plant and found ``effects``, and the residuals the report draws."""
+
+    findings: list[dict]
+    gain: dict
+    model: SimulationModel
+    extended: Plant
+    effects: tuple[Effect, ...]
+    correction: dict
+    estimation: Residual
+    signals: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        plant = self.extended
+        return {
+            "findings": self.findings,
+            "gain": self.gain,
+            "model": {"name": self.model.name, **{k: float(getattr(self.model.plant, k)) for k in
+                                                  ("mass", "viscous", "coulomb", "stiffness")},
+                      "effects": [e.as_config() for e in self.model.plant.effects]},
+            "extended_model": {**{k: float(getattr(plant, k)) for k in
+                                  ("mass", "viscous", "coulomb", "stiffness")},
+                               "effects": [e.as_config() for e in plant.effects]},
+            **self.info,
+        }
+
+
+def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = None,
+             settings: DiagnosisSettings = DiagnosisSettings()) -> Diagnosis:
+    """Diagnose ``model`` against a measured ``record``.
+
+    The causes are selected on ``record`` (or on its first ``1 - holdout_fraction`` when no
+    ``validation`` record is given) and the gain is measured on the validation data.
+    """
+    offset = None
+    est, val = record, validation
+    if validation is None:
+        offset = int(round(len(record) * (1 - settings.holdout_fraction)))
+        est, val = record.slice(0, offset), record.slice(offset)
+        if len(val) < 200:
+            raise UserError(f"{source_of(record)}: record too short to hold out a validation "
+                            f"part ({len(record)} samples); give --validate")
+    elif abs(validation.ts / record.ts - 1) > 1e-3:
+        raise UserError(f"{source_of(validation)}: sampled at {validation.ts:g} s, the record "
+                        f"at {record.ts:g} s; they must match")
+    res = Residual(est, model.plant, settings)
+    steps = forward_select(res)
+    findings, correction, effects = joint_fit(res, steps)
+    extended = extended_plant(model.plant, correction, effects)
+    gain, signals = gains(est, val, settings, model.plant, extended, effects, model.controller,
+                          val_offset=offset, full=record)
+    info = {"record": {"source": source_of(record), "samples": len(record),
+                       "sample_time_s": record.ts, "encoder_quantum_m": res.quantum,
+                       "speed_floor_m_s": res.v_floor, "lowpass_hz": res.cutoff,
+                       "fitted_samples": int(len(res.idx)), "effective_samples": res.n_eff,
+                       "residual_rms_n": res.rms()},
+            "validation": source_of(validation) if validation is not None else
+            f"held-out final {100 * settings.holdout_fraction:.0f} % of the record",
+            "significance_rule": {
+                "cv": f"blocked {settings.folds}-fold cross-validation, contiguous blocks",
+                "min_gain": settings.min_gain, "min_folds": settings.min_folds,
+                "p_value": settings.p_value, "max_findings": settings.max_findings}}
+    return Diagnosis(findings, gain, model, extended, effects, correction, res, signals, info)

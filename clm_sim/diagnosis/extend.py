@@ -1,0 +1,142 @@
+"""Extend the model with the named causes and measure the gain out of sample.
+
+The accepted terms are fitted jointly on the estimation record; parameter corrections go into the
+plant's ``mass, viscous, coulomb, stiffness`` and the effects are appended to ``plant.effects``, so
+the simulator and the LIP (``LIPFeedforward(effects=...)``) are extended with the same objects.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from clm_sim.diagnosis.model import Controller
+from clm_sim.diagnosis.residual import DiagnosisSettings, Residual
+from clm_sim.diagnosis.search import Step, fit_cv
+from clm_sim.effects import Effect
+from clm_sim.errors import UserError
+from clm_sim.features import FeatureMap, edge_force
+from clm_sim.loop import simulate
+from clm_sim.plant import THETA_NAMES, Plant
+from clm_sim.record import Run
+from controllers.lip import LIPFeedforward
+
+# A corrected parameter is reported when it is this many standard errors from the model's value
+# and its column explains this fraction of the residual RMS (a practical, not only statistical,
+# difference).
+MISMATCH_T = 5.0
+MISMATCH_RMS_FRACTION = 0.05
+
+
+def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple[Effect, ...]]:
+    """Fit all accepted terms together; returns ``(findings, theta_correction, effects)``.
+
+    Each finding is ``{"effect", "parameters", "explained_fraction", ...}``; the explained
+    fraction is the rise of the held-out MSE when the term is dropped from the final model,
+    relative to the held-out MSE of the residual itself. Findings are ordered by it.
+    """
+    st = res.settings
+    if not steps:
+        return [], {}, ()
+    x = np.column_stack([s.cols for s in steps])
+    full = fit_cv(x, res.z, res.fold, st.folds)
+    base = float(res.z @ res.z)
+    e = res.z - x @ full.coef
+    sigma2 = float(e @ e) / max(res.n_eff - x.shape[1], 1.0)
+    # Standard errors from the decimated samples, inflated to the effective sample count.
+    cov = np.linalg.pinv(x.T @ x) * sigma2 * len(res.z) / res.n_eff
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    findings, correction, effects = [], {}, []
+    start = 0
+    for i, step in enumerate(steps):
+        k = step.cols.shape[1]
+        coef = dict(zip(step.term.keys, full.coef[start:start + k]))
+        sd = dict(zip(step.term.keys, std[start:start + k]))
+        rest = [j for j in range(len(steps)) if j != i]
+        x_rest = np.column_stack([np.zeros((len(res.z), 0))] + [steps[j].cols for j in rest])
+        explained = (fit_cv(x_rest, res.z, res.fold, st.folds).cv_mse - full.cv_mse) / base
+        stats = {"explained_fraction": float(explained), "selection_gain": step.gain,
+                 "folds_improved": step.folds_improved, "p_value": step.p_value}
+        if step.term.template is None:
+            params = {}
+            for j, name in enumerate(THETA_NAMES):
+                delta = float(coef[name])
+                correction[name] = delta
+                contrib = abs(delta) * float(np.sqrt(np.mean(step.cols[:, j] ** 2)))
+                if abs(delta) > MISMATCH_T * sd[name] and \
+                        contrib > MISMATCH_RMS_FRACTION * res.rms():
+                    model = float(getattr(res.plant, name))
+                    params[name] = {"model": model, "data": model + delta,
+                                    "std": float(sd[name])}
+            findings.append({"effect": "parameter_mismatch", "parameters": params, **stats})
+        else:
+            effect = step.term.effect_from(coef)
+            effects.append(effect)
+            params = {k: float(v) for k, v in effect.parameters().items()}
+            findings.append({"effect": step.term.effect, "parameters": params,
+                             "std": {k: float(v) for k, v in sd.items()}, **stats})
+        start += k
+    order = np.argsort([-f["explained_fraction"] for f in findings], kind="stable")
+    return [findings[j] for j in order], correction, tuple(effects)
+
+
+def extended_plant(plant: Plant, correction: dict, effects: tuple[Effect, ...]) -> Plant:
+    """The model with the corrections and the found effects (physical bounds kept)."""
+    theta = {k: float(getattr(plant, k)) + correction.get(k, 0.0) for k in THETA_NAMES}
+    theta["mass"] = max(theta["mass"], 1e-3 * plant.mass)
+    theta["viscous"] = max(theta["viscous"], 0.0)
+    theta["coulomb"] = max(theta["coulomb"], 0.0)
+    return dataclasses.replace(plant, **theta, effects=tuple(plant.effects) + tuple(effects))
+
+
+def lip_residual_rms(est: Run, val: Residual, val_run: Run, effects, cutoff: float) -> float:
+    """Out-of-sample force RMS (N) of a LIP with ``effects`` fitted on ``est``, on ``val``."""
+    lip = LIPFeedforward(features=FeatureMap(regression_lowpass_hz=cutoff), effects=effects)
+    lip.fit(y=est.y, u=est.u, ts=est.ts)
+    pred = lip.predict(y=val_run.y, ts=val_run.ts, u=val_run.u)
+    z = val.filter(edge_force(val_run.u) - pred)[val.idx]
+    return float(np.sqrt(np.mean(z**2)))
+
+
+def resimulate(plant: Plant, controller: Controller, run: Run) -> np.ndarray:
+    """Tracking error (m) of the loop re-simulated on the measured reference, with the measured
+    external input (``u`` minus the feedback's share) injected."""
+    ext = controller.external_input(run.r, run.y, run.u)
+    sim = simulate(plant, controller, run.r, run.ts, u_ff=ext + controller.reference_force(run.r))
+    return sim.e
+
+
+def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after: Plant,
+          effects: tuple[Effect, ...], controller: Controller | None, *,
+          val_offset: int | None = None, full: Run | None = None) -> tuple[dict, dict]:
+    """Out-of-sample gain numbers and the signals the report draws.
+
+    ``val_offset``: where ``val`` starts inside ``full`` when it is the held-out tail of one
+    record (then the loop is re-simulated over ``full`` and compared on the tail).
+    """
+    res_b, res_a = Residual(val, before, settings), Residual(val, after, settings)
+    gain = {"residual_rms_before": res_b.rms(), "residual_rms_after": res_a.rms(),
+            "validation_samples": len(val), "fitted_validation_samples": int(len(res_b.idx))}
+    gain["residual_rms_reduction"] = 1.0 - gain["residual_rms_after"] / \
+        max(gain["residual_rms_before"], 1e-300)
+    try:
+        gain["lip_residual_rms_before"] = lip_residual_rms(est, res_b, val, (), res_b.cutoff)
+        gain["lip_residual_rms_after"] = lip_residual_rms(est, res_b, val, effects, res_b.cutoff)
+    except UserError as exc:  # a LIP cannot always take every effect (collinear columns)
+        gain["lip_error"] = str(exc)
+    signals = {"val_before": res_b, "val_after": res_a}
+    if controller is not None:
+        run, cut = (full, val_offset) if val_offset is not None else (val, 0)
+        try:
+            e_b = resimulate(before, controller, run)[cut:]
+            e_a = resimulate(after, controller, run)[cut:]
+        except UserError as exc:
+            gain["resimulation_error"] = str(exc)
+        else:
+            e_m = run.e[cut:]
+            gain["tracking_rms_measured"] = float(np.sqrt(np.mean(e_m**2)))
+            gain["resim_mismatch_rms_before"] = float(np.sqrt(np.mean((e_b - e_m) ** 2)))
+            gain["resim_mismatch_rms_after"] = float(np.sqrt(np.mean((e_a - e_m) ** 2)))
+            signals.update(t=run.t[cut:], e_measured=e_m, e_before=e_b, e_after=e_a)
+    return gain, signals

@@ -1,0 +1,113 @@
+"""The simulation's model of a machine: a plant and, where known, its feedback controller.
+
+A model file is YAML with a ``plant:`` mapping (``mass`` kg, ``viscous`` N*s/m, ``coulomb`` N,
+``stiffness`` N/m, optional ``effects`` in the simulator's vocabulary, ``encoder_resolution`` m) and
+optionally a ``controller:``, either a PID design (the keys of ``controllers.pid.PIDDesign``,
+designed on the plant at the record's sample time) or a linear discrete law
+``u = C(z) e + R(z) r`` given by ``b``, ``a`` (C on ``e = r - y``, N/m) and ``reference_b`` (FIR R on
+``r``, N/m) at sample time ``ts`` (s). An experiment config is read by the CLI, not here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.signal
+
+from clm_sim.errors import UserError
+from clm_sim.plant import Plant
+from clm_sim.schema import build, load_yaml
+from controllers.pid import PIDDesign, design_pid
+
+MODEL_KEYS = {"name", "description", "plant", "controller"}
+
+
+@dataclass(frozen=True)
+class LinearController:
+    """``u = b/a (z^-1) * (r - y) + reference_b (z^-1) * r`` (N per m), designed for ``ts`` s."""
+
+    b: tuple[float, ...]
+    a: tuple[float, ...] = (1.0,)
+    reference_b: tuple[float, ...] = ()
+    ts: float | None = None
+
+    def __post_init__(self):
+        if not self.b or not self.a or self.a[0] == 0:
+            raise UserError("controller: b and a must be non-empty and a[0] must not be 0")
+        if self.ts is not None and not (math.isfinite(self.ts) and self.ts > 0):
+            raise UserError(f"controller: ts must be > 0 s, got {self.ts!r}")
+
+
+@dataclass(frozen=True)
+class ModelFile:
+    """The schema of a model YAML file."""
+
+    name: str = "model"
+    description: str = ""
+    plant: Plant = field(default_factory=Plant)
+    controller: LinearController | PIDDesign | None = None
+
+
+@dataclass(frozen=True)
+class Controller:
+    """A controller ready for a record: ``b, a`` on the error, ``reference_b`` on the reference."""
+
+    b: np.ndarray
+    a: np.ndarray
+    reference_b: np.ndarray
+
+    def external_input(self, r: np.ndarray, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The part of the measured ``u`` (N) the feedback does not explain (dither, feedforward,
+        known disturbances), to be injected when the loop is re-simulated."""
+        return u - scipy.signal.lfilter(self.b, self.a, r - y) - self.reference_force(r)
+
+    def reference_force(self, r: np.ndarray) -> np.ndarray:
+        """``R(z) r`` (N): the controller's share that acts on the reference alone."""
+        if not self.reference_b.size:
+            return np.zeros(len(r))
+        return scipy.signal.lfilter(self.reference_b, [1.0], r)
+
+
+@dataclass(frozen=True)
+class SimulationModel:
+    """What the simulation believes: ``plant`` and, if known, ``controller`` (else None)."""
+
+    plant: Plant = field(default_factory=Plant)
+    controller: Controller | None = None
+    name: str = "default CLM"
+
+
+def controller_for(spec, plant: Plant, ts: float, where: str) -> Controller | None:
+    """A :class:`Controller` at sample time ``ts`` from a PID design or a linear law."""
+    if spec is None:
+        return None
+    if isinstance(spec, PIDDesign):
+        pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
+                         design=spec, ts=ts)
+        return Controller(np.asarray(pid.b, float), np.asarray(pid.a, float), np.zeros(0))
+    if spec.ts is not None and abs(spec.ts / ts - 1) > 1e-3:
+        raise UserError(f"{where}: controller.ts is {spec.ts:g} s but the record is sampled "
+                        f"at {ts:g} s")
+    return Controller(np.asarray(spec.b, float), np.asarray(spec.a, float),
+                      np.asarray(spec.reference_b, float))
+
+
+def is_model_file(data: dict) -> bool:
+    """Whether a YAML mapping is a model file (else it may be an experiment config)."""
+    return "plant" in data and set(data) <= MODEL_KEYS
+
+
+def load_model(path, ts: float) -> SimulationModel:
+    """Read a model file; the controller (if any) is prepared for sample time ``ts``."""
+    path = Path(path)
+    data = load_yaml(path)
+    try:
+        spec = build(ModelFile, data, "model")
+    except UserError as exc:
+        raise UserError(f"{path}: {str(exc).removeprefix('model.').removeprefix('model: ')}") \
+            from None
+    return SimulationModel(spec.plant, controller_for(spec.controller, spec.plant, ts, str(path)),
+                           spec.name)

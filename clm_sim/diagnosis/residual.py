@@ -1,0 +1,131 @@
+"""The force-domain residual: measured force minus the model's inverse dynamics, ready for fits.
+
+``residual = edge_force(u) - plant.inverse_force(y, v, a)`` at the sample instants (N, inverse-model
+sign: a positive residual is force the motor supplied that the model did not expect).
+
+Every fit in the diagnosis is a linear least-squares fit of this residual on regressor columns,
+with columns and residual passed through one zero-phase low-pass (the parallel filter of
+:class:`clm_sim.features.FeatureMap`, consistent under encoder quantization), then decimated to
+the filter's bandwidth. Samples near standstill are left out: below about one encoder count per
+sample the differenced velocity, and with it ``sign(v)``, is not known (with dither it flips at
+random) and a stuck stage holds any force inside its breakaway band, which would otherwise be read
+as a low-speed friction effect. The speed floor is set from the encoder step found in the data
+(``|v| >= quantum / ts``: at least two counts over the central difference). Those samples are
+zeroed in the residual *and* in every column before the filter, which keeps the parallel-filter
+relation exact (``0 = sum theta_i * 0``); fits then use the samples whose filter window is mostly
+(>= 90 %) made of kept samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.ndimage
+import scipy.signal
+
+from clm_sim.errors import UserError
+from clm_sim.features import FeatureMap, edge_force
+from clm_sim.plant import Plant
+from clm_sim.record import Run
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """Settings of the diagnosis; the significance rule is documented in ``search``.
+
+    lowpass_hz: parallel-filter cut-off (Hz; capped at 0.2/ts). folds: contiguous blocks of the
+    blocked cross-validation. min_gain: held-out MSE reduction (fraction of the current held-out
+    MSE) a candidate must bring. p_value: F-test level on the estimation data (effective sample
+    count = filter bandwidth x duration). min_folds: folds in which the held-out MSE must drop.
+    max_findings: at most this many causes. holdout_fraction: final part of the record kept for
+    the out-of-sample gain when no validation record is given.
+    """
+
+    lowpass_hz: float = 100.0
+    folds: int = 5
+    min_gain: float = 0.02
+    p_value: float = 1e-3
+    min_folds: int = 4
+    max_findings: int = 6
+    holdout_fraction: float = 0.25
+
+
+def encoder_quantum(y: np.ndarray) -> float:
+    """The encoder step (m): the smallest position change seen between samples (0 if none)."""
+    d = np.abs(np.diff(np.asarray(y, dtype=float)))
+    scale = max(float(np.max(np.abs(y))), 1e-12)
+    d = d[d > 1e-9 * scale]
+    return float(np.min(d)) if d.size else 0.0
+
+
+def source_of(run: Run) -> str:
+    return str(run.meta.get("source", "record"))
+
+
+class Residual:
+    """The residual of ``plant`` on ``run`` and the machinery to fit regressor columns to it.
+
+    Attributes: ``ts`` (s), ``y, v, a, u`` at full rate (m, m/s, m/s**2, N: ``u`` is the edge
+    force), ``raw`` (unfiltered residual, N), ``filtered`` (N), ``idx`` (full-rate indices of the
+    fitted samples: moving, away from the ends, decimated), ``z = filtered[idx]``, ``fold``
+    (block label per fitted sample), ``n_eff`` (effectively independent samples), ``quantum`` (m).
+    """
+
+    def __init__(self, run: Run, plant: Plant, settings: DiagnosisSettings = DiagnosisSettings()):
+        ts = run.ts
+        self.ts = ts
+        self.settings = settings
+        self.cutoff = float(min(settings.lowpass_hz, 0.2 / ts))
+        self.features = FeatureMap(regression_lowpass_hz=self.cutoff)
+        self.y, self.v, self.a = self.features.motion(run.y, ts)
+        self.u = edge_force(run.u)
+        self.t = np.asarray(run.t, dtype=float)
+        self.plant = plant
+        self.raw = self.u - plant.inverse_force(self.y, self.v, self.a, u=self.u)
+        self.quantum = encoder_quantum(run.y)
+        self.v_filtered = self.features.regression_filter(self.v, ts)
+        self.v_peak = float(np.quantile(np.abs(self.v_filtered), 0.99))
+        self.v_floor = max(1.99 * self.quantum / ts, 1e-3 * self.v_peak)
+        keep = np.abs(self.v) >= self.v_floor
+        edge = max(int(np.ceil(4.0 / (self.cutoff * ts))), 10)
+        keep[:edge] = False
+        keep[-edge:] = False
+        self.weight = keep.astype(float)
+        self.coverage = self.features.regression_filter(self.weight, ts)
+        self.filtered = self.filter(self.raw)
+        self.decimation = max(1, int(1.0 / (4.0 * self.cutoff * ts)))
+        idx = np.flatnonzero((self.coverage >= 0.9) & keep)
+        self.idx = idx[:: self.decimation]
+        n = len(self.idx)
+        moving_pos = np.mean(self.v_filtered[self.idx] > 0) if n else 0.0
+        self.n_eff = float(keep.sum() * min(1.0, 2.0 * self.cutoff * ts))
+        if n < 20 * settings.folds or self.n_eff < 200 or min(moving_pos, 1 - moving_pos) < 0.05:
+            raise UserError(f"{source_of(run)}: too little excitation to identify anything: "
+                            f"{keep.sum() * ts:.2f} s of motion above {self.v_floor:.3g} m/s "
+                            f"({100 * moving_pos:.0f} % of it in +y); need motion in both "
+                            f"directions for at least {200 / (2 * self.cutoff):.1f} s")
+        self.z = self.filtered[self.idx]
+        self.fold = np.minimum((np.arange(n) * settings.folds) // n, settings.folds - 1)
+
+    def filter(self, x: np.ndarray) -> np.ndarray:
+        """The parallel filter along axis 0: standstill samples zeroed, zero-phase low-pass."""
+        x = np.asarray(x, dtype=float)
+        w = self.weight if x.ndim == 1 else self.weight[:, None]
+        return self.features.regression_filter(x * w, self.ts)
+
+    def columns(self, cols: dict[str, np.ndarray]) -> np.ndarray:
+        """Full-rate regressor columns -> filtered, at the fitted samples, shape (n, k)."""
+        if not cols:
+            return np.zeros((len(self.idx), 0))
+        return self.filter(np.column_stack(list(cols.values())))[self.idx]
+
+    def rms(self) -> float:
+        """RMS (N) of the filtered residual over the fitted samples."""
+        return float(np.sqrt(np.mean(self.z**2)))
+
+    def spectrum(self) -> tuple[np.ndarray, np.ndarray]:
+        """Welch amplitude spectral density of the unfiltered residual: (Hz, N/sqrt(Hz))."""
+        nper = min(len(self.raw), 2 ** int(np.log2(max(256, 1.0 / self.ts))))
+        f, p = scipy.signal.welch(self.raw - self.raw.mean(), fs=1.0 / self.ts, nperseg=nper)
+        return f, np.sqrt(p)

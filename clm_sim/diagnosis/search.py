@@ -1,0 +1,306 @@
+"""Name the cause: candidate effects from the library, their nonlinear parameters found in the data,
+and forward selection on held-out data.
+
+Candidates (``FAMILIES``) are the effect vocabulary of :mod:`clm_sim.effects` plus
+``parameter_mismatch`` (corrections of mass, viscous, coulomb, stiffness: the LIP columns).
+Nonlinear parameters are searched, never assumed:
+
+* periods (``cogging``, ``force_ripple``): the current residual is binned on a uniform position
+  grid (cogging: bin mean; ripple: per-bin least-squares gain on the motor force), its spatial
+  spectrum (zero-padded FFT) gives the strongest peaks between 16 bins and a third of the stroke,
+  and the best peak is refined by bounded least squares on the period;
+* the Stribeck velocity: a logarithmic grid from 1.5 times the speed floor to half the typical speed, then bounded
+  least squares on ``log(velocity)`` around the best grid point (exponent fixed at 2).
+
+Significance rule (decided per step of a forward selection): with the accepted terms ``S``, a
+candidate ``c`` is accepted when, in a blocked ``folds``-fold cross-validation over contiguous
+blocks of the record, (1) it lowers the held-out MSE by at least ``min_gain`` of the current held-out
+MSE, (2) the held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
+folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an F-test of ``S + c``
+against ``S`` on all fitted samples, with the effective sample count of the filtered data, has
+p < ``p_value``. Each step takes the candidate with the largest held-out gain that passes; the
+search stops when none does, so a model that already explains the data yields no finding.
+
+Identifiability: during motion an asymmetric Coulomb friction is a symmetric one plus a constant
+force ``(c_pos - c_neg)/2``, and the diagnosis leaves standstill out (the velocity sign is unknown
+there). A constant force is therefore reported as ``force_offset``; ``friction_asymmetry`` is the
+direction-odd viscous part (its ``|v|`` signature), with the Coulomb part reported as 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.optimize
+import scipy.stats
+
+from clm_sim.diagnosis.residual import Residual
+from clm_sim.effects import Cogging, Effect, ForceOffset, ForceRipple, FrictionAsymmetry, Stribeck
+from clm_sim.plant import THETA_NAMES
+
+PERIODIC = ("cogging", "force_ripple")
+
+
+@dataclass(frozen=True)
+class Term:
+    """One candidate cause: finding name, effect template (None: parameter mismatch), the
+    regressor keys it uses from the template."""
+
+    effect: str
+    template: Effect | None
+    keys: tuple[str, ...]
+
+    def regressors(self, y, v, a, u) -> dict[str, np.ndarray]:
+        """Full-rate regressor columns (N per unit coefficient)."""
+        if self.template is None:
+            cols = {"mass": a, "viscous": v, "coulomb": np.sign(v), "stiffness": y}
+        else:
+            cols = self.template.regressors(y, v, u)
+        return {k: cols[k] for k in self.keys}
+
+    def columns(self, res: Residual) -> np.ndarray:
+        return res.columns(self.regressors(res.y, res.v, res.a, res.u))
+
+    def effect_from(self, coef: dict[str, float]) -> Effect | None:
+        return None if self.template is None else self.template.from_coefficients(coef)
+
+
+FIXED = {
+    "parameter_mismatch": Term("parameter_mismatch", None, THETA_NAMES),
+    "force_offset": Term("force_offset", ForceOffset(), ("offset",)),
+    "friction_asymmetry": Term("friction_asymmetry", FrictionAsymmetry(), ("asym_viscous",)),
+}
+FAMILIES = ("parameter_mismatch", "cogging", "force_ripple", "stribeck", "friction_asymmetry",
+            "force_offset")
+
+
+def periodic_term(kind: str, period: float) -> Term:
+    if kind == "cogging":
+        return Term(kind, Cogging(amplitude=0.0, period=period), ("cogging_sin", "cogging_cos"))
+    return Term(kind, ForceRipple(amplitude=0.0, period=period), ("ripple_sin", "ripple_cos"))
+
+
+def stribeck_term(velocity: float) -> Term:
+    return Term("stribeck", Stribeck(static=0.0, velocity=velocity, exponent=2.0), ("stribeck",))
+
+
+# ---------------------------------------------------------------- least squares and validation
+def _solve(g: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = np.sqrt(np.clip(np.diag(g), 1e-300, None))
+    gs = g / np.outer(d, d) + 1e-12 * np.eye(len(d))
+    return np.linalg.solve(gs, b / d) / d
+
+
+@dataclass
+class Fit:
+    """Least-squares fit with its blocked cross-validation: coefficients, in-sample SSE, held-out
+    SSE per fold."""
+
+    coef: np.ndarray
+    sse: float
+    cv_sse: np.ndarray
+
+    @property
+    def cv_mse(self) -> float:
+        return float(np.sum(self.cv_sse))
+
+
+def fit_cv(x: np.ndarray, z: np.ndarray, fold: np.ndarray, folds: int) -> Fit:
+    """Fit ``z ~ x`` on all samples and, per fold, on the other folds (held-out SSE per fold)."""
+    zz = np.array([z[fold == f] @ z[fold == f] for f in range(folds)])
+    if x.shape[1] == 0:
+        return Fit(np.zeros(0), float(zz.sum()), zz)
+    gs = np.stack([x[fold == f].T @ x[fold == f] for f in range(folds)])
+    bs = np.stack([x[fold == f].T @ z[fold == f] for f in range(folds)])
+    g, b = gs.sum(0), bs.sum(0)
+    coef = _solve(g, b)
+    sse = float(z @ z - 2 * coef @ b + coef @ g @ coef)
+    cv = np.empty(folds)
+    for f in range(folds):
+        c = _solve(g - gs[f], b - bs[f])
+        cv[f] = zz[f] - 2 * c @ bs[f] + c @ gs[f] @ c
+    return Fit(coef, max(sse, 0.0), np.maximum(cv, 0.0))
+
+
+def _sse(x: np.ndarray, z: np.ndarray) -> float:
+    coef, *_ = np.linalg.lstsq(x, z, rcond=None)
+    e = z - x @ coef
+    return float(e @ e)
+
+
+# ---------------------------------------------------------------- nonlinear parameter searches
+def spatial_peaks(y: np.ndarray, e: np.ndarray, w: np.ndarray | None, p_min: float,
+                  p_max: float, count: int = 3, bins: int = 4096) -> list[float]:
+    """Periods (m) of the strongest peaks of the residual's spectrum over position.
+
+    ``e`` is binned on a uniform grid of ``y`` (mean per bin, or the least-squares gain on ``w``
+    per bin when ``w`` is given: a modulation of ``w``), empty bins count as 0, and the
+    zero-padded FFT's power is searched between the periods ``p_min`` and ``p_max``.
+    """
+    lo, hi = float(np.min(y)), float(np.max(y))
+    width = (hi - lo) / bins
+    k = np.clip(((y - lo) / width).astype(int), 0, bins - 1)
+    if w is None:
+        num, den = np.bincount(k, e, bins), np.bincount(k, None, bins).astype(float)
+    else:
+        num, den = np.bincount(k, e * w, bins), np.bincount(k, w * w, bins)
+    have = den > 0
+    g = np.zeros(bins)
+    g[have] = num[have] / den[have]
+    g[have] -= g[have].mean()
+    pad = 8 * bins
+    power = np.abs(np.fft.rfft(g, pad)) ** 2
+    freq = np.fft.rfftfreq(pad, d=width)  # cycles per m
+    band = (freq >= 1.0 / p_max) & (freq <= 1.0 / p_min)
+    idx = np.flatnonzero(band)
+    if idx.size < 3:
+        return []
+    p = power[idx]
+    local = np.flatnonzero((p[1:-1] >= p[:-2]) & (p[1:-1] >= p[2:])) + 1
+    best = local[np.argsort(p[local])[::-1][:count]]
+    return [float(1.0 / freq[idx[j]]) for j in best]
+
+
+def _approx_periodic(res: Residual, kind: str, k: float) -> np.ndarray:
+    """Cheap columns for the period search: the position is smooth, so sin(k y) needs no filter;
+    the ripple multiplies the filtered force (a slow modulation commutes with the low-pass)."""
+    y = res.y[res.idx]
+    s, c = np.sin(k * y), np.cos(k * y)
+    w = res.coverage[res.idx] if kind == "cogging" else -res.filter(res.u)[res.idx]
+    return np.column_stack([w * s, w * c])
+
+
+def search_period(res: Residual, kind: str, base: np.ndarray, e: np.ndarray,
+                  avoid: list[float]) -> float | None:
+    """Period (m) of a ``cogging``/``force_ripple`` candidate on the current residual ``e``."""
+    y = res.y[res.idx]
+    span = float(np.ptp(y))
+    v_typ = float(np.quantile(np.abs(res.v_filtered[res.idx]), 0.9))
+    p_min = max(16 * span / 4096, v_typ / (0.5 * res.cutoff))
+    p_max = span / 3.0
+    if p_min >= p_max:
+        return None
+    w = None if kind == "cogging" else -res.filter(res.u)[res.idx]
+    best, best_sse = None, np.inf
+    for period in spatial_peaks(y, e, w, p_min, p_max):
+        if any(abs(period / a - 1) < 0.05 for a in avoid):
+            continue
+        k0, dk = 2 * math.pi / period, 2 * math.pi / span
+
+        def cost(k):
+            return _sse(np.column_stack([base, _approx_periodic(res, kind, k)]), res.z)
+
+        r = scipy.optimize.minimize_scalar(cost, bounds=(max(k0 - dk, 0.5 * k0), k0 + dk),
+                                           method="bounded", options={"xatol": 1e-6 * k0})
+        if r.fun < best_sse:
+            best, best_sse = 2 * math.pi / float(r.x), float(r.fun)
+    return best
+
+
+def search_stribeck(res: Residual, base: np.ndarray, exact: bool) -> float:
+    """Stribeck velocity (m/s): log grid, then bounded least squares on log(velocity)."""
+    vf = res.v_filtered[res.idx]
+    v_typ = float(np.quantile(np.abs(vf), 0.9))
+    # A Stribeck velocity is identifiable only with data on both sides of it: start at 1.5 times the
+    # speed floor (below it the fitted column lives on a few samples at the mask's edge).
+    lo, hi = math.log(1.5 * res.v_floor), math.log(max(v_typ / 2, 4 * res.v_floor))
+
+    def col(logv):
+        if exact:
+            return stribeck_term(math.exp(logv)).columns(res)
+        shape = np.sign(vf) * np.exp(-((np.abs(vf) / math.exp(logv)) ** 2))
+        return (res.coverage[res.idx] * shape)[:, None]
+
+    def cost(logv):
+        return _sse(np.column_stack([base, col(logv)]), res.z)
+
+    grid = np.linspace(lo, hi, 16)
+    costs = [cost(g) for g in grid]
+    j = int(np.argmin(costs))
+    a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+    r = scipy.optimize.minimize_scalar(cost, bounds=(a, b), method="bounded",
+                                       options={"xatol": 2e-3, "maxiter": 25})
+    return math.exp(float(r.x))
+
+
+# ---------------------------------------------------------------- forward selection
+@dataclass
+class Step:
+    """One accepted term and the statistics that accepted it."""
+
+    term: Term
+    cols: np.ndarray
+    gain: float
+    folds_improved: int
+    p_value: float
+
+
+def _test(res: Residual, x_s: np.ndarray, fit_s: Fit, cols: np.ndarray) -> tuple[float, int, float]:
+    st = res.settings
+    x1 = np.column_stack([x_s, cols])
+    fit1 = fit_cv(x1, res.z, res.fold, st.folds)
+    gain = (fit_s.cv_mse - fit1.cv_mse) / max(fit_s.cv_mse, 1e-300)
+    # Folds where the candidate changes nothing (e.g. no slow motion for a Stribeck term) are
+    # not counted; the drop is required in min_folds of the folds out of ``folds``, scaled down.
+    changed = np.abs(fit1.cv_sse - fit_s.cv_sse) > 1e-2 * fit_s.cv_sse
+    improved = int(np.sum(fit1.cv_sse[changed] < fit_s.cv_sse[changed]))
+    if changed.sum() >= 2:
+        improved = int(np.floor(improved * st.folds / int(changed.sum())))
+    k = cols.shape[1]
+    dof = max(res.n_eff - x1.shape[1], 1.0)
+    n = len(res.z)
+    # SSEs of the decimated samples, scaled to the effective count of independent samples.
+    drop = max(fit_s.sse - fit1.sse, 0.0) * res.n_eff / n
+    rest = max(fit1.sse, 1e-300) * res.n_eff / n
+    p = float(scipy.stats.f.sf((drop / k) / (rest / dof), k, dof))
+    return gain, improved, p
+
+
+def forward_select(res: Residual) -> list[Step]:
+    """Forward selection of causes on ``res`` by the significance rule of this module."""
+    st = res.settings
+    steps: list[Step] = []
+    fixed_cols = {name: term.columns(res) for name, term in FIXED.items()}
+    while len(steps) < st.max_findings:
+        used = [s.term for s in steps]
+        x_s = np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps])
+        fit_s = fit_cv(x_s, res.z, res.fold, st.folds)
+        e = res.z - x_s @ fit_s.coef
+        ranked = []
+        for name in FAMILIES:
+            if name not in PERIODIC and any(t.effect == name for t in used):
+                continue
+            if name in FIXED:
+                ranked.append((FIXED[name], fixed_cols[name], fixed_cols[name]))
+            elif name in PERIODIC:
+                avoid = [t.template.period for t in used if t.effect == name]
+                period = search_period(res, name, x_s, e, avoid)
+                if period is not None:
+                    approx = _approx_periodic(res, name, 2 * math.pi / period)
+                    ranked.append((periodic_term(name, period), approx, None))
+            else:
+                vel = search_stribeck(res, x_s, exact=False)
+                approx = stribeck_term(vel).columns(res)
+                ranked.append((stribeck_term(vel), approx, None))
+        scored = []
+        for term, approx, exact in ranked:
+            fit1 = fit_cv(np.column_stack([x_s, approx]), res.z, res.fold, st.folds)
+            scored.append(((fit_s.cv_mse - fit1.cv_mse), term, exact))
+        scored.sort(key=lambda s: -s[0])
+        accepted = None
+        for gain0, term, exact in scored:
+            if gain0 <= 0:
+                break
+            if term.effect == "stribeck":
+                term = stribeck_term(search_stribeck(res, x_s, exact=True))
+            cols = exact if exact is not None else term.columns(res)
+            gain, improved, p = _test(res, x_s, fit_s, cols)
+            if gain >= st.min_gain and improved >= st.min_folds and p < st.p_value:
+                accepted = Step(term, cols, gain, improved, p)
+                break
+        if accepted is None:
+            break
+        steps.append(accepted)
+    return steps
