@@ -1,0 +1,210 @@
+"""The ``clm-sim`` command: bad records for ``identify``, ``export``, and the end-to-end baseline."""
+
+from __future__ import annotations
+
+import json
+import numbers
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clm_sim.record import load_record, save_npz
+from experiments.cli import main
+from experiments.config import load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+BASELINE = ROOT / "experiments" / "configs" / "lip_baseline.yaml"
+
+
+def _cli(args, capsys) -> tuple[int, str, list[str]]:
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err.strip().splitlines()
+
+
+# --------------------------------------------------------------------------------------------
+# identify: malformed records
+# --------------------------------------------------------------------------------------------
+
+def _table(n=1000, ts=1e-4):
+    t = np.arange(n) * ts
+    return {"t": t, "r": 0.01 * np.sin(t), "y": 0.01 * np.sin(t), "u": np.cos(t)}
+
+
+def _write_csv(path, cols):
+    names = list(cols)
+    np.savetxt(path, np.column_stack([cols[k] for k in names]), delimiter=",",
+               header=",".join(names), comments="", fmt="%.17g")
+
+
+def _without(key):
+    return lambda c: {k: v for k, v in c.items() if k != key}
+
+
+def _nan_in_y(c):
+    c["y"][500] = np.nan
+    return c
+
+
+def _backwards_time(c):
+    c["t"][400], c["t"][401] = c["t"][401], c["t"][400]
+    return c
+
+
+def _jittered_time(c):
+    c["t"][300:] += 0.5e-4
+    return c
+
+
+def _short(c):
+    return {k: v[:100] for k, v in c.items()}
+
+
+# name: (how the good table is spoiled, text the message must contain)
+BAD_RECORDS = {
+    "missing column u": (_without("u"), "'u'"),
+    "missing column t": (_without("t"), "'t'"),
+    "NaN in y": (_nan_in_y, "'y'"),
+    "time not increasing": (_backwards_time, "'t'"),
+    "time not uniform": (_jittered_time, "'t'"),
+    "too short": (_short, "too short"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_RECORDS))
+def test_identify_bad_record(case, tmp_path, capsys):
+    spoil, text = BAD_RECORDS[case]
+    data = tmp_path / "record.csv"
+    _write_csv(data, spoil(_table()))
+    out = tmp_path / "out"
+    code, _, err = _cli(["identify", data, "--out", out], capsys)
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith("clm-sim: error: ")
+    assert str(data) in err[0] and text in err[0]
+    assert not out.exists()  # nothing written for a refused record
+
+
+@pytest.mark.parametrize("name, content, text", [
+    ("absent.csv", None, "not found"),
+    ("record.txt", "t,r,y,u\n0,0,0,0\n", "format"),
+    ("numbers.csv", "0,0,0,0\n1,0,0,0\n", "header"),
+    ("ragged.csv", "t,r,y,u\n0,0,0\n", "columns"),
+    ("broken.npz", "not a zip file", "cannot read"),
+])
+def test_identify_unreadable_file(name, content, text, tmp_path, capsys):
+    data = tmp_path / name
+    if content is not None:
+        data.write_text(content)
+    code, _, err = _cli(["identify", data, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and len(err) == 1 and str(data) in err[0] and text in err[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_identify_refuses_a_record_without_motion(tmp_path, capsys):
+    data = tmp_path / "still.csv"
+    c = _table(5000)
+    c["y"][:] = 0.0
+    c["r"][:] = 0.0
+    _write_csv(data, c)
+    code, _, err = _cli(["identify", data, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and len(err) == 1 and "excite" in err[0]
+
+
+# --------------------------------------------------------------------------------------------
+# End to end: the shipped baseline config
+# --------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def baseline(tmp_path_factory):
+    out = tmp_path_factory.mktemp("baseline") / "lip_baseline"
+    code = main(["run", str(BASELINE), "--out", str(out), "--quiet"])
+    return code, out
+
+
+def check_table_schema(doc: dict, refs=("r1", "r2")) -> None:
+    """``table.json`` as the issue fixes it (extra keys after the fixed ones are allowed)."""
+    assert set(doc) == {"rows"} and doc["rows"]
+    for row in doc["rows"]:
+        assert row["kind"] in ("none", "lip", "pgnn")
+        assert row["training"] in (None, "sequential", "simultaneous", "pinn")
+        assert row["lambda"] is None or isinstance(row["lambda"], numbers.Real)
+        assert row["hidden"] is None or (isinstance(row["hidden"], int)
+                                         and not isinstance(row["hidden"], bool))
+        assert isinstance(row["n_seeds"], int) and row["n_seeds"] >= 1
+        assert set(row["mae"]) == set(refs)
+        for stat in row["mae"].values():
+            assert set(stat) == {"mean", "std"}
+            assert 0 < stat["mean"] < 1e-3 and stat["std"] >= 0  # metres, a sane loop
+        theta = row["theta_phy"]
+        assert theta is None or set(theta) == {"mass", "viscous", "coulomb", "stiffness"}
+        assert (theta is None) == (row["kind"] == "none")
+        assert list(row)[:7] == ["kind", "training", "lambda", "hidden", "n_seeds", "mae",
+                                 "theta_phy"]
+
+
+@pytest.mark.slow
+def test_baseline_run_writes_everything(baseline):
+    code, out = baseline
+    assert code == 0
+    for name in ("config.resolved.yaml", "runs/training.npz", "params/lip.json", "table.md",
+                 "table.csv", "table.json"):
+        assert (out / name).is_file(), name
+    figures = sorted(p.name for p in (out / "figures").glob("*.png"))
+    assert {"tracking_r1.png", "tracking_r2.png"} <= set(figures)
+    assert all((out / "figures" / f).stat().st_size > 1000 for f in figures)
+    assert not list(out.parent.glob(".*partial*"))  # the temporary folder is gone
+    # The resolved config reads back as the same experiment.
+    assert load_config(out / "config.resolved.yaml") == load_config(BASELINE)
+
+
+@pytest.mark.slow
+def test_baseline_table_schema_and_lip_beats_feedback(baseline):
+    code, out = baseline
+    assert code == 0
+    doc = json.loads((out / "table.json").read_text())
+    check_table_schema(doc)
+    rows = {row["kind"]: row for row in doc["rows"]}
+    assert set(rows) == {"none", "lip"}
+    for ref in ("r1", "r2"):
+        assert rows["lip"]["mae"][ref]["mean"] < rows["none"]["mae"][ref]["mean"]
+        print(f"\nMAE {ref}: feedback {rows['none']['mae'][ref]['mean'] * 1e6:.3f} um, "
+              f"LIP {rows['lip']['mae'][ref]['mean'] * 1e6:.3f} um")
+    lip = json.loads((out / "params" / "lip.json").read_text())
+    for k, v in rows["lip"]["theta_phy"].items():
+        assert v == lip[k]  # the table reports the identified parameters, not a copy of them
+    md = (out / "table.md").read_text().splitlines()
+    assert len(md) == 2 + len(doc["rows"])
+    csv = (out / "table.csv").read_text().splitlines()
+    assert len(csv) == 1 + len(doc["rows"]) and "mae_r1_mean_m" in csv[0]
+
+
+@pytest.mark.slow
+def test_identify_on_the_logged_training_run_repeats_the_runner_fit(baseline, tmp_path, capsys):
+    """``clm-sim identify runs/training.npz`` gives the runner's LIP: same data, same defaults."""
+    code, out = baseline
+    assert code == 0
+    code, printed, _ = _cli(["identify", out / "runs" / "training.npz", "--out", tmp_path],
+                            capsys)
+    assert code == 0 and "mass" in printed
+    mine = json.loads((tmp_path / "lip.json").read_text())
+    runner = json.loads((out / "params" / "lip.json").read_text())
+    for k in ("mass", "viscous", "coulomb", "stiffness"):
+        # Same arithmetic on the same doubles read back from NPZ: equal to round-off.
+        assert mine[k] == pytest.approx(runner[k], rel=1e-12, abs=1e-9)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fmt", ["csv", "mat"])
+def test_export_round_trips_a_logged_run(baseline, fmt, tmp_path, capsys):
+    code, out = baseline
+    assert code == 0
+    source = tmp_path / "part.npz"  # 2 s of the training run: CSV text of 527k rows is slow
+    save_npz(load_record(out / "runs" / "training.npz").slice(0, 20000), source)
+    target = tmp_path / f"part.{fmt}"
+    code, _, _ = _cli(["export", source, "--to", fmt, "--out", target], capsys)
+    assert code == 0
+    a, b = load_record(source), load_record(target)
+    for name, value in a.signals().items():
+        # CSV is written with %.17g (round-trips float64); MAT is binary float64.
+        np.testing.assert_allclose(getattr(b, name), value, rtol=1e-15, atol=0, err_msg=name)
