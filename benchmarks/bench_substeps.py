@@ -1,10 +1,11 @@
 """Integration sub-steps per sample: time of the closed loop against accuracy of the trajectory.
 
-The loop of ``bench_loop.py`` (default plant and PID, r1 repeated to ``--samples``, dither on) is
-run with ``substeps`` = 2, 4, 8, 16 and 32. For each: the best wall time of ``--repeats`` runs
-after a warm-up, and the largest difference of the true position from the 32-sub-step run and
-from the run with twice as many sub-steps (the plant's accuracy criterion: halving the sub-step
-must move the trajectory by less than one encoder count), in metres and in encoder counts.
+The loop of ``bench_loop.py`` (default plant and PID, r1 repeated to ``--samples``, dither on;
+``--dither-std 0`` for none, as in a replay) is run with ``substeps`` = 2, 4, 8, 16 and 32. For
+each: the best wall time of ``--repeats`` runs after a warm-up, and the largest difference of the
+true position from the 32-sub-step run and from the run with twice as many sub-steps (the plant's
+accuracy criterion: halving the sub-step must move the trajectory by less than one encoder count),
+in metres and in encoder counts, and the share of samples whose encoder reading differs.
 Prints a table on stdout. Run from the repository root: ``python benchmarks/bench_substeps.py``.
 """
 
@@ -28,11 +29,12 @@ def main(argv=None) -> None:
     parser.add_argument("--samples", type=int, default=400_000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0, help="seed of the dither")
+    parser.add_argument("--dither-std", type=float, default=50.0, help="dither std, N (0: off)")
     args = parser.parse_args(argv)
 
     ts = ExperimentConfig().ts
     r = reference(args.samples, ts)
-    d = Dither().draw(args.samples, np.random.default_rng(args.seed))
+    d = Dither(std_n=args.dither_std).draw(args.samples, np.random.default_rng(args.seed))
     counts = (2, 4, 8, 16, 32)
     runs, times = {}, {}
     for n in counts:
