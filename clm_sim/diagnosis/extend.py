@@ -30,7 +30,8 @@ MISMATCH_RMS_FRACTION = 0.05
 
 
 def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple[Effect, ...]]:
-    """Fit all accepted terms together; returns ``(findings, theta_correction, effects)``.
+    """Fit all accepted terms together; returns ``(findings, theta_correction, effects)``, the
+    effects ranked like the findings.
 
     Each finding is ``{"effect", "parameters", "explained_fraction", ...}``; the explained
     fraction is the rise of the held-out MSE when the term is dropped from the final model,
@@ -72,13 +73,14 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
             findings.append({"effect": "parameter_mismatch", "parameters": params, **stats})
         else:
             effect = step.term.effect_from(coef)
-            effects.append(effect)
+            effects.append((explained, effect))
             params = {k: float(v) for k, v in effect.parameters().items()}
             findings.append({"effect": step.term.effect, "parameters": params,
                              "std": {k: float(v) for k, v in sd.items()}, **stats})
         start += k
     order = np.argsort([-f["explained_fraction"] for f in findings], kind="stable")
-    return [findings[j] for j in order], correction, tuple(effects)
+    ranked = tuple(e for _, e in sorted(effects, key=lambda p: -p[0]))
+    return [findings[j] for j in order], correction, ranked
 
 
 def extended_plant(plant: Plant, correction: dict, effects: tuple[Effect, ...]) -> Plant:
@@ -121,8 +123,13 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
     gain["residual_rms_reduction"] = 1.0 - gain["residual_rms_after"] / \
         max(gain["residual_rms_before"], 1e-300)
     try:
-        gain["lip_residual_rms_before"] = lip_residual_rms(est, res_b, val, (), res_b.cutoff)
-        gain["lip_residual_rms_after"] = lip_residual_rms(est, res_b, val, effects, res_b.cutoff)
+        # A LIP takes one effect of each type (its regressor names are per type): the
+        # strongest, as ``effects`` are in order of explained fraction.
+        unique = tuple({e.type: e for e in reversed(effects)}.values())[::-1]
+        gain["lip_effects"] = [e.type for e in unique]
+        lip = (lip_residual_rms(est, res_b, val, (), res_b.cutoff),
+               lip_residual_rms(est, res_b, val, unique, res_b.cutoff))
+        gain["lip_residual_rms_before"], gain["lip_residual_rms_after"] = lip
     except UserError as exc:  # a LIP cannot always take every effect (collinear columns)
         gain["lip_error"] = str(exc)
     signals = {"val_before": res_b, "val_after": res_a}

@@ -91,8 +91,9 @@ def controller_for(spec, plant: Plant, ts: float, where: str) -> Controller | No
     if spec.ts is not None and abs(spec.ts / ts - 1) > 1e-3:
         raise UserError(f"{where}: controller.ts is {spec.ts:g} s but the record is sampled "
                         f"at {ts:g} s")
-    return Controller(np.asarray(spec.b, float), np.asarray(spec.a, float),
-                      np.asarray(spec.reference_b, float))
+    n = max(len(spec.b), len(spec.a))  # the compiled loop takes b and a of equal length
+    pad = lambda x: np.concatenate([np.asarray(x, float), np.zeros(n - len(x))])  # noqa: E731
+    return Controller(pad(spec.b), pad(spec.a), np.asarray(spec.reference_b, float))
 
 
 def is_model_file(data: dict) -> bool:

@@ -94,6 +94,7 @@ class Residual:
         self.weight = keep.astype(float)
         self.coverage = self.features.regression_filter(self.weight, ts)
         self.filtered = self.filter(self.raw)
+        self.u_filtered = self.filter(self.u)
         self.decimation = max(1, int(1.0 / (4.0 * self.cutoff * ts)))
         idx = np.flatnonzero((self.coverage >= 0.9) & keep)
         self.idx = idx[:: self.decimation]

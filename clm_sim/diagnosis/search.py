@@ -18,8 +18,11 @@ blocks of the record, (1) it lowers the held-out MSE by at least ``min_gain`` of
 MSE, (2) the held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
 folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an F-test of ``S + c``
 against ``S`` on all fitted samples, with the effective sample count of the filtered data, has
-p < ``p_value``. Each step takes the candidate with the largest held-out gain that passes; the
-search stops when none does, so a model that already explains the data yields no finding.
+p < ``p_value``; a Stribeck term must also be a peak (static > 0). Each step takes the candidate
+with the largest held-out gain that passes; the search stops when none does, so a model that
+already explains the data yields no finding. A backward pass then drops any term whose removal
+from the final model raises the held-out MSE by less than ``min_gain`` (made redundant by later
+terms).
 
 Identifiability: during motion an asymmetric Coulomb friction is a symmetric one plus a constant
 force ``(c_pos - c_neg)/2``, and the diagnosis leaves standstill out (the velocity sign is unknown
@@ -124,10 +127,22 @@ def fit_cv(x: np.ndarray, z: np.ndarray, fold: np.ndarray, folds: int) -> Fit:
     return Fit(coef, max(sse, 0.0), np.maximum(cv, 0.0))
 
 
-def _sse(x: np.ndarray, z: np.ndarray) -> float:
-    coef, *_ = np.linalg.lstsq(x, z, rcond=None)
-    e = z - x @ coef
-    return float(e @ e)
+class Projector:
+    """In-sample SSE of ``z ~ [base, c]`` for many candidate columns ``c``, with ``base``
+    projected out once (QR), so each evaluation costs O(n*(p+k))."""
+
+    def __init__(self, base: np.ndarray, z: np.ndarray):
+        self.q = np.linalg.qr(base)[0] if base.shape[1] else np.zeros((len(z), 0))
+        self.e = z - self.q @ (self.q.T @ z)
+
+    def sse(self, c: np.ndarray) -> float:
+        c = c - self.q @ (self.q.T @ c)
+        g, b = c.T @ c, c.T @ self.e
+        try:
+            coef = _solve(g, b)
+        except np.linalg.LinAlgError:
+            return float(self.e @ self.e)
+        return float(self.e @ self.e - b @ coef)
 
 
 # ---------------------------------------------------------------- nonlinear parameter searches
@@ -168,7 +183,7 @@ def _approx_periodic(res: Residual, kind: str, k: float) -> np.ndarray:
     the ripple multiplies the filtered force (a slow modulation commutes with the low-pass)."""
     y = res.y[res.idx]
     s, c = np.sin(k * y), np.cos(k * y)
-    w = res.coverage[res.idx] if kind == "cogging" else -res.filter(res.u)[res.idx]
+    w = res.coverage[res.idx] if kind == "cogging" else -res.u_filtered[res.idx]
     return np.column_stack([w * s, w * c])
 
 
@@ -182,7 +197,8 @@ def search_period(res: Residual, kind: str, base: np.ndarray, e: np.ndarray,
     p_max = span / 3.0
     if p_min >= p_max:
         return None
-    w = None if kind == "cogging" else -res.filter(res.u)[res.idx]
+    w = None if kind == "cogging" else -res.u_filtered[res.idx]
+    proj = Projector(base, res.z)
     best, best_sse = None, np.inf
     for period in spatial_peaks(y, e, w, p_min, p_max):
         if any(abs(period / a - 1) < 0.05 for a in avoid):
@@ -190,10 +206,10 @@ def search_period(res: Residual, kind: str, base: np.ndarray, e: np.ndarray,
         k0, dk = 2 * math.pi / period, 2 * math.pi / span
 
         def cost(k):
-            return _sse(np.column_stack([base, _approx_periodic(res, kind, k)]), res.z)
+            return proj.sse(_approx_periodic(res, kind, k))
 
         r = scipy.optimize.minimize_scalar(cost, bounds=(max(k0 - dk, 0.5 * k0), k0 + dk),
-                                           method="bounded", options={"xatol": 1e-6 * k0})
+                                           method="bounded", options={"xatol": 1e-4 * k0})
         if r.fun < best_sse:
             best, best_sse = 2 * math.pi / float(r.x), float(r.fun)
     return best
@@ -213,8 +229,10 @@ def search_stribeck(res: Residual, base: np.ndarray, exact: bool) -> float:
         shape = np.sign(vf) * np.exp(-((np.abs(vf) / math.exp(logv)) ** 2))
         return (res.coverage[res.idx] * shape)[:, None]
 
+    proj = Projector(base, res.z)
+
     def cost(logv):
-        return _sse(np.column_stack([base, col(logv)]), res.z)
+        return proj.sse(col(logv))
 
     grid = np.linspace(lo, hi, 16)
     costs = [cost(g) for g in grid]
@@ -297,10 +315,40 @@ def forward_select(res: Residual) -> list[Step]:
                 term = stribeck_term(search_stribeck(res, x_s, exact=True))
             cols = exact if exact is not None else term.columns(res)
             gain, improved, p = _test(res, x_s, fit_s, cols)
+            if not _physical(term, np.column_stack([x_s, cols]), res.z):
+                continue
             if gain >= st.min_gain and improved >= st.min_folds and p < st.p_value:
                 accepted = Step(term, cols, gain, improved, p)
                 break
         if accepted is None:
             break
         steps.append(accepted)
+    return prune(res, steps)
+
+
+def _physical(term: Term, x: np.ndarray, z: np.ndarray) -> bool:
+    """A Stribeck term must be a friction *peak* (static > 0) to carry that name."""
+    if term.effect != "stribeck":
+        return True
+    coef = _solve(x.T @ x, x.T @ z)
+    return bool(coef[-1] > 0)
+
+
+def prune(res: Residual, steps: list[Step]) -> list[Step]:
+    """Backward pass: drop the weakest term while leaving it out of the final model costs less
+    than ``min_gain`` of the held-out MSE (a term that later ones made redundant)."""
+    st = res.settings
+    steps = list(steps)
+    while steps:
+        x = np.column_stack([s.cols for s in steps])
+        full = fit_cv(x, res.z, res.fold, st.folds).cv_mse
+        losses = []
+        for i in range(len(steps)):
+            rest = [s.cols for j, s in enumerate(steps) if j != i]
+            x_r = np.column_stack([np.zeros((len(res.z), 0))] + rest)
+            losses.append(fit_cv(x_r, res.z, res.fold, st.folds).cv_mse / full - 1.0)
+        worst = int(np.argmin(losses))
+        if losses[worst] >= st.min_gain:
+            break
+        del steps[worst]
     return steps

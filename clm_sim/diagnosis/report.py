@@ -1,0 +1,135 @@
+"""Write a diagnosis: ``diagnosis.json``, ``report.md`` and its figures, into a folder atomically."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from clm_sim.diagnosis.diagnose import Diagnosis
+from clm_sim.errors import UserError
+
+
+def _figures(d: Diagnosis, folder: Path) -> list[tuple[str, str]]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    res = d.estimation
+    i = res.idx
+    after = d.signals["val_after"]
+    shown = []
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+    for ax, (x, label) in zip(axes.flat[:3], ((res.y[i] * 1e3, "position (mm)"),
+                                              (res.v_filtered[i], "velocity (m/s)"),
+                                              (res.filter(res.a)[i], "acceleration (m/s²)"))):
+        ax.plot(x, res.z, ",", alpha=0.5)
+        ax.set_xlabel(label)
+        ax.set_ylabel("residual (N)")
+    ax = axes.flat[3]
+    ax.plot(res.t, res.filtered, lw=0.5, label="estimation record")
+    ax.plot(after.t, after.filtered, lw=0.5, label="validation, extended model")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("residual (N)")
+    ax.legend(fontsize=7)
+    fig.suptitle("Force residual u - model inverse dynamics (filtered, standstill left out)")
+    fig.tight_layout()
+    fig.savefig(folder / "residual.png", dpi=110)
+    plt.close(fig)
+    shown.append(("residual.png", "Residual against position, velocity, acceleration and time"))
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    f, a = res.spectrum()
+    ax.loglog(f[1:], a[1:], lw=0.7, label="model")
+    fa, aa = d.signals["val_after"].spectrum()
+    ax.loglog(fa[1:], aa[1:], lw=0.7, label="extended model (validation)")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("residual ASD (N/√Hz)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(folder / "spectrum.png", dpi=110)
+    plt.close(fig)
+    shown.append(("spectrum.png", "Residual spectrum (Welch, unfiltered)"))
+
+    if "e_measured" in d.signals:
+        s = d.signals
+        fig, ax = plt.subplots(figsize=(10, 4))
+        ax.plot(s["t"], s["e_measured"] * 1e6, lw=0.6, label="measured")
+        ax.plot(s["t"], s["e_before"] * 1e6, lw=0.6, label="re-simulated, model")
+        ax.plot(s["t"], s["e_after"] * 1e6, lw=0.6, ls="--", label="re-simulated, extended")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("tracking error (µm)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(folder / "tracking.png", dpi=110)
+        plt.close(fig)
+        shown.append(("tracking.png", "Loop re-simulated on the measured reference (validation)"))
+    return shown
+
+
+def _fmt(value) -> str:
+    if isinstance(value, dict):
+        return ", ".join(f"{k} {_fmt(v)}" for k, v in value.items())
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
+    g, rec = d.gain, d.info["record"]
+    lines = [f"# Diagnosis of model '{d.model.name}' against {rec['source']}", "",
+             f"{rec['samples']} samples at {1 / rec['sample_time_s']:g} Hz; encoder step "
+             f"{rec['encoder_quantum_m']:.3g} m; samples slower than {rec['speed_floor_m_s']:.3g} "
+             f"m/s left out; parallel low-pass {rec['lowpass_hz']:g} Hz. Residual RMS "
+             f"{rec['residual_rms_n']:.4g} N.", "", "## Findings", ""]
+    if not d.findings:
+        lines.append("Nothing is wrong: no candidate effect passes the significance rule; the model "
+                     "explains the record to within its noise.")
+    else:
+        lines += ["| rank | effect | parameters (SI) | explained fraction |", "|---|---|---|---|"]
+        for k, f in enumerate(d.findings, 1):
+            lines.append(f"| {k} | {f['effect']} | {_fmt(f['parameters'])} | "
+                         f"{f['explained_fraction']:.3g} |")
+    rule = d.info["significance_rule"]
+    lines += ["", f"Significance rule: {rule['cv']}; a candidate is accepted when it lowers the "
+              f"held-out MSE by at least {100 * rule['min_gain']:g} %, in at least "
+              f"{rule['min_folds']} folds, with an F-test p < {rule['p_value']:g}.",
+              "", "## Out-of-sample gain", "", f"Validation: {d.info['validation']}.", "",
+              "| quantity | before | after |", "|---|---|---|",
+              f"| force residual RMS (N) | {g['residual_rms_before']:.4g} | "
+              f"{g['residual_rms_after']:.4g} |"]
+    if "lip_residual_rms_before" in g:
+        lines.append(f"| LIP re-identified, residual RMS (N) | {g['lip_residual_rms_before']:.4g} "
+                     f"| {g['lip_residual_rms_after']:.4g} |")
+    if "resim_mismatch_rms_before" in g:
+        lines.append(f"| re-simulated minus measured tracking error, RMS (µm) | "
+                     f"{g['resim_mismatch_rms_before'] * 1e6:.4g} | "
+                     f"{g['resim_mismatch_rms_after'] * 1e6:.4g} |")
+        lines.append(f"\nMeasured tracking error RMS {g['tracking_rms_measured'] * 1e6:.4g} µm.")
+    lines += ["", "## Figures", ""] + [f"![{cap}](figures/{name})\n\n{cap}.\n" for name, cap in figures]
+    return "\n".join(lines) + "\n"
+
+
+def write(d: Diagnosis, out: Path) -> None:
+    """Write ``diagnosis.json``, ``report.md`` and ``figures/`` into ``out`` (replaced as a
+    whole; an interrupted write leaves nothing behind)."""
+    out = Path(out)
+    if out.exists() and any(out.iterdir()) and not (out / "diagnosis.json").exists():
+        raise UserError(f"{out}: output folder exists and does not hold a diagnosis; "
+                        f"choose another --out")
+    tmp = out.with_name(f".{out.name}.partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    (tmp / "figures").mkdir(parents=True)
+    try:
+        shown = _figures(d, tmp / "figures")
+        (tmp / "diagnosis.json").write_text(json.dumps(d.to_json(), indent=1))
+        (tmp / "report.md").write_text(markdown(d, shown))
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
