@@ -85,6 +85,66 @@ def _cmd_sweep(args) -> int:
     return outcome.exit_code
 
 
+def _pairs(text: str | None, option: str, number: bool) -> dict:
+    """``"y=qm,u=vir"`` -> ``{"y": "qm", "u": "vir"}`` (values as numbers where they parse)."""
+    out = {}
+    for item in filter(None, (text or "").split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise UserError(f"{option}: expected NAME=VALUE pairs separated by commas, "
+                            f"got {item!r}")
+        value = value.strip()
+        if number:
+            try:
+                value = float(value)
+            except ValueError:
+                pass
+        out[key.strip()] = value
+    return out
+
+
+def _diagnosis_model(path, ts: float):
+    """The simulation's model: a model file (``plant:``) or an experiment config."""
+    from clm_sim.diagnosis.model import SimulationModel, controller_for, is_model_file, load_model
+    from clm_sim.schema import load_yaml
+
+    if path is None:
+        return SimulationModel()
+    if is_model_file(load_yaml(path)):
+        return load_model(path, ts)
+    from experiments.config import load_config
+    config = load_config(path)
+    return SimulationModel(config.plant, controller_for(config.controller, config.plant, ts,
+                                                        str(path)), config.name)
+
+
+def _cmd_diagnose(args) -> int:
+    from clm_sim.diagnosis import diagnose
+    from clm_sim.diagnosis.report import write
+    from clm_sim.record import load_record
+
+    columns = _pairs(args.columns, "--columns", number=False)
+    scale = _pairs(args.scale, "--scale", number=True)
+    record = load_record(args.data, columns=columns, scale=scale)
+    validation = load_record(args.validate, columns=columns, scale=scale) \
+        if args.validate else None
+    model = _diagnosis_model(args.model, record.ts)
+    result = diagnose(record, model, validation=validation)
+    out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"
+    write(result, out)
+    if not result.findings:
+        print("no significant discrepancy: the model explains the record")
+    for k, f in enumerate(result.findings, 1):
+        params = ", ".join(f"{n} {v:.4g}" if isinstance(v, float) else
+                           f"{n} {v['model']:.4g} -> {v['data']:.4g}"
+                           for n, v in f["parameters"].items())
+        print(f"{k}. {f['effect']}: {params} (explains {100 * f['explained_fraction']:.1f} %)")
+    g = result.gain
+    print(f"out-of-sample force residual RMS {g['residual_rms_before']:.4g} N -> "
+          f"{g['residual_rms_after']:.4g} N; report in {out}/report.md")
+    return 0
+
+
 def _workers(text: str) -> int:
     try:
         value = int(text)
@@ -127,6 +187,16 @@ def parser() -> argparse.ArgumentParser:
                        help="recompute tasks stored as failed")
     sweep.add_argument("--quiet", action="store_true", help="no progress lines")
     sweep.set_defaults(func=_cmd_sweep)
+    diag = sub.add_parser("diagnose", help="show what the simulation gets wrong on a measured "
+                          "record, name the cause, extend the model, measure the gain")
+    diag.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
+    diag.add_argument("--model", help="model YAML (plant:, optional controller:) or experiment "
+                      "config (default: the default CLM)")
+    diag.add_argument("--validate", help="validation record (default: the final 25 %% of DATA)")
+    diag.add_argument("--out", help="output folder (default results/diagnosis_<data name>)")
+    diag.add_argument("--columns", help="signal=column names in the files, e.g. y=qm,r=qg,u=vir")
+    diag.add_argument("--scale", help="signal=factor or signal=scalar-variable, e.g. u=gtau")
+    diag.set_defaults(func=_cmd_diagnose)
     return p
 
 
