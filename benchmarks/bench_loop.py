@@ -78,7 +78,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=400_000)
     parser.add_argument("--oracle-samples", type=int, default=20_000)
-    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--seed", type=int, default=0, help="seed of the dither")
     parser.add_argument("--substeps", type=int, default=None,
                         help="plant integration sub-steps (default: the plant's default)")
