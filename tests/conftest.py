@@ -1,4 +1,4 @@
-"""Shared fixtures: the sample time, the default PID and the expensive closed-loop runs (once per session)."""
+"""Shared fixtures: sample time, default PID, and the expensive closed-loop runs (once per session)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The ``clm-sim`` command: bad records for ``identify``, ``export``, and the end-to-end baseline."""
+"""The ``clm-sim`` command: bad records for ``identify``, ``export``, the end-to-end baseline."""
 
 from __future__ import annotations
 

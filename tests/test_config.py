@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 
 from experiments.cli import main
 from experiments.config import ExperimentConfig, load_config, resolved
@@ -89,7 +90,6 @@ def test_shipped_config_loads_and_resolves(tmp_path):
     shipped = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "lip_baseline.yaml"
     config = load_config(shipped)
     assert [f.kind for f in config.feedforwards] == ["none", "lip"]
-    import yaml
     again = tmp_path / "resolved.yaml"
     again.write_text(yaml.safe_dump(resolved(config), sort_keys=False))
     assert load_config(again) == config

@@ -161,7 +161,7 @@ def _breakaway(plant: Plant, direction: float) -> float:
 
 
 def _input_for_net_force(plant: Plant, y0: float, net: float) -> float:
-    """The held input u with ``u - sum(effect forces at rest at y0) - fk*y0 = net`` (affine in u)."""
+    """The held input u with ``u - sum(effect forces at rest at y0) - fk*y0 = net`` (affine)."""
     def f(u):
         return u - float(total_force(plant.effects, np.array(y0), np.array(0.0), np.array(u))) \
             - plant.stiffness * y0
@@ -329,7 +329,8 @@ def _antisymmetric_friction(e: FrictionAsymmetry) -> FrictionAsymmetry:
 # Columns a LIP (or an offset) already holds, which absorb part of an effect, and the effect that
 # the round trip must then return.
 ABSORBED = {
-    "cable_slab": (lambda y, v: {"one": np.ones_like(y), "y": y - EFFECT_CASES["cable_slab"].center},
+    "cable_slab": (lambda y, v: {"one": np.ones_like(y),
+                                 "y": y - EFFECT_CASES["cable_slab"].center},
                    CableSlab(coefficients=(0.0, 0.0) + EFFECT_CASES["cable_slab"].coefficients[2:],
                              center=EFFECT_CASES["cable_slab"].center)),
     "friction_asymmetry": (lambda y, v: {"sign_v": np.sign(v), "v": v},
