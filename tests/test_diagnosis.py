@@ -1,0 +1,243 @@
+"""The diagnosis finds effects hidden in records it did not see being made.
+
+Each case draws an effect and its parameters at random (seeded) from ranges a real CLM could have,
+measures a dithered closed-loop record on the truth plant (r1 once, 17.6 s at 10 kHz), and gives
+the diagnosis only the record and the nominal model: the default CLM parameters with no effects,
+and the PID the loop ran with. The truth is used only in the assertions.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clm_sim.diagnosis import DiagnosisSettings, diagnose, load_model
+from clm_sim.diagnosis.emulate import measure
+from clm_sim.effects import Cogging, ForceOffset, ForceRipple, FrictionAsymmetry, Stribeck
+from clm_sim.errors import UserError
+from clm_sim.plant import Plant
+from clm_sim.record import Run, load_record, save_csv, save_npz
+
+NOMINAL = Plant(effects=())
+EMPS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "emps"
+EMPS_COLUMNS, EMPS_SCALE = {"y": "qm", "r": "qg", "u": "vir"}, {"u": "gtau"}
+MODEL_FILE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "emps_model.yaml"
+
+
+def draw(kind: str, rng: np.random.Generator):
+    """A hidden effect (or plant change) with parameters from realistic ranges."""
+    phase = float(rng.uniform(-math.pi, math.pi))
+    if kind == "cogging":  # iron-core motors: a few N over a 5-40 mm pitch
+        return Cogging(amplitude=float(rng.uniform(1.0, 8.0)),
+                       period=float(rng.uniform(0.005, 0.04)), phase=phase)
+    if kind == "force_ripple":  # commutation ripple: 1-4 % over the magnet pitch
+        return ForceRipple(amplitude=float(rng.uniform(0.01, 0.04)),
+                           period=float(rng.uniform(0.01, 0.04)), phase=phase)
+    if kind == "stribeck":  # guide friction peak; velocity >= 3x the encoder speed floor (2 mm/s)
+        return Stribeck(static=float(rng.uniform(1.5, 4.0)),
+                        velocity=float(rng.uniform(0.006, 0.015)))
+    if kind == "friction_asymmetry":  # direction-dependent viscous friction
+        d = float(rng.uniform(10.0, 40.0))
+        return FrictionAsymmetry(viscous_pos=d, viscous_neg=-d)
+    if kind == "force_offset":  # tilt, cable preload, amplifier offset
+        return ForceOffset(force_n=float(rng.choice([-1, 1]) * rng.uniform(1.0, 8.0)))
+    raise ValueError(kind)
+
+
+def truth_plant(kind: str, rng: np.random.Generator) -> Plant:
+    if kind == "none":
+        return NOMINAL
+    if kind == "parameter_mismatch":  # 5-20 % off in mass, viscous and Coulomb friction
+        f = lambda: float(rng.choice([-1, 1]) * rng.uniform(0.05, 0.2))  # noqa: E731
+        return Plant(mass=NOMINAL.mass * (1 + f()), viscous=NOMINAL.viscous * (1 + f()),
+                     coulomb=NOMINAL.coulomb * (1 + f()), effects=())
+    if kind == "two":
+        return Plant(effects=(draw("cogging", rng), draw("force_offset", rng)))
+    return Plant(effects=(draw(kind, rng),))
+
+
+CASES = ("cogging", "force_ripple", "stribeck", "friction_asymmetry", "force_offset",
+         "parameter_mismatch")
+
+
+@pytest.fixture(scope="session")
+def diagnosed():
+    """Per case: (truth plant, record, diagnosis); each case has its own seeded stream."""
+    cache = {}
+
+    def get(kind: str):
+        if kind not in cache:
+            seed = np.random.SeedSequence(20261122, spawn_key=((CASES + ("none", "two")).index(kind),))
+            rng_truth, rng_dither = (np.random.default_rng(s) for s in seed.spawn(2))
+            truth = truth_plant(kind, rng_truth)
+            run, model = measure(truth, NOMINAL, rng_dither)
+            cache[kind] = (truth, run, diagnose(run, model))
+        return cache[kind]
+    return get
+
+
+def _angle(a: float, b: float) -> float:
+    return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+
+
+@pytest.mark.parametrize("kind", CASES)
+def test_hidden_effect_is_named_first_with_its_parameters(diagnosed, kind):
+    truth, run, d = diagnosed(kind)
+    assert d.findings, f"nothing found for hidden {kind}"
+    first = d.findings[0]
+    assert first["effect"] == kind
+    p = first["parameters"]
+    if kind == "parameter_mismatch":
+        for name in ("mass", "viscous", "coulomb"):
+            assert p[name]["model"] == getattr(NOMINAL, name)
+        # Mass: 2 %. Viscous and Coulomb friction trade off along the friction curve over the
+        # 2-50 mm/s of the record (the slowest samples are left out): 5 % each, and the
+        # friction force itself within 4 % over that speed range. The errors are 5-20 %.
+        assert p["mass"]["data"] == pytest.approx(truth.mass, rel=0.02)
+        assert p["viscous"]["data"] == pytest.approx(truth.viscous, rel=0.05)
+        assert p["coulomb"]["data"] == pytest.approx(truth.coulomb, rel=0.05)
+        v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.05, 100)
+        found = p["viscous"]["data"] * v + p["coulomb"]["data"]
+        true = truth.viscous * v + truth.coulomb
+        assert np.max(np.abs(found / true - 1)) < 0.04
+        return
+    true = truth.effects[0]
+    if kind in ("cogging", "force_ripple"):
+        assert p["period"] == pytest.approx(true.period, rel=0.02)  # the issue's bar
+        assert p["amplitude"] == pytest.approx(true.amplitude, rel=0.10)  # the issue's bar
+        assert _angle(p["phase"], true.phase) < 0.15  # rad; follows from a 2 % period
+    elif kind == "stribeck":
+        # Only ~1 % of the samples lie between the encoder speed floor and a few Stribeck
+        # velocities, and static and velocity trade off there: the friction curve above the
+        # floor is held to 15 % of the peak, the velocity to 25 %.
+        found = Stribeck(static=p["static"], velocity=p["velocity"])
+        v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.05, 200)
+        assert np.max(np.abs(found.force(0, v, 0) - true.force(0, v, 0))) < 0.15 * true.static
+        assert p["velocity"] == pytest.approx(true.velocity, rel=0.25)
+    elif kind == "friction_asymmetry":
+        assert p["viscous_pos"] == pytest.approx(true.viscous_pos, rel=0.05)  # 5 %: linear term
+        assert p["viscous_neg"] == pytest.approx(true.viscous_neg, rel=0.05)
+    elif kind == "force_offset":
+        assert p["force"] == pytest.approx(true.force_n, rel=0.05)  # 5 %: linear term
+
+
+@pytest.mark.parametrize("kind", CASES + ("two",))
+def test_extension_gains_out_of_sample(diagnosed, kind):
+    _, _, d = diagnosed(kind)
+    g = d.gain
+    # Held-out final quarter of the record: the extended model must remove at least half of
+    # the force residual (the hidden effects are 2-50x the noise floor of about 0.1 N).
+    assert g["residual_rms_after"] < 0.5 * g["residual_rms_before"]
+    if d.effects:  # a LIP re-identifies parameters itself; it gains from effects only
+        assert g["lip_residual_rms_after"] < g["lip_residual_rms_before"]
+    assert g["resim_mismatch_rms_after"] <= g["resim_mismatch_rms_before"]
+
+
+def test_no_hidden_effect_no_finding(diagnosed):
+    _, _, d = diagnosed("none")
+    assert d.findings == []
+    assert d.gain["residual_rms_after"] == d.gain["residual_rms_before"]
+
+
+def test_two_hidden_effects_are_both_found(diagnosed):
+    truth, _, d = diagnosed("two")
+    names = [f["effect"] for f in d.findings]
+    assert sorted(names[:2]) == ["cogging", "force_offset"]
+    cog = next(f for f in d.findings if f["effect"] == "cogging")["parameters"]
+    assert cog["period"] == pytest.approx(truth.effects[0].period, rel=0.02)
+    assert cog["amplitude"] == pytest.approx(truth.effects[0].amplitude, rel=0.10)
+    # Ranked by explained fraction.
+    fractions = [f["explained_fraction"] for f in d.findings]
+    assert fractions == sorted(fractions, reverse=True)
+
+
+def test_diagnosis_is_deterministic(diagnosed):
+    _, run, d = diagnosed("cogging")
+    again = diagnose(run, d.model)
+    assert json.dumps(again.to_json()) == json.dumps(d.to_json())
+
+
+# ------------------------------------------------------------------ records and CLI
+def _short_record(tmp_path, name="rec.csv", **change):
+    run, _ = measure(Plant(effects=(Cogging(amplitude=3.0, period=0.012),)), NOMINAL,
+                     np.random.default_rng(5))
+    sig = {k: v for k, v in run.signals().items()}
+    sig.update(change)
+    path = tmp_path / name
+    save_csv(Run(**sig), path)
+    return path, run
+
+
+def test_cli_writes_json_and_report(tmp_path):
+    from experiments.cli import main
+    rec = tmp_path / "rec.npz"
+    run, _ = measure(Plant(effects=(Cogging(amplitude=3.0, period=0.012),)), NOMINAL,
+                     np.random.default_rng(5))
+    save_npz(run, rec)
+    model = tmp_path / "model.yaml"
+    model.write_text("plant: {mass: 18.8, viscous: 172.0, coulomb: 7.21, effects: []}\n"
+                     "controller: {crossover_hz: 30.0}\n")
+    assert main(["diagnose", str(rec), "--model", str(model), "--out", str(tmp_path / "d")]) == 0
+    out = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert out["findings"][0]["effect"] == "cogging"
+    assert out["gain"]["residual_rms_after"] < out["gain"]["residual_rms_before"]
+    assert "resim_mismatch_rms_after" in out["gain"]  # the controller was given
+    assert (tmp_path / "d" / "report.md").read_text().count("![") >= 3
+
+
+@pytest.mark.parametrize("problem, message", [
+    ("missing", "missing column"),
+    ("nan", "NaN or inf"),
+    ("time", "strictly increasing"),
+    ("uneven", "not uniformly sampled"),
+    ("short", "too short"),
+    ("still", "too little excitation"),
+])
+def test_malformed_records_fail_in_one_line(tmp_path, capsys, problem, message):
+    from experiments.cli import main
+    n = 3000
+    t = np.arange(n) * 1e-3
+    sig = {"t": t, "r": np.zeros(n), "y": np.zeros(n), "u": np.zeros(n)}
+    if problem == "still":
+        sig["y"] = 1e-7 * np.round(np.sin(t) * 0.5)  # barely moves
+    elif problem == "nan":
+        sig["u"][10] = np.nan
+    elif problem == "time":
+        sig["t"][5] = sig["t"][4]
+    elif problem == "uneven":
+        sig["t"] = t + 1e-4 * (np.arange(n) % 2)
+    elif problem == "short":
+        sig = {k: v[:50] for k, v in sig.items()}
+    path = tmp_path / "bad.csv"
+    cols = [k for k in sig if not (problem == "missing" and k == "u")]
+    np.savetxt(path, np.column_stack([sig[k] for k in cols]), delimiter=",",
+               header=",".join(cols), comments="")
+    assert main(["diagnose", str(path), "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err
+    assert not (tmp_path / "d").exists()  # no partial output
+
+
+def test_model_file_errors_name_the_key(tmp_path):
+    bad = tmp_path / "m.yaml"
+    bad.write_text("plant: {mass: 18.8, visocus: 3}\n")
+    with pytest.raises(UserError, match="visocus"):
+        load_model(bad, 1e-4)
+
+
+# ------------------------------------------------------------------ real data
+@pytest.mark.skipif(not (EMPS / "DATA_EMPS.mat").exists(), reason="EMPS data not present")
+def test_emps_out_of_sample_gain():
+    rec = load_record(EMPS / "DATA_EMPS.mat", EMPS_COLUMNS, EMPS_SCALE)
+    val = load_record(EMPS / "DATA_EMPS_PULSES.mat", EMPS_COLUMNS, EMPS_SCALE)
+    d = diagnose(rec, load_model(MODEL_FILE, rec.ts), validation=val,
+                 settings=DiagnosisSettings())
+    assert d.findings
+    # The published model is good; the extension must still lower the residual on PULSES, which
+    # the diagnosis never saw, and the re-simulated loop must not drift further from it.
+    assert d.gain["residual_rms_after"] < 0.95 * d.gain["residual_rms_before"]
+    assert d.gain["resim_mismatch_rms_after"] <= d.gain["resim_mismatch_rms_before"]
