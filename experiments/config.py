@@ -98,12 +98,18 @@ def _default_feedforwards() -> tuple[FeedforwardSpec, ...]:
 
 @dataclass(frozen=True)
 class ExperimentConfig:
-    """Everything a run needs; ``seed`` drives every random draw through spawned child streams."""
+    """Everything a run needs; ``seed`` drives every random draw through spawned child streams.
+
+    ``plant`` is what the simulation believes (the PID is designed on it); ``truth``, when given,
+    is the emulated machine the runs are measured on (with effects the model lacks), and the run
+    then diagnoses ``plant`` against it (``clm_sim.diagnosis``).
+    """
 
     name: str = "experiment"
     seed: int = 0
     ts: float = 1e-4
     plant: Plant = field(default_factory=Plant)
+    truth: Plant | None = None
     controller: PIDDesign = field(default_factory=PIDDesign)
     references: dict[str, PointToPoint] = field(default_factory=_default_references)
     training: Training = field(default_factory=Training)

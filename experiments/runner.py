@@ -175,7 +175,8 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     dither = config.training.dither.draw(len(r_train), rng)
     progress(f"training run on {config.training.reference}: {len(r_train)} samples "
              f"({len(r_train) * ts:.1f} s) with dither {config.training.dither.std_n:g} N")
-    train = simulate(plant, pid, r_train, ts, dither=dither, meta={**meta, "run": "training"})
+    machine = config.truth or plant  # runs are measured on the truth when one is given
+    train = simulate(machine, pid, r_train, ts, dither=dither, meta={**meta, "run": "training"})
     if out is not None:
         save_npz(train, out / "runs" / "training.npz")
 
@@ -193,7 +194,7 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
             metrics = {}
             for name, r in refs.items():
                 u_ff = None if model is None else model.feedforward(r, ts)
-                run = simulate(plant, pid, r, ts, u_ff=u_ff,
+                run = simulate(machine, pid, r, ts, u_ff=u_ff,
                                meta={**meta, "run": f"replay {spec.label()} on {name}", "seed": s})
                 metrics[name] = table.tracking_metrics(run.e)
                 if s == 0 and out is not None:
@@ -211,6 +212,11 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
 
     if out is None:
         return rows
+    if config.truth is not None:  # diagnose the model against the emulated machine
+        from clm_sim.diagnosis.emulate import diagnose_emulated
+        diagnose_emulated(model=plant, truth=config.truth, controller=pid,
+                          features=config.features, record=train, references=refs,
+                          out=out / "diagnosis", name=config.name, progress=progress)
     (out / "table.json").write_text(table.to_json(rows))
     (out / "table.md").write_text(table.to_markdown(rows))
     (out / "table.csv").write_text(table.to_csv(rows))

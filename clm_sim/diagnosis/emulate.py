@@ -28,3 +28,54 @@ def measure(truth: Plant, model: Plant, rng: np.random.Generator, *, ts: float =
                    meta={"source": "emulated machine"})
     controller = Controller(np.asarray(pid.b, float), np.asarray(pid.a, float), np.zeros(0))
     return run, SimulationModel(model, controller, "nominal")
+
+
+def unique_effects(effects) -> tuple:
+    """One effect per type (the first, i.e. the strongest of a ranked list): what a LIP takes."""
+    seen = {}
+    for e in effects:
+        seen.setdefault(e.type, e)
+    return tuple(seen.values())
+
+
+def diagnose_emulated(*, model: Plant, truth: Plant, controller, features, record: Run,
+                      references: dict[str, np.ndarray], out, name: str = "model",
+                      progress=print) -> dict:
+    """The truth-plant path of an experiment: diagnose ``model`` on ``record`` (measured on
+    ``truth`` with ``controller``), write the report into ``out``, and measure the LIP
+    feedforward's tracking MAE (m) on each reference, replayed on the truth, before and after
+    adding the found effects to the LIP. Returns the numbers (also in ``out/feedforward_gain.json``).
+    """
+    import json
+    from pathlib import Path
+
+    from clm_sim.diagnosis.diagnose import diagnose
+    from clm_sim.diagnosis.report import write
+    from controllers.lip import LIPFeedforward
+
+    ts = record.ts
+    ctrl = Controller(np.asarray(controller.b, float), np.asarray(controller.a, float),
+                      np.zeros(0))
+    result = diagnose(record, SimulationModel(model, ctrl, name))
+    for k, f in enumerate(result.findings, 1):
+        progress(f"diagnosis {k}. {f['effect']}: " + ", ".join(
+            f"{n} {v:.4g}" if isinstance(v, float) else f"{n} {v['model']:.4g} -> {v['data']:.4g}"
+            for n, v in f["parameters"].items()))
+    effects = unique_effects(result.effects)
+    lips = {"before": LIPFeedforward(features=features).fit(y=record.y, u=record.u, ts=ts),
+            "after": LIPFeedforward(features=features, effects=effects).fit(
+                y=record.y, u=record.u, ts=ts)}
+    mae = {}
+    for when, lip in lips.items():
+        for ref, r in references.items():
+            run = simulate(truth, controller, r, ts, u_ff=lip.feedforward(r, ts))
+            mae.setdefault(ref, {})[when] = float(np.mean(np.abs(run.e)))
+    gain = {"lip_mae_m": mae, "lip_effects": [e.as_config() for e in effects],
+            "residual_rms_before": result.gain["residual_rms_before"],
+            "residual_rms_after": result.gain["residual_rms_after"]}
+    result.info["feedforward_gain"] = gain
+    write(result, Path(out))
+    (Path(out) / "feedforward_gain.json").write_text(json.dumps(gain, indent=1))
+    progress("diagnosis: LIP feedforward MAE " + ", ".join(
+        f"{ref} {v['before'] * 1e6:.3f} -> {v['after'] * 1e6:.3f} µm" for ref, v in mae.items()))
+    return gain
