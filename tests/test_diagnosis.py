@@ -241,3 +241,18 @@ def test_emps_out_of_sample_gain():
     # the diagnosis never saw, and the re-simulated loop must not drift further from it.
     assert d.gain["residual_rms_after"] < 0.95 * d.gain["residual_rms_before"]
     assert d.gain["resim_mismatch_rms_after"] <= d.gain["resim_mismatch_rms_before"]
+
+
+@pytest.mark.slow
+def test_emulated_machine_config_reports_feedforward_gain(tmp_path):
+    from experiments.config import load_config
+    from experiments.runner import run_experiment
+    config_path = MODEL_FILE.parent / "emulated_machine.yaml"
+    run_experiment(load_config(config_path), tmp_path / "emu", quiet=True)
+    diag = json.loads((tmp_path / "emu" / "diagnosis" / "diagnosis.json").read_text())
+    named = {f["effect"] for f in diag["findings"]}
+    # The config's truth differs from the model by mass, cogging, a Stribeck peak and an offset.
+    assert named == {"cogging", "stribeck", "force_offset", "parameter_mismatch"}
+    gain = json.loads((tmp_path / "emu" / "diagnosis" / "feedforward_gain.json").read_text())
+    for ref in ("r1", "r2"):  # the extended LIP must track better on the machine
+        assert gain["lip_mae_m"][ref]["after"] < 0.5 * gain["lip_mae_m"][ref]["before"]
