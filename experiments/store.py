@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from functools import lru_cache
 from pathlib import Path
 
 from clm_sim import __version__
@@ -24,9 +23,9 @@ _RESULT_SOURCES = ("clm_sim", "controllers", "experiments/config.py", "experimen
                    "experiments/table.py")
 
 
-@lru_cache(maxsize=1)
 def code_version() -> str:
-    """``<clm_sim.__version__>+<hash of the sources that compute task results>``."""
+    """``<clm_sim.__version__>+<hash of the sources that compute task results>``, read from the
+    files now (an edited source gives a new version, so its tasks are recomputed)."""
     digest = hashlib.sha256()
     for entry in _RESULT_SOURCES:
         path = _PACKAGE_ROOT / entry

@@ -69,6 +69,7 @@ class Sweep:
     base: dict
     grid: dict[str, list]
     tasks: tuple[Task, ...]
+    code_version: str
 
 
 @dataclass
@@ -263,7 +264,7 @@ def load_sweep(path, *, max_tasks: int | None = None) -> Sweep:
         except (UserError, ValueError) as exc:
             raise _point_error(path, overrides, exc) from None
         tasks.append(Task(i, overrides, config, task_key(config, version)))
-    return Sweep(path, base, grid, tuple(tasks))
+    return Sweep(path, base, grid, tuple(tasks), version)
 
 
 # ----------------------------------------------------------------------------- one task
@@ -337,7 +338,7 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
     try:
         store = ResultStore(out / "tasks").open()
         atomic_write_bytes(out / "sweep.resolved.yaml", yaml.safe_dump(
-            {"base": sweep.base, "grid": sweep.grid, "code_version": code_version()},
+            {"base": sweep.base, "grid": sweep.grid, "code_version": sweep.code_version},
             sort_keys=False).encode())
         outcome = Outcome(total=len(sweep.tasks))
         todo, seen = [], set()
@@ -361,7 +362,8 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
                                  min(workers, max(len(todo), 1)), **kwargs):
                 task = todo[i]
                 store.put(task.key, {**result, "key": task.key, "overrides": task.overrides,
-                                     "code_version": code_version(), "config": task.config})
+                                     "code_version": sweep.code_version,
+                                     "config": task.config})
                 outcome.computed += 1
                 point = ", ".join(f"{k}={v}" for k, v in task.overrides.items()) or "config"
                 status = ("ok" if result["status"] == "ok" else
