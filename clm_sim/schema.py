@@ -127,7 +127,10 @@ def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
     try:
         return cls(**kwargs)
     except UserError as exc:
-        raise UserError(f"{key}: {exc}") from None
+        # The class names itself ("plant: mass must be > 0"); keep the full key path only once.
+        head, _, rest = str(exc).partition(": ")
+        message = rest if rest and key.rsplit(".", 1)[-1] == head else str(exc)
+        raise UserError(f"{key}: {message}") from None
     except TypeError as exc:  # a required field is missing
         raise UserError(f"{key}: {exc}") from None
 

@@ -161,8 +161,11 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
                                                                  sort_keys=False))
 
     plant = config.plant
-    pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
-                     design=config.controller, ts=ts)
+    try:
+        pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
+                         design=config.controller, ts=ts)
+    except UserError as exc:
+        raise UserError(f"{config_path or 'config'}: controller: {exc}") from None
     progress(pid.summary())
     if out is not None:
         (out / "controller.json").write_text(json.dumps({
