@@ -30,14 +30,6 @@ def measure(truth: Plant, model: Plant, rng: np.random.Generator, *, ts: float =
     return run, SimulationModel(model, controller, "nominal")
 
 
-def unique_effects(effects) -> tuple:
-    """One effect per type (the first, i.e. the strongest of a ranked list): what a LIP takes."""
-    seen = {}
-    for e in effects:
-        seen.setdefault(e.type, e)
-    return tuple(seen.values())
-
-
 def diagnose_emulated(*, model: Plant, truth: Plant, controller, features, record: Run,
                       references: dict[str, np.ndarray], out, name: str = "model",
                       progress=print) -> dict:
@@ -50,6 +42,7 @@ def diagnose_emulated(*, model: Plant, truth: Plant, controller, features, recor
     from pathlib import Path
 
     from clm_sim.diagnosis.diagnose import diagnose
+    from clm_sim.diagnosis.extend import fit_lip
     from clm_sim.diagnosis.report import write
     from controllers.lip import LIPFeedforward
 
@@ -61,10 +54,9 @@ def diagnose_emulated(*, model: Plant, truth: Plant, controller, features, recor
         progress(f"diagnosis {k}. {f['effect']}: " + ", ".join(
             f"{n} {v:.4g}" if isinstance(v, float) else f"{n} {v['model']:.4g} -> {v['data']:.4g}"
             for n, v in f["parameters"].items()))
-    effects = unique_effects(result.effects)
     lips = {"before": LIPFeedforward(features=features).fit(y=record.y, u=record.u, ts=ts),
-            "after": LIPFeedforward(features=features, effects=effects).fit(
-                y=record.y, u=record.u, ts=ts)}
+            "after": fit_lip(features, result.effects, record)}
+    effects = lips["after"].effects
     mae = {}
     for when, lip in lips.items():
         for ref, r in references.items():

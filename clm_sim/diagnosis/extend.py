@@ -92,10 +92,34 @@ def extended_plant(plant: Plant, correction: dict, effects: tuple[Effect, ...]) 
     return dataclasses.replace(plant, **theta, effects=tuple(plant.effects) + tuple(effects))
 
 
+def lip_effects(effects) -> tuple[Effect, ...]:
+    """The effects a LIP takes: one per type (its regressor names are per type), the first of
+    each in ``effects`` (ranked: the strongest)."""
+    seen: dict[str, Effect] = {}
+    for e in effects:
+        seen.setdefault(e.type, e)
+    return tuple(seen.values())
+
+
+def fit_lip(features: FeatureMap, effects, run: Run) -> LIPFeedforward:
+    """A LIP with ``lip_effects(effects)`` fitted on ``run``. Where the record has too few
+    standstill samples to tell a constant force from the Coulomb part of a friction asymmetry
+    (collinear columns), the asymmetry's ``|sign v|`` column carries the constant and the
+    ``force_offset`` is left out."""
+    effects = lip_effects(effects)
+    try:
+        return LIPFeedforward(features=features, effects=effects).fit(y=run.y, u=run.u, ts=run.ts)
+    except UserError:
+        types = {e.type for e in effects}
+        if not {"force_offset", "friction_asymmetry"} <= types:
+            raise
+        effects = tuple(e for e in effects if e.type != "force_offset")
+        return LIPFeedforward(features=features, effects=effects).fit(y=run.y, u=run.u, ts=run.ts)
+
+
 def lip_residual_rms(est: Run, val: Residual, val_run: Run, effects, cutoff: float) -> float:
     """Out-of-sample force RMS (N) of a LIP with ``effects`` fitted on ``est``, on ``val``."""
-    lip = LIPFeedforward(features=FeatureMap(regression_lowpass_hz=cutoff), effects=effects)
-    lip.fit(y=est.y, u=est.u, ts=est.ts)
+    lip = fit_lip(FeatureMap(regression_lowpass_hz=cutoff), effects, est)
     pred = lip.predict(y=val_run.y, ts=val_run.ts, u=val_run.u)
     z = val.filter(edge_force(val_run.u) - pred)[val.idx]
     return float(np.sqrt(np.mean(z**2)))
@@ -123,12 +147,9 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
     gain["residual_rms_reduction"] = 1.0 - gain["residual_rms_after"] / \
         max(gain["residual_rms_before"], 1e-300)
     try:
-        # A LIP takes one effect of each type (its regressor names are per type): the
-        # strongest, as ``effects`` are in order of explained fraction.
-        unique = tuple({e.type: e for e in reversed(effects)}.values())[::-1]
-        gain["lip_effects"] = [e.type for e in unique]
+        gain["lip_effects"] = [e.type for e in lip_effects(effects)]
         lip = (lip_residual_rms(est, res_b, val, (), res_b.cutoff),
-               lip_residual_rms(est, res_b, val, unique, res_b.cutoff))
+               lip_residual_rms(est, res_b, val, effects, res_b.cutoff))
         gain["lip_residual_rms_before"], gain["lip_residual_rms_after"] = lip
     except UserError as exc:  # a LIP cannot always take every effect (collinear columns)
         gain["lip_error"] = str(exc)

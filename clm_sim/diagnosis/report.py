@@ -55,13 +55,17 @@ def _figures(d: Diagnosis, folder: Path) -> list[tuple[str, str]]:
 
     if "e_measured" in d.signals:
         s = d.signals
-        fig, ax = plt.subplots(figsize=(10, 4))
+        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
         ax.plot(s["t"], s["e_measured"] * 1e6, lw=0.6, label="measured")
         ax.plot(s["t"], s["e_before"] * 1e6, lw=0.6, label="re-simulated, model")
         ax.plot(s["t"], s["e_after"] * 1e6, lw=0.6, ls="--", label="re-simulated, extended")
-        ax.set_xlabel("time (s)")
         ax.set_ylabel("tracking error (µm)")
         ax.legend(fontsize=8)
+        ax2.plot(s["t"], (s["e_before"] - s["e_measured"]) * 1e6, lw=0.6, label="model")
+        ax2.plot(s["t"], (s["e_after"] - s["e_measured"]) * 1e6, lw=0.6, label="extended")
+        ax2.set_xlabel("time (s)")
+        ax2.set_ylabel("re-simulated - measured (µm)")
+        ax2.legend(fontsize=8)
         fig.tight_layout()
         fig.savefig(folder / "tracking.png", dpi=110)
         plt.close(fig)
