@@ -25,6 +25,8 @@ from clm_sim.errors import UserError
 SIGNALS = ("t", "r", "y", "y_true", "u", "u_fb", "u_ff", "dither", "e")
 REQUIRED = ("t", "r", "y", "u")
 MIN_SAMPLES = 200
+MAX_TS = 0.01  # s: a servo record sampled slower than 100 Hz has its time stamps in ms
+MAX_POSITION_M = 10.0  # m: longer than any linear-motor stroke; larger values are in mm or counts
 
 
 @dataclass(frozen=True)
@@ -163,7 +165,9 @@ def load_record(path, columns: dict[str, str] | None = None,
     min_samples : shortest record accepted.
 
     Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
-    inf, time stamps that are not strictly increasing and uniform, or a record that is too short.
+    inf, time stamps that are not strictly increasing and uniform, or a record that is too short,
+    and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or a
+    position beyond ``MAX_POSITION_M`` (y in mm).
     """
     path = Path(path)
     if not path.exists():
@@ -214,6 +218,17 @@ def load_record(path, columns: dict[str, str] | None = None,
     if np.max(np.abs(dt - ts)) > 1e-3 * ts:
         raise UserError(f"{path}: column {columns.get('t', 't')!r} is not uniformly sampled "
                         f"(steps from {dt.min():.6g} to {dt.max():.6g} s)")
+    # Orders of magnitude that SI data cannot have: catch ms time stamps and mm positions.
+    if ts > MAX_TS:
+        raise UserError(f"{path}: column {columns.get('t', 't')!r} steps by {ts:.6g} s, slower "
+                        f"than a servo log ({1 / MAX_TS:g} Hz at least); are the time stamps "
+                        f"in ms? (t must be in s)")
+    for name in ("r", "y"):
+        peak = float(np.max(np.abs(out[name])))
+        if peak > MAX_POSITION_M:
+            raise UserError(f"{path}: column {columns.get(name, name)!r} reaches {peak:.6g}, "
+                            f"beyond {MAX_POSITION_M:g} m; positions must be in m (for a record "
+                            f"in mm, scale {name} by 0.001)")
     meta = {"source": str(path)}
     if path.suffix.lower() == ".npz":
         with np.load(path, allow_pickle=False) as z:
