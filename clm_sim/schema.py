@@ -21,8 +21,26 @@ from clm_sim.effects import EFFECTS, Effect
 from clm_sim.errors import UserError
 
 
+class _StrictLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` (no Python tags, no code) that also refuses a duplicated key, which
+    plain YAML resolves silently by keeping the last value."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if not isinstance(key, (str, int, float, bool)):
+                continue  # unhashable keys are refused by the base class
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key!r}", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def load_yaml(path) -> dict:
-    """Read a YAML mapping safely; one-line errors for a missing file or bad syntax."""
+    """Read a YAML mapping safely (no Python tags); one-line errors for a missing file, bad
+    syntax or a duplicated key."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -31,7 +49,7 @@ def load_yaml(path) -> dict:
     except (IsADirectoryError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: cannot read ({type(exc).__name__})") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark else ""
