@@ -21,6 +21,7 @@ from clm_sim.effects import CableSlab, Effect, ForceRipple, Stribeck, lower_effe
 from clm_sim.errors import UserError
 
 THETA_NAMES = ("mass", "viscous", "coulomb", "stiffness")
+MAX_ENCODER_RESOLUTION = 1e-3  # m per count; a coarser value is a unit mistake (um or nm)
 
 
 def default_effects() -> tuple[Effect, ...]:
@@ -60,6 +61,10 @@ class Plant:
             if value < 0 or (value == 0 and not zero_ok):
                 raise UserError(f"plant: {key} must be {'>= 0' if zero_ok else '> 0'}, "
                                 f"got {value!r}")
+        if self.encoder_resolution > MAX_ENCODER_RESOLUTION:
+            raise UserError(f"plant: encoder_resolution is in m per count; "
+                            f"{self.encoder_resolution!r} m is coarser than any linear encoder "
+                            f"(at most {MAX_ENCODER_RESOLUTION:g} m); is it in um or nm?")
         if not (isinstance(self.stiffness, (int, float)) and math.isfinite(self.stiffness)):
             raise UserError(f"plant: stiffness must be a finite number, got {self.stiffness!r}")
         if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 1000):
