@@ -139,6 +139,11 @@ def preflight(config: ExperimentConfig) -> None:
         if value is not None and value >= nyquist:
             raise UserError(f"features.{key}: {value:g} Hz is at or above the Nyquist frequency "
                             f"{nyquist:g} Hz of ts = {config.ts:g} s")
+    for name, ref in config.references.items():
+        peak = max(abs(p) for p in ref.points_m)
+        if peak > 10.0:  # m: beyond any linear-motor stroke, so the points are in mm
+            raise UserError(f"references.{name}.points_m: {peak:g} m is beyond any stroke; "
+                            f"points are in m (is it in mm?)")
     points = config.references[config.training.reference].points_m
     if config.training.repeats > 1 and points[0] != points[-1]:  # as training_reference, unsampled
         raise UserError(f"training.repeats: reference {config.training.reference!r} must end "
