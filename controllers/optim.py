@@ -1,0 +1,111 @@
+"""Full-batch optimizers for small nonlinear least-squares problems (~100 parameters).
+
+Both minimize ``V(p) = ||r(p)||**2`` given ``fun(p, jacobian)`` that returns the residual vector
+``r`` (and its Jacobian ``J = dr/dp`` when ``jacobian`` is true), in float64:
+
+* :func:`levenberg_marquardt`: Gauss-Newton steps damped by ``mu * diag(J'J)`` (Marquardt's scaling,
+  so the step does not depend on the units of the parameters), gain-ratio damping update of
+  Nielsen (1999). Only cost decreases are accepted, so the last iterate is the best one.
+* :func:`adam`: plain full-batch Adam on the gradient ``2 J'r`` (for comparison).
+
+``callback(iteration, p, cost)`` is called on the initial point and on every accepted iterate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+
+@dataclass(frozen=True)
+class OptimResult:
+    """Best parameters found, their cost, accepted iterations and residual evaluations."""
+
+    p: np.ndarray
+    cost: float
+    iterations: int
+    evaluations: int
+
+
+def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float = 1e-3,
+                        rtol: float = 1e-10, callback=None) -> OptimResult:
+    """Minimize ``||r(p)||**2``; ``max_iter`` bounds the Jacobian evaluations.
+
+    Stops early when the relative cost decrease of an accepted step is below ``rtol`` or when the
+    damping grows so large that no step can decrease the cost (a local minimum to working
+    precision).
+    """
+    p = np.array(p0, dtype=np.float64)
+    r, J = fun(p, True)
+    cost = float(r @ r)
+    if callback is not None:
+        callback(0, p, cost)
+    mu, nu, evals, it = mu0, 2.0, 1, 0
+    while it < max_iter:
+        A = J.T @ J
+        g = J.T @ r
+        d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+        As = A / np.outer(d, d)
+        gs = g / d
+        accepted = False
+        while mu < 1e16:
+            try:
+                step = -scipy.linalg.cho_solve(
+                    scipy.linalg.cho_factor(As + mu * np.eye(len(p))), gs) / d
+            except np.linalg.LinAlgError:
+                mu *= nu
+                nu *= 2.0
+                continue
+            r_new = fun(p + step, False)
+            evals += 1
+            cost_new = float(r_new @ r_new)
+            # Predicted decrease of the damped Gauss-Newton model (always > 0).
+            predicted = float(step @ (mu * d * d * step - g))
+            rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
+            if rho > 0 and np.isfinite(cost_new):
+                accepted = True
+                break
+            mu *= nu
+            nu *= 2.0
+        if not accepted:
+            break
+        it += 1
+        p = p + step
+        decrease = (cost - cost_new) / max(cost, 1e-300)
+        mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+        nu = 2.0
+        r, J = fun(p, True)
+        evals += 1
+        cost = float(r @ r)
+        if callback is not None:
+            callback(it, p, cost)
+        if decrease < rtol:
+            break
+    return OptimResult(p=p, cost=cost, iterations=it, evaluations=evals)
+
+
+def adam(fun, p0: np.ndarray, *, max_iter: int = 1000, lr: float = 1e-3, betas=(0.9, 0.999),
+         eps: float = 1e-8, callback=None) -> OptimResult:
+    """Full-batch Adam on ``||r(p)||**2``; returns the best iterate seen (Adam is not monotone)."""
+    p = np.array(p0, dtype=np.float64)
+    m = np.zeros_like(p)
+    v = np.zeros_like(p)
+    best_p, best_cost = p.copy(), np.inf
+    for it in range(max_iter + 1):
+        r, J = fun(p, True)
+        cost = float(r @ r)
+        if callback is not None:
+            callback(it, p, cost)
+        if cost < best_cost:
+            best_p, best_cost = p.copy(), cost
+        if it == max_iter:
+            break
+        g = 2.0 * (J.T @ r)
+        m = betas[0] * m + (1 - betas[0]) * g
+        v = betas[1] * v + (1 - betas[1]) * g * g
+        mhat = m / (1 - betas[0] ** (it + 1))
+        vhat = v / (1 - betas[1] ** (it + 1))
+        p = p - lr * mhat / (np.sqrt(vhat) + eps)
+    return OptimResult(p=best_p, cost=best_cost, iterations=max_iter, evaluations=max_iter + 1)
