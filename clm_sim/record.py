@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -127,8 +128,10 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
             if any(n and n[0] in "0123456789-+." for n in names):
                 raise UserError(f"{path}: the first line must be a header of column names "
                                 f"(t, r, y, u), got numbers")
-            data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
-                                 invalid_raise=True, ndmin=2)
+            with warnings.catch_warnings():  # "empty input" is reported below, in one line
+                warnings.simplefilter("ignore", UserWarning)
+                data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
+                                     invalid_raise=True, ndmin=2)
             if data.size == 0:
                 raise UserError(f"{path}: no data rows after the header")
             if data.shape[1] != len(names):
@@ -136,7 +139,8 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
                                 f"{data.shape[1]}")
             return {n: data[:, i] for i, n in enumerate(names)}
         if suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
+            # Our own handle, closed even when a truncated archive makes np.load raise.
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
                 return {k: np.asarray(z[k]) for k in z.files if k != "meta"}
         if suffix == ".mat":
             import scipy.io
