@@ -99,7 +99,10 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
                    config_path: str | None = None) -> list[dict]:
     """Run ``config`` and write its results into ``out`` (replaced atomically). Returns rows."""
     progress = Progress(quiet)
-    preflight(config)
+    try:
+        preflight(config)
+    except UserError as exc:  # name the file: the config loaded fine, its values do not fit
+        raise UserError(f"{config_path}: {exc}" if config_path else str(exc)) from None
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not (out / "config.resolved.yaml").exists():
         raise UserError(f"{out}: output folder exists and does not hold clm-sim results; "
