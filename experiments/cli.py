@@ -114,8 +114,13 @@ def _diagnosis_model(path, ts: float):
         return load_model(path, ts)
     from experiments.config import load_config
     config = load_config(path)
-    return SimulationModel(config.plant, controller_for(config.controller, config.plant, ts,
-                                                        str(path)), config.name)
+    try:
+        controller = controller_for(config.controller, config.plant, ts, str(path))
+    except UserError as exc:  # a design error must still name the file it came from
+        message = str(exc)
+        raise UserError(message if message.startswith(str(path)) else f"{path}: {message}") \
+            from None
+    return SimulationModel(config.plant, controller, config.name)
 
 
 def _cmd_diagnose(args) -> int:
