@@ -1,0 +1,290 @@
+"""Bad input, tried systematically: every malformed config and data file below is fed to every
+command that reads that kind of input, and each must give exactly one stderr line naming the
+problem, exit code 2, nothing on stdout and no file written.
+
+The commands come from the CLI parser at test time, so a new command fails
+``test_every_command_is_covered`` until it is added to ``CONFIG_COMMANDS`` or ``DATA_COMMANDS``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io
+
+from clm_sim.record import Run, save_npz
+from experiments.cli import main, parser
+
+TS = 1e-4
+N = 400
+
+
+def _signals(n: int = N) -> dict[str, np.ndarray]:
+    t = np.arange(n) * TS
+    r = 0.01 * np.sin(2 * np.pi * 5 * t)
+    return {"t": t, "r": r, "y": r + 1e-7, "u": 10 * np.cos(2 * np.pi * 5 * t)}
+
+
+def _csv(sig: dict[str, np.ndarray]) -> str:
+    buf = io.StringIO()
+    np.savetxt(buf, np.column_stack(list(sig.values())), delimiter=",", fmt="%.17g",
+               header=",".join(sig), comments="")
+    return buf.getvalue()
+
+
+def _with(**changes):
+    sig = _signals()
+    for name, edit in changes.items():
+        sig[name] = edit(sig[name].copy())
+    return _csv(sig)
+
+
+def _set(index, value):
+    def edit(x):
+        x[index] = value
+        return x
+    return edit
+
+
+def _npz_bytes(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def _mat_bytes(**arrays) -> bytes:
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, arrays)
+    return buf.getvalue()
+
+
+# name: (file name, content: str, bytes or None for a missing file, text the message must hold)
+BAD_DATA = {
+    "empty file": ("rec.csv", "", "empty file"),
+    "header only": ("rec.csv", "t,r,y,u\n", "no data rows"),
+    "truncated csv": ("rec.csv", _csv(_signals())[:-30], "cannot read as CSV"),
+    "truncated npz": ("rec.npz", _npz_bytes(**_signals())[:900], "cannot read as NPZ"),
+    "truncated mat": ("rec.mat", _mat_bytes(**_signals())[:700], "cannot read as MAT"),
+    "binary garbage": ("rec.csv", bytes(range(256)) * 4, "cannot read as CSV"),
+    "no header": ("rec.csv", _csv(_signals()).split("\n", 1)[1], "header"),
+    "header and rows disagree": ("rec.csv", "t,r,y,u,e\n" + _csv(_signals()).split("\n", 1)[1],
+                                 "header has 5 columns"),
+    "missing column": ("rec.csv", _csv({k: v for k, v in _signals().items() if k != "u"}),
+                       "missing column 'u'"),
+    "NaN in position": ("rec.csv", _with(y=_set(17, np.nan)), "'y' holds NaN"),
+    "inf in force": ("rec.csv", _with(u=_set(3, np.inf)), "'u' holds NaN or inf"),
+    "duplicated time stamps": ("rec.csv", _with(t=_set(10, 9 * TS)), "strictly increasing"),
+    "time going backwards": ("rec.csv", _with(t=lambda t: t[::-1].copy()), "strictly increasing"),
+    "sample-time jump": ("rec.csv", _with(t=lambda t: np.where(t > 0.02, t + TS, t)),
+                         "not uniformly sampled"),
+    "time stamps in ms": ("rec.csv", _with(t=lambda t: t * 1e3), "in ms"),
+    "position in mm": ("rec.csv", _with(y=lambda y: y * 1e4, r=lambda r: r * 1e4),  # 0.1 m
+                       "positions must be in m"),
+    "too short": ("rec.csv", _csv(_signals(50)), "too short"),
+    "columns of unequal length": ("rec.npz", _npz_bytes(**{**_signals(), "u": np.zeros(N - 1)}),
+                                  "'u' has 399 samples"),
+    "pickled object array": ("rec.npz", _npz_bytes(**{**_signals(),
+                                                      "u": np.array([object()] * N)}),
+                             "cannot read as NPZ"),
+    "matrix instead of a column": ("rec.mat", _mat_bytes(**{**_signals(), "y": np.ones((N, 2))}),
+                                   "must be a vector"),
+    "unknown format": ("rec.txt", _csv(_signals()), "unknown record format"),
+    "missing file": ("rec.csv", None, "not found"),
+}
+
+# Config parts that every config command reads (diagnose reads only plant and controller).
+SHORT = ("references:\n  r1: {points_m: [0.0, 0.01, 0.0], dwell_s: 0.05}\n"
+         "  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}\ntraining: {repeats: 1}\n")
+# name: (content, text the message must hold, commands: "all", "experiment" = run and sweep
+# (the parts an experiment reads beyond plant and controller), or "sweep" (a sweep: section))
+BAD_CONFIGS = {
+    "unknown top-level key": ("name: x\nsede: 3\n", "sede", "all"),
+    "unknown nested key": ("name: x\nplant:\n  mas: 18.8\n", "plant.mas", "all"),
+    "wrong type": ("name: x\nplant:\n  mass: heavy\n", "plant.mass", "all"),
+    "negative mass": ("name: x\nplant:\n  mass: -18.8\n", "mass must be > 0", "all"),
+    "zero mass": ("name: x\nplant:\n  mass: 0\n", "mass must be > 0", "all"),
+    "negative viscous friction": ("name: x\nplant:\n  viscous: -1.0\n", "viscous", "all"),
+    "NaN parameter": ("name: x\nplant:\n  coulomb: .nan\n", "finite", "all"),
+    "encoder resolution in um given as m": ("name: x\nplant:\n  encoder_resolution: 1\n",
+                                            "encoder_resolution", "all"),
+    "negative sample time": ("ts: -1.0e-4\n", "ts", "all"),
+    "zero sample time": ("ts: 0\n", "ts", "all"),
+    "empty file": ("", "expected a mapping", "all"),
+    "truncated YAML": ("name: x\nplant:\n  mass: [18.8, \n", "invalid YAML", "all"),
+    "python object tag": ('!!python/object/apply:os.system ["echo owned"]\n',
+                          "could not determine a constructor", "all"),
+    "python object in a value": ("plant: !!python/object:clm_sim.plant.Plant {mass: 1}\n",
+                                 "could not determine a constructor", "all"),
+    "duplicated key": ("name: x\nseed: 1\nseed: 2\n", "duplicate key 'seed'", "all"),
+    "list instead of mapping": ("- r1\n- r2\n", "expected a mapping", "all"),
+    "binary garbage": (bytes(range(128, 256)) * 4, "cannot read", "all"),
+    "missing file": (None, "not found", "all"),
+    "unknown effect type": ("name: x\nplant:\n  effects:\n    - type: magnetism\n", "magnetism",
+                            "all"),
+    "zero effect period": ("name: x\nplant:\n  effects:\n    - {type: cogging, amplitude: 1.0, "
+                           "period: 0.0}\n", "period", "all"),
+    "unknown feedforward kind": ("feedforwards:\n  - kind: magic\n", "feedforwards[0].kind",
+                                 "all"),
+    "pgnn without neurons": ("feedforwards:\n  - {kind: pgnn, training: sequential}\n",
+                             "hidden", "all"),
+    "negative dither": ("training:\n  dither:\n    std_n: -5.0\n", "std_n", "all"),
+    "seed not an integer": ("seed: 1.5\n", "seed", "all"),
+    "zero repeats": ("training:\n  repeats: 0\n", "repeats", "all"),
+    "undefined reference": ("training:\n  reference: r3\n", "r3", "all"),
+    "negative crossover": ("name: x\ncontroller:\n  crossover_hz: -30.0\n", "crossover_hz",
+                           "all"),
+    "filter above Nyquist of ts": ("ts: 1.0e-3\nfeatures:\n  regression_lowpass_hz: 600.0\n",
+                                   "Nyquist", "experiment"),
+    "reference points in mm": ("references:\n  r1: {points_m: [0.0, 100.0, 0.0]}\n"
+                               "  r2: {points_m: [0.0, 170.0, 0.0]}\n", "in mm",
+                               "experiment"),
+    "open training reference repeated": ("references:\n  r1: {points_m: [0.0, 0.1]}\n"
+                                         "  r2: {points_m: [0.0, 0.2]}\n",
+                                         "must end where it starts", "experiment"),
+    "huge grid": (SHORT + "sweep:\n  grid:\n    seed: {linspace: [1, 100000, 100000]}\n"
+                  "    plant.mass: {linspace: [1, 10, 1000]}\n", "exceed the limit", "sweep"),
+    "unknown grid key": (SHORT + "sweep:\n  grid:\n    plant.mas: [1.0, 2.0]\n",
+                         "unknown key 'mas'", "sweep"),
+    "bad grid value": (SHORT + "sweep:\n  grid:\n    plant.encoder_resolution: [1.0e-7, -1.0]\n",
+                       "encoder_resolution", "sweep"),
+    "grid index out of range": (SHORT + "sweep:\n  grid:\n    feedforwards[4].lambda: [0.1]\n",
+                                "index 4 out of range", "sweep"),
+    "unknown sweep key": (SHORT + "sweep:\n  grdi:\n    seed: [1, 2]\n", "sweep.grdi", "sweep"),
+    "grid not a mapping": (SHORT + "sweep:\n  grid: [seed, 1, 2]\n", "sweep.grid", "sweep"),
+}
+
+
+@pytest.fixture(scope="session")
+def valid_record(tmp_path_factory) -> Path:
+    """A record every data command accepts (needed where the config is the bad input)."""
+    path = tmp_path_factory.mktemp("valid") / "record.npz"
+    save_npz(Run(**_signals(4000)), path)
+    return path
+
+
+# How each command is given a bad config (cfg) or a bad data file (data); out: where it would
+# write. ``valid`` is a good record for commands that need one besides the bad config.
+CONFIG_COMMANDS = {
+    "run": lambda cfg, out, valid: ["run", cfg, "--out", out, "--quiet"],
+    "sweep": lambda cfg, out, valid: ["sweep", cfg, "--out", out, "--quiet", "--workers", "1"],
+    "diagnose": lambda cfg, out, valid: ["diagnose", valid, "--model", cfg, "--out", out],
+}
+DATA_COMMANDS = {
+    "identify": lambda data, out: ["identify", data, "--out", out],
+    "export": lambda data, out: ["export", data, "--out", out + ".csv"],
+    "diagnose": lambda data, out: ["diagnose", data, "--out", out],
+}
+
+
+def _parser_commands() -> set[str]:
+    action = next(a for a in parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return set(action.choices)
+
+
+PRESENT = _parser_commands()
+
+
+def test_every_command_is_covered():
+    assert PRESENT <= set(CONFIG_COMMANDS) | set(DATA_COMMANDS), \
+        "a new CLI command: say how it reads configs or data files in this module"
+
+
+def _write(path: Path, content) -> None:
+    if content is None:
+        return
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+
+
+def _check_refused(argv, tmp_path, capsys, expected: str, name: str) -> None:
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning would be a second stderr line in a terminal
+        code = main(argv)
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert code == 2, captured.err
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("clm-sim: error: ") and name in lines[0], lines[0]
+    assert expected in lines[0], lines[0]
+    assert captured.out == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no partial output at all
+
+
+def _config_cases():
+    for case, (_, _, scope) in BAD_CONFIGS.items():
+        commands = {"all": ("run", "sweep", "diagnose"), "experiment": ("run", "sweep"),
+                    "sweep": ("sweep",)}[scope]
+        for command in commands:
+            if command in PRESENT:
+                yield pytest.param(case, command, id=f"{command}-{case}")
+
+
+def _data_cases():
+    for case in BAD_DATA:
+        for command in DATA_COMMANDS:
+            if command in PRESENT:
+                yield pytest.param(case, command, id=f"{command}-{case}")
+
+
+@pytest.mark.parametrize("case, command", list(_config_cases()))
+def test_bad_config_is_refused(case, command, tmp_path, capsys, monkeypatch, valid_record):
+    content, expected, _ = BAD_CONFIGS[case]
+    cfg = tmp_path / "bad.yaml"
+    _write(cfg, content)
+    monkeypatch.chdir(tmp_path)  # defaults relative to the current folder would land here too
+    argv = CONFIG_COMMANDS[command](str(cfg), str(tmp_path / "out"), str(valid_record))
+    _check_refused(argv, tmp_path, capsys, expected, str(cfg))
+
+
+@pytest.mark.parametrize("case, command", list(_data_cases()))
+def test_bad_data_is_refused(case, command, tmp_path, capsys, monkeypatch):
+    name, content, expected = BAD_DATA[case]
+    data = tmp_path / name
+    _write(data, content)
+    monkeypatch.chdir(tmp_path)
+    argv = DATA_COMMANDS[command](str(data), str(tmp_path / "out"))
+    _check_refused(argv, tmp_path, capsys, expected, str(data))
+
+
+@pytest.mark.parametrize("case", [c for c, v in BAD_CONFIGS.items() if v[2] == "sweep"][:1])
+def test_run_refuses_a_sweep_config_and_points_to_sweep(case, tmp_path, capsys):
+    cfg = tmp_path / "grid.yaml"
+    cfg.write_text(BAD_CONFIGS[case][0])
+    _check_refused(["run", str(cfg), "--out", str(tmp_path / "out")], tmp_path, capsys,
+                   "clm-sim sweep", str(cfg))
+
+
+def test_suite_is_large_enough():
+    assert len(BAD_CONFIGS) + len(BAD_DATA) >= 30
+
+
+@pytest.mark.parametrize("command, case", [("identify", "header only"), ("run", "python object tag"),
+                                           ("sweep", "huge grid")])
+def test_real_process_prints_one_line_and_exits_2(command, case, tmp_path):
+    """The installed entry point, not just ``main``: no traceback, no warning lines."""
+    if command in DATA_COMMANDS:
+        name, content, expected = BAD_DATA[case]
+        path = tmp_path / name
+        argv = DATA_COMMANDS[command](str(path), str(tmp_path / "out"))
+    else:
+        content, expected, _ = BAD_CONFIGS[case]
+        path = tmp_path / "bad.yaml"
+        argv = CONFIG_COMMANDS[command](str(path), str(tmp_path / "out"), "unused")
+    _write(path, content)
+    proc = subprocess.run([sys.executable, "-m", "experiments.cli", *argv], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0], proc.stderr
+    assert proc.stdout == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]
