@@ -18,9 +18,10 @@ from clm_sim import __version__
 
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 # The sources a task result depends on: physics, controllers, and the runner chain that turns a
-# config into table rows. Sweep, CLI and figure code do not change a task's numbers.
+# config into table rows. Sweep, CLI, figure and diagnosis code do not change a task's numbers.
 _RESULT_SOURCES = ("clm_sim", "controllers", "experiments/config.py", "experiments/runner.py",
                    "experiments/table.py")
+_NOT_RESULT_SOURCES = ("clm_sim/diagnosis",)
 
 
 def code_version() -> str:
@@ -31,8 +32,9 @@ def code_version() -> str:
         path = _PACKAGE_ROOT / entry
         files = sorted(path.rglob("*.py")) if path.is_dir() else [path]
         for f in files:
-            if f.exists():
-                digest.update(f.relative_to(_PACKAGE_ROOT).as_posix().encode() + b"\0")
+            rel = f.relative_to(_PACKAGE_ROOT).as_posix()
+            if f.exists() and not rel.startswith(_NOT_RESULT_SOURCES):
+                digest.update(rel.encode() + b"\0")
                 digest.update(f.read_bytes() + b"\0")
     return f"{__version__}+{digest.hexdigest()[:12]}"
 
