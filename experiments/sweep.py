@@ -472,18 +472,36 @@ def _series_labels(rows: list[dict]) -> dict[int, str]:
     return labels
 
 
+def _applies(key: str, position: int) -> bool:
+    """Whether swept ``key`` can change the row at feedforward ``position`` (a key of another
+    feedforward, ``feedforwards[j]...``, cannot)."""
+    m = re.match(r"feedforwards\[(\d+)\]", key)
+    return m is None or int(m.group(1)) == position
+
+
 def series(rows: list[dict], swept: list[str], x: str) -> dict:
     """``{(label, ref): {x_value: (mean, spread, n)}}``: MAE (m) per series and x, with the
     spread over the swept seeds (sample std), or the rows' own std over training seeds when
-    ``seed`` is not swept. Other swept keys split the series."""
+    ``seed`` is not swept. Other swept keys split the series. A row that ``x`` cannot change
+    (the LIP when a PGNN's lambda is swept) is one flat series: the same statistics at every x;
+    copies of it from grid points that differ only in another feedforward's keys count once."""
     labels = _series_labels(rows)
-    others = [k for k in swept if k not in (x, "seed")]
+    xs = list(dict.fromkeys(row[x] for row in rows))
     groups: dict = {}
+    seen = set()
     for row in rows:
-        name = labels[row["row"]] + "".join(f", {k.split('.')[-1]}={_fmt(row[k])}"
-                                            for k in others)
+        pos = row["row"]
+        applies = [k for k in swept if _applies(k, pos)]
+        ident = (pos, tuple(row[k] for k in applies))
+        if ident in seen:
+            continue
+        seen.add(ident)
+        name = labels[pos] + "".join(f", {k.split('.')[-1]}={_fmt(row[k])}"
+                                     for k in applies if k not in (x, "seed"))
         for ref, stat in row["mae"].items():
-            groups.setdefault((name, ref), {}).setdefault(row[x], []).append(stat)
+            by_x = groups.setdefault((name, ref), {})
+            for xv in ([row[x]] if x in applies else xs):
+                by_x.setdefault(xv, []).append(stat)
     out = {}
     for key, by_x in groups.items():
         out[key] = {}

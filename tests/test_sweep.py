@@ -195,6 +195,27 @@ def test_series_spread_is_sample_std_over_seeds():
     assert data[("LIP", "r1")][2.0] == (5.0, 0.0, 1)
 
 
+def test_row_that_the_swept_key_cannot_change_is_one_flat_series():
+    lam, hidden = "feedforwards[0].lambda", "feedforwards[0].hidden"
+    rows = []
+    for lv in (0.0, 0.1):
+        for h in (8, 16):
+            for seed, lip_mae in ((1, 1.0), (2, 3.0)):
+                common = {lam: lv, hidden: h, "seed": seed}
+                rows.append({"row": 0, "label": f"PGNN {lv} {h}", "kind": "pgnn",
+                             "training": "simultaneous",
+                             "mae": {"r2": {"mean": lv + h, "std": 0.0}}, **common})
+                rows.append({"row": 1, "label": "LIP", "kind": "lip",
+                             "mae": {"r2": {"mean": lip_mae, "std": 0.0}}, **common})
+    data = series(rows, [lam, hidden, "seed"], lam)
+    assert set(data) == {("PGNN simultaneous, hidden=8", "r2"),
+                         ("PGNN simultaneous, hidden=16", "r2"), ("LIP", "r2")}
+    # The LIP of seeds 1 and 2 once each (not once per lambda and n_l), at every lambda.
+    for lv in (0.0, 0.1):
+        assert data[("LIP", "r2")][lv] == (2.0, pytest.approx(np.std([1.0, 3.0], ddof=1)), 2)
+    assert data[("PGNN simultaneous, hidden=16", "r2")][0.1][0] == pytest.approx(16.1)
+
+
 # ----------------------------------------------------------------------------- running sweeps
 
 @pytest.fixture(scope="session")
