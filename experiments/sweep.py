@@ -294,8 +294,11 @@ def execute(config_plain: dict) -> dict:
 def check_output(out: Path) -> None:
     """Refuse an output folder that exists and is not a sweep's (before anything is written)."""
     out = Path(out)
-    if out.exists() and (not out.is_dir() or (any(out.iterdir())
-                                               and not (out / "sweep.resolved.yaml").exists())):
+    # A sweep killed right after it started may have left only its lock and task folder.
+    mine = {"sweep.resolved.yaml", "tasks"}
+    if out.exists() and (not out.is_dir() or not (
+            (out / "sweep.resolved.yaml").exists()
+            or all(p.name.startswith(".") or p.name in mine for p in out.iterdir()))):
         raise UserError(f"{out}: output folder exists and does not hold clm-sim sweep results; "
                         f"choose another --out")
 
@@ -378,7 +381,8 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
     finally:
         if lock is not None:
             lock.close()
-    say(f"results in {out}/ (table.md, table.json, figures/)")
+    if not outcome.unfinished:
+        say(f"results in {out}/ (table.md, table.json, figures/)")
     return outcome
 
 
