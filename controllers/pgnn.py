@@ -326,12 +326,13 @@ class PGNNFeedforward:
                 best.update(score=score, p=p.copy(), iteration=it)
 
         p0 = layout.pack(params)
-        if self.optimizer == "lm":
-            optim.levenberg_marquardt(problem, p0, max_iter=self.max_iter, callback=record)
-        elif self.optimizer == "adam":
-            optim.adam(problem, p0, max_iter=self.max_iter, lr=self.adam_lr, callback=record)
-        else:
+        if self.optimizer not in ("lm", "adam"):
             raise UserError(f"pgnn.optimizer: expected 'lm' or 'adam', got {self.optimizer!r}")
+        with optim.blas_threads(1):
+            if self.optimizer == "lm":
+                optim.levenberg_marquardt(problem, p0, max_iter=self.max_iter, callback=record)
+            else:
+                optim.adam(problem, p0, max_iter=self.max_iter, lr=self.adam_lr, callback=record)
         final = layout.unpack(best["p"], problem.fixed)
         self.scale_mean_, self.scale_std_ = mean, std
         self.params_ = {k: np.array(v, dtype=np.float64) for k, v in final.items()}

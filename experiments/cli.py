@@ -123,6 +123,16 @@ def _diagnosis_model(path, ts: float):
     return SimulationModel(config.plant, controller, config.name)
 
 
+def _cmd_study(args) -> int:
+    from experiments.study import load_study, run_study
+
+    config, study = load_study(args.config)
+    out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
+    run_study(config, study, out, quiet=args.quiet)
+    print((out / "report.md").read_text(), end="")
+    return 0
+
+
 def _cmd_diagnose(args) -> int:
     from clm_sim.diagnosis import diagnose
     from clm_sim.diagnosis.report import write
@@ -202,6 +212,12 @@ def parser() -> argparse.ArgumentParser:
     diag.add_argument("--columns", help="signal=column names in the files, e.g. y=qm,r=qg,u=vir")
     diag.add_argument("--scale", help="signal=factor or signal=scalar-variable, e.g. u=gtau")
     diag.set_defaults(func=_cmd_diagnose)
+    study = sub.add_parser("study", help="the PGNN extrapolation study: lambda sweep, report.md "
+                           "with figures")
+    study.add_argument("config", help="study YAML file (an experiment config plus 'study:')")
+    study.add_argument("--out", help="output folder (default results/<config name>)")
+    study.add_argument("--quiet", action="store_true", help="no progress lines")
+    study.set_defaults(func=_cmd_study)
     return p
 
 

@@ -1,0 +1,307 @@
+"""The extrapolation study: why a PGNN trained without regularization (lambda = 0) extrapolates
+badly, and what lambda changes. ``clm-sim study CONFIG --out DIR`` writes ``report.md``,
+``study.json`` and ``figures/*.png``.
+
+The config is an experiment config (plant, controller, references, training, features; its
+``feedforwards`` are not used) plus a ``study:`` section (:class:`StudySettings`). One training run
+and one LIP are shared by every model; per lambda of the sweep a simultaneous PGNN is trained per
+seed, beside a sequential PGNN, and all are replayed on the training reference (r1) and on the
+reference that leaves the training range (r2).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from clm_sim.errors import UserError
+from clm_sim.features import lip_regressors
+from clm_sim.loop import simulate
+from clm_sim.plant import THETA_NAMES
+from clm_sim.schema import build, load_yaml
+from controllers.lip import LIPFeedforward
+from controllers.pgnn import PGNNFeedforward, from_spec
+from controllers.pid import design_pid
+from experiments.config import ExperimentConfig, FeedforwardSpec, PGNNSettings, resolved
+from experiments.runner import (STREAM_NETWORK, STREAM_TRAINING_DITHER, Progress, stream,
+                                training_reference)
+
+UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
+
+
+@dataclass(frozen=True)
+class StudySettings:
+    """lambdas: the sweep (>= 0, physical units; include 0); paper_lambda: the regularized value
+    the report compares with lambda = 0; hidden: neurons n_l; seeds: training seeds per lambda;
+    inside/outside: names of the training reference and of the extrapolation reference;
+    pgnn: network and optimizer settings shared by every model."""
+
+    lambdas: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+    paper_lambda: float = 0.01
+    hidden: int = 16
+    seeds: int = 3
+    inside: str = "r1"
+    outside: str = "r2"
+    pgnn: PGNNSettings = field(default_factory=PGNNSettings)
+
+    def __post_init__(self):
+        if not self.lambdas or any(lam < 0 for lam in self.lambdas):
+            raise UserError("study.lambdas: expected a non-empty list of numbers >= 0")
+        if 0.0 not in self.lambdas or self.paper_lambda not in self.lambdas:
+            raise UserError(f"study.lambdas: must contain 0 and paper_lambda "
+                            f"({self.paper_lambda:g})")
+        if not (isinstance(self.seeds, int) and self.seeds >= 1) or self.hidden < 1:
+            raise UserError("study: seeds and hidden must be integers >= 1")
+
+
+def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
+    """Read a study config; errors name the file and the key."""
+    path = Path(path)
+    data = dict(load_yaml(path))
+    settings = data.pop("study", None)
+    try:
+        config = build(ExperimentConfig, data, "config")
+        study = build(StudySettings, settings, "study")
+    except UserError as exc:
+        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
+            from None
+    for key in (study.inside, study.outside):
+        if key not in config.references:
+            raise UserError(f"{path}: study: reference {key!r} is not defined under 'references'")
+    return config, study
+
+
+def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,
+              quiet: bool = False) -> dict:
+    """Run the study and write it into ``out`` (replaced atomically). Returns the summary."""
+    progress = Progress(quiet)
+    out = Path(out)
+    if out.exists() and any(out.iterdir()) and not (out / "study.json").exists():
+        raise UserError(f"{out}: output folder exists and does not hold a clm-sim study; "
+                        f"choose another --out")
+    tmp = out.with_name(f".{out.name}.partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    (tmp / "figures").mkdir(parents=True)
+    try:
+        summary = _study(config, study, tmp, progress)
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    progress(f"report in {out}/report.md")
+    return summary
+
+
+def _variants(study: StudySettings):
+    """(key, label, spec) of every trained PGNN variant, sequential first."""
+    out = [("sequential", "sequential", FeedforwardSpec(
+        kind="pgnn", training="sequential", hidden=study.hidden, pgnn=study.pgnn))]
+    for lam in sorted(study.lambdas):
+        out.append((f"lambda={lam:g}", f"λ = {lam:g}", FeedforwardSpec(
+            kind="pgnn", training="simultaneous", lam=lam, hidden=study.hidden, pgnn=study.pgnn)))
+    return out
+
+
+def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) -> dict:
+    ts, plant = config.ts, config.plant
+    (out / "config.resolved.yaml").write_text(yaml.safe_dump(
+        {**resolved(config), "study": _plain(study)}, sort_keys=False))
+    pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
+                     design=config.controller, ts=ts)
+    r_train = training_reference(config)
+    dither = config.training.dither.draw(
+        len(r_train), np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER)))
+    progress(f"training run: {len(r_train)} samples")
+    train = simulate(plant, pid, r_train, ts, dither=dither)
+    lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
+    refs = {k: config.references[k].sample(ts).r for k in (study.inside, study.outside)}
+
+    def replay(model):
+        u_ff = None if model is None else model.feedforward
+        return {k: simulate(plant, pid, r, ts, u_ff=None if u_ff is None else u_ff(r, ts))
+                for k, r in refs.items()}
+
+    runs = {"feedback only": replay(None), "LIP": replay(lip)}
+    models: dict[str, list[PGNNFeedforward]] = {}
+    mae: dict[str, dict[str, list[float]]] = {
+        k: {r: [float(np.mean(np.abs(run.e)))] for r, run in v.items()} for k, v in runs.items()}
+    for key, label, spec in _variants(study):
+        models[key], mae[key] = [], {r: [] for r in refs}
+        for s in range(study.seeds):
+            progress(f"  PGNN {label}, seed {s + 1}/{study.seeds}")
+            model = from_spec(spec, config.features).fit(
+                y=train.y, u=train.u, ts=ts, theta_lip=lip.theta_,
+                rng=np.random.default_rng(stream(config.seed, STREAM_NETWORK, s)))
+            replays = replay(model)
+            for r, run in replays.items():
+                mae[key][r].append(float(np.mean(np.abs(run.e))))
+            if s == 0:
+                runs[key] = replays
+            models[key].append(model)
+        progress(f"  {label}: MAE " + ", ".join(
+            f"{r} {np.mean(v) * 1e6:.3f} µm" for r, v in mae[key].items()))
+
+    summary = _summarize(config, study, lip, refs, models, mae, runs)
+    (out / "study.json").write_text(json.dumps(summary, indent=1))
+    from experiments import study_figures
+    study_figures.draw(summary, study, lip, refs, models, runs, ts, out / "figures")
+    (out / "report.md").write_text(_report(summary, study))
+    return summary
+
+
+def _plain(obj):
+    from clm_sim.schema import to_plain
+    return to_plain(obj)
+
+
+def _ranges(features, r, ts) -> dict[str, float]:
+    y, v, a = features.motion(r, ts)
+    return {"position_m": float(np.max(np.abs(y))), "velocity_m_s": float(np.max(np.abs(v))),
+            "acceleration_m_s2": float(np.max(np.abs(a)))}
+
+
+def _summarize(config, study, lip, refs, models, mae, runs) -> dict:
+    ts = config.ts
+    inside, outside = study.inside, study.outside
+    pos_limit = float(np.max(np.abs(refs[inside])))
+    variants = {}
+    for key, ms in models.items():
+        parts = {}
+        for r, ref in refs.items():
+            phys, net = zip(*(m.predict_parts(y=ref, ts=ts) for m in ms))
+            beyond = np.abs(ref) > pos_limit * (1 + 1e-9)
+            net_abs = np.abs(np.array(net))
+            parts[r] = {
+                "network_max_abs_n": float(np.mean(net_abs.max(axis=1))),
+                "network_rms_n": float(np.mean(np.sqrt(np.mean(np.array(net) ** 2, axis=1)))),
+                "network_max_abs_beyond_n": float(np.mean(net_abs[:, beyond].max(axis=1)))
+                if beyond.any() else None,
+                "network_max_abs_within_n": float(np.mean(net_abs[:, ~beyond].max(axis=1))),
+            }
+        variants[key] = {
+            "mae": {r: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1))
+                        if len(v) > 1 else 0.0, "per_seed": v} for r, v in mae[key].items()},
+            "theta_phy_per_seed": [m.theta_ for m in ms],
+            "theta_phy": {k: float(np.mean([m.theta_[k] for m in ms])) for k in THETA_NAMES},
+            "cost": {t: float(np.mean([m.cost_[t] for m in ms])) for t in ("data", "deviation")},
+            "iterations": [len(m.history_) - 1 for m in ms],
+            "parts": parts,
+        }
+    for key in ("feedback only", "LIP"):
+        variants[key] = {"mae": {r: {"mean": v[0], "std": 0.0, "per_seed": v}
+                                 for r, v in mae[key].items()}}
+    return {"lambdas": sorted(study.lambdas), "paper_lambda": study.paper_lambda,
+            "hidden": study.hidden, "seeds": study.seeds, "inside": inside, "outside": outside,
+            "theta_lip": lip.theta_, "lip_residual_rms_n": lip.residual_rms_,
+            "training_position_limit_m": pos_limit,
+            "ranges": {r: _ranges(config.features, ref, ts) for r, ref in refs.items()},
+            "variants": variants}
+
+
+def _um(x: float) -> str:
+    return f"{x * 1e6:.3f} µm"
+
+
+def _findings(s: dict) -> list[str]:
+    """Sentences with this run's numbers that name the mechanism."""
+    v, lip = s["variants"], s["theta_lip"]
+    zero, paper = v["lambda=0"], v[f"lambda={s['paper_lambda']:g}"]
+    inside, outside = s["inside"], s["outside"]
+
+    def drift(var):
+        return {k: (var["theta_phy"][k] - lip[k]) / abs(lip[k]) if lip[k] else np.inf
+                for k in THETA_NAMES}
+
+    dz, dp = drift(zero), drift(paper)
+    order = sorted(THETA_NAMES, key=lambda k: -abs(dz[k]))
+    lines = []
+    lines.append(
+        "**Which parameters drift.** Without regularization (λ = 0) θ_phy moves away from θ_LIP: "
+        + "; ".join(f"{k} {lip[k]:.4g} → {zero['theta_phy'][k]:.4g} {UNITS[k]} "
+                    f"({dz[k] * 100:+.0f} %)" for k in order[:3])
+        + f" (mean over {s['seeds']} seeds). With λ = {s['paper_lambda']:g} the largest relative "
+        f"change is {max(abs(x) for x in dp.values()) * 100:.2f} % ({max(dp, key=lambda k: abs(dp[k]))})."
+        " Only the sum of physics and network is constrained by the data, so without the penalty the "
+        "network absorbs part of what the physical terms explained (and vice versa).")
+    rz, rp = zero["parts"], paper["parts"]
+    beyond_z = rz[outside]["network_max_abs_beyond_n"]
+    beyond_p = rp[outside]["network_max_abs_beyond_n"]
+    rng_in, rng_out = s["ranges"][inside], s["ranges"][outside]
+    leaves = [name for name, key in (("position", "position_m"), ("velocity", "velocity_m_s"),
+                                     ("acceleration", "acceleration_m_s2"))
+              if rng_out[key] > rng_in[key] * 1.01]
+    lines.append(
+        f"**What leaves the training range.** {outside} reaches |y| = "
+        f"{rng_out['position_m'] * 1e3:.0f} mm, |v| = {rng_out['velocity_m_s']:.3g} m/s, "
+        f"|a| = {rng_out['acceleration_m_s2']:.3g} m/s² against {rng_in['position_m'] * 1e3:.0f} mm,"
+        f" {rng_in['velocity_m_s']:.3g} m/s, {rng_in['acceleration_m_s2']:.3g} m/s² on {inside}: "
+        f"it extrapolates in {', '.join(leaves) if leaves else 'nothing'}.")
+    if beyond_z is not None:
+        lines.append(
+            f"**How large the network output grows.** On {inside} the network force of λ = 0 "
+            f"peaks at {rz[inside]['network_max_abs_n']:.2f} N (rms "
+            f"{rz[inside]['network_rms_n']:.2f} N); on {outside} beyond the training positions it "
+            f"reaches {beyond_z:.2f} N. For λ = {s['paper_lambda']:g}: "
+            f"{rp[inside]['network_max_abs_n']:.2f} N (rms {rp[inside]['network_rms_n']:.2f} N) "
+            f"on {inside} and {beyond_p:.2f} N beyond the training positions on {outside}.")
+    mz, mp = zero["mae"], paper["mae"]
+    ml, ms = v["LIP"]["mae"], v["sequential"]["mae"]
+    ratio = mz[outside]["mean"] / mp[outside]["mean"]
+    verdict = ("λ = 0 loses more on the extrapolation reference" if ratio > 1.1 else
+               "λ = 0 does not lose more than the regularized PGNN here" if ratio > 0.9 else
+               "λ = 0 even does better than the regularized PGNN here")
+    lines.append(
+        f"**What that does to the error.** MAE on {outside}: λ = 0 {_um(mz[outside]['mean'])} ± "
+        f"{_um(mz[outside]['std'])}, λ = {s['paper_lambda']:g} {_um(mp[outside]['mean'])} ± "
+        f"{_um(mp[outside]['std'])}, sequential {_um(ms[outside]['mean'])}, LIP "
+        f"{_um(ml[outside]['mean'])} (ratio λ = 0 / λ = {s['paper_lambda']:g}: {ratio:.2f}); "
+        f"on {inside}: {_um(mz[inside]['mean'])}, {_um(mp[inside]['mean'])}, "
+        f"{_um(ms[inside]['mean'])}, {_um(ml[inside]['mean'])}. So {verdict}.")
+    return lines
+
+
+def _report(s: dict, study: StudySettings) -> str:
+    v = s["variants"]
+    inside, outside = s["inside"], s["outside"]
+    lines = [f"# Extrapolation study: PGNN with n_l = {s['hidden']}, λ swept over "
+             f"{', '.join(f'{x:g}' for x in s['lambdas'])}", "",
+             f"One dithered training run on {inside}, one LIP (θ_LIP: " + ", ".join(
+                 f"{k} {x:.4g} {UNITS[k]}" for k, x in s["theta_lip"].items())
+             + f"), {s['seeds']} training seeds per variant; replays without dither on "
+             f"{inside} (inside the training range) and {outside}.", "", "## Findings", ""]
+    lines += [f"- {x}" for x in _findings(s)] + [""]
+    head = ["variant", f"MAE {inside} [µm]", f"MAE {outside} [µm]", "m [kg]", "fv [N·s/m]",
+            "fc [N]", "fk [N/m]", "data term [N²]", "deviation term [N²]"]
+    lines += ["## Table (mean ± std over seeds)", "", "| " + " | ".join(head) + " |",
+              "|" + "---|" * len(head)]
+    for key, var in v.items():
+        cells = [key] + [f"{var['mae'][r]['mean'] * 1e6:.3f} ± {var['mae'][r]['std'] * 1e6:.3f}"
+                         for r in (inside, outside)]
+        th = var.get("theta_phy")
+        cells += [f"{th[k]:.4g}" for k in THETA_NAMES] if th else ["–"] * 4
+        cost = var.get("cost")
+        cells += [f"{cost['data']:.4g}", f"{cost['deviation']:.3g}"] if cost else ["–"] * 2
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "## Figures", "",
+              "θ_phy over the LM iterations, relative to θ_LIP (seed 0):", "",
+              "![theta](figures/theta_training.png)", "",
+              "Data-fit term and parameter-deviation term over the iterations (seed 0):", "",
+              "![costs](figures/cost_terms.png)", "",
+              f"Feedforward on {outside} split into physical part θ_phy·T (minus the LIP "
+              f"force) and network part (seed 0; shaded: positions outside the training "
+              f"range):", "",
+              f"![split](figures/split_{outside}.png)", "",
+              "Tracking errors per variant (seed 0):", "",
+              f"![tracking {inside}](figures/tracking_{inside}.png)", "",
+              f"![tracking {outside}](figures/tracking_{outside}.png)", "",
+              f"MAE against λ (mean ± std over seeds; λ = 0 drawn at the left edge):", "",
+              "![mae](figures/mae_vs_lambda.png)", ""]
+    return "\n".join(lines)
