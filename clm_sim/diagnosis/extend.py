@@ -33,16 +33,20 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
     """Fit all accepted terms together; returns ``(findings, theta_correction, effects)``, the
     effects ranked like the findings.
 
-    Each finding is ``{"effect", "parameters", "explained_fraction", ...}``; the explained
-    fraction is the rise of the held-out MSE when the term is dropped from the final model,
-    relative to the held-out MSE of the residual itself. Findings are ordered by it.
+    Each finding is ``{"effect", "parameters", "explained_fraction", ...}``; findings are
+    ordered by the explained fraction.
     """
     st = res.settings
     if not steps:
         return [], {}, ()
     x = np.column_stack([s.cols for s in steps])
     full = fit_cv(x, res.z, res.fold, st.folds)
-    base = float(res.z @ res.z)
+    # Explained fraction: the held-out MSE drop when the term joined (in selection order), over
+    # the held-out MSE of the model's residual; the fractions add up to the total explained.
+    # ``unique_fraction``: the rise when it alone is left out of the final model.
+    cv = [fit_cv(np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps[:j]]),
+                 res.z, res.fold, st.folds).cv_mse for j in range(len(steps) + 1)]
+    base = cv[0]
     e = res.z - x @ full.coef
     sigma2 = float(e @ e) / max(res.n_eff - x.shape[1], 1.0)
     # Standard errors from the decimated samples, inflated to the effective sample count.
@@ -56,8 +60,10 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
         sd = dict(zip(step.term.keys, std[start:start + k]))
         rest = [j for j in range(len(steps)) if j != i]
         x_rest = np.column_stack([np.zeros((len(res.z), 0))] + [steps[j].cols for j in rest])
-        explained = (fit_cv(x_rest, res.z, res.fold, st.folds).cv_mse - full.cv_mse) / base
-        stats = {"explained_fraction": float(explained), "selection_gain": step.gain,
+        unique = (fit_cv(x_rest, res.z, res.fold, st.folds).cv_mse - full.cv_mse) / base
+        explained = (cv[i] - cv[i + 1]) / base
+        stats = {"explained_fraction": float(explained), "unique_fraction": float(unique),
+                 "selection_gain": step.gain,
                  "folds_improved": step.folds_improved, "p_value": step.p_value}
         if step.term.template is None:
             params = {}

@@ -15,14 +15,16 @@ Nonlinear parameters are searched, never assumed:
 Significance rule (decided per step of a forward selection): with the accepted terms ``S``, a
 candidate ``c`` is accepted when, in a blocked ``folds``-fold cross-validation over contiguous
 blocks of the record, (1) it lowers the held-out MSE by at least ``min_gain`` of the current held-out
-MSE, (2) the held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
+MSE and by at least ``min_explained`` of the held-out MSE of the model's own residual (the
+noise floor: once the large causes are removed, ``min_gain`` alone would name model bias), (2) the
+held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
 folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an F-test of ``S + c``
 against ``S`` on all fitted samples, with the effective sample count of the filtered data, has
 p < ``p_value``; a Stribeck term must also be a peak (static > 0). Each step takes the candidate
 with the largest held-out gain that passes; the search stops when none does, so a model that
 already explains the data yields no finding. A backward pass then drops any term whose removal
-from the final model raises the held-out MSE by less than ``min_gain`` (made redundant by later
-terms).
+from the final model raises the held-out MSE by less than these thresholds (made redundant by
+later terms).
 
 Identifiability: during motion an asymmetric Coulomb friction is a symmetric one plus a constant
 force ``(c_pos - c_neg)/2``, and the diagnosis leaves standstill out (the velocity sign is unknown
@@ -255,11 +257,13 @@ class Step:
     p_value: float
 
 
-def _test(res: Residual, x_s: np.ndarray, fit_s: Fit, cols: np.ndarray) -> tuple[float, int, float]:
+def _test(res: Residual, x_s: np.ndarray, fit_s: Fit, cols: np.ndarray,
+          base: float) -> tuple[float, float, int, float]:
     st = res.settings
     x1 = np.column_stack([x_s, cols])
     fit1 = fit_cv(x1, res.z, res.fold, st.folds)
     gain = (fit_s.cv_mse - fit1.cv_mse) / max(fit_s.cv_mse, 1e-300)
+    explained = (fit_s.cv_mse - fit1.cv_mse) / max(base, 1e-300)
     # Folds where the candidate changes nothing (e.g. no slow motion for a Stribeck term) are
     # not counted; the drop is required in min_folds of the folds out of ``folds``, scaled down.
     changed = np.abs(fit1.cv_sse - fit_s.cv_sse) > 1e-2 * fit_s.cv_sse
@@ -273,7 +277,7 @@ def _test(res: Residual, x_s: np.ndarray, fit_s: Fit, cols: np.ndarray) -> tuple
     drop = max(fit_s.sse - fit1.sse, 0.0) * res.n_eff / n
     rest = max(fit1.sse, 1e-300) * res.n_eff / n
     p = float(scipy.stats.f.sf((drop / k) / (rest / dof), k, dof))
-    return gain, improved, p
+    return gain, explained, improved, p
 
 
 def forward_select(res: Residual) -> list[Step]:
@@ -281,6 +285,7 @@ def forward_select(res: Residual) -> list[Step]:
     st = res.settings
     steps: list[Step] = []
     fixed_cols = {name: term.columns(res) for name, term in FIXED.items()}
+    base = fit_cv(np.zeros((len(res.z), 0)), res.z, res.fold, st.folds).cv_mse
     while len(steps) < st.max_findings:
         used = [s.term for s in steps]
         x_s = np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps])
@@ -314,10 +319,11 @@ def forward_select(res: Residual) -> list[Step]:
             if term.effect == "stribeck":
                 term = stribeck_term(search_stribeck(res, x_s, exact=True))
             cols = exact if exact is not None else term.columns(res)
-            gain, improved, p = _test(res, x_s, fit_s, cols)
+            gain, explained, improved, p = _test(res, x_s, fit_s, cols, base)
             if not _physical(term, np.column_stack([x_s, cols]), res.z):
                 continue
-            if gain >= st.min_gain and improved >= st.min_folds and p < st.p_value:
+            if gain >= st.min_gain and explained >= st.min_explained and \
+                    improved >= st.min_folds and p < st.p_value:
                 accepted = Step(term, cols, gain, improved, p)
                 break
         if accepted is None:
@@ -339,6 +345,7 @@ def prune(res: Residual, steps: list[Step]) -> list[Step]:
     than ``min_gain`` of the held-out MSE (a term that later ones made redundant)."""
     st = res.settings
     steps = list(steps)
+    base = fit_cv(np.zeros((len(res.z), 0)), res.z, res.fold, st.folds).cv_mse
     while steps:
         x = np.column_stack([s.cols for s in steps])
         full = fit_cv(x, res.z, res.fold, st.folds).cv_mse
@@ -346,9 +353,11 @@ def prune(res: Residual, steps: list[Step]) -> list[Step]:
         for i in range(len(steps)):
             rest = [s.cols for j, s in enumerate(steps) if j != i]
             x_r = np.column_stack([np.zeros((len(res.z), 0))] + rest)
-            losses.append(fit_cv(x_r, res.z, res.fold, st.folds).cv_mse / full - 1.0)
+            loss = fit_cv(x_r, res.z, res.fold, st.folds).cv_mse - full
+            losses.append(min(loss / full / max(st.min_gain, 1e-12),
+                              loss / base / max(st.min_explained, 1e-12)))
         worst = int(np.argmin(losses))
-        if losses[worst] >= st.min_gain:
+        if losses[worst] >= 1.0:
             break
         del steps[worst]
     return steps
