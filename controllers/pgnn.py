@@ -182,7 +182,8 @@ def _output_least_squares(data, h, theta_lip, lam_diag, pinn_weight, fit_theta):
     if pinn_weight:
         w = np.sqrt(pinn_weight) * sq
         A.append(cols * w)
-        b.append((data.phi @ theta_lip - (0 if fit_theta else data.phi @ theta_lip)) * w)
+        # PINN term: distance of the whole output to the LIP output phi @ theta_LIP.
+        b.append((data.phi @ theta_lip if fit_theta else np.zeros(n)) * w)
     if fit_theta and np.any(lam_diag > 0):
         R = np.zeros((4, cols.shape[1]))
         R[:, :4] = np.diag(np.sqrt(lam_diag))
@@ -298,6 +299,15 @@ class PGNNFeedforward:
         return _Problem(data, (data.phi - mean) / std, layout, fixed, theta_lip,
                         self.lambda_matrix_diag(),
                         self.pinn_weight if self.training == "pinn" else 0.0)
+
+    def training_problem(self, data: TrainingData, theta_lip: dict[str, float],
+                         rng: np.random.Generator):
+        """``(cost, p0)``: the training cost as a residual function ``cost(p, jacobian)`` for
+        :mod:`controllers.optim` and the initial flat parameter vector (for benchmarks)."""
+        theta = _as_theta(theta_lip)
+        mean, std, params = self.init_params(data, theta, rng)
+        problem = self._problem(data, theta, mean, std, params)
+        return problem, problem.layout.pack(params)
 
     def fit_data(self, *, data: TrainingData, theta_lip: dict[str, float],
                  rng: np.random.Generator) -> "PGNNFeedforward":

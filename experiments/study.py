@@ -38,7 +38,8 @@ UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 class StudySettings:
     """lambdas: the sweep (>= 0, physical units; include 0); paper_lambda: the regularized value
     the report compares with lambda = 0; hidden: neurons n_l; seeds: training seeds per lambda;
-    inside/outside: names of the training reference and of the extrapolation reference;
+    inside: the training reference; outside: references that leave its range (first: the
+    paper's r2);
     pgnn: network and optimizer settings shared by every model."""
 
     lambdas: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
@@ -46,7 +47,7 @@ class StudySettings:
     hidden: int = 16
     seeds: int = 3
     inside: str = "r1"
-    outside: str = "r2"
+    outside: tuple[str, ...] = ("r2",)
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
 
     def __post_init__(self):
@@ -70,7 +71,7 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
     except UserError as exc:
         raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
             from None
-    for key in (study.inside, study.outside):
+    for key in (study.inside, *study.outside):
         if key not in config.references:
             raise UserError(f"{path}: study: reference {key!r} is not defined under 'references'")
     return config, study
@@ -122,7 +123,7 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
     progress(f"training run: {len(r_train)} samples")
     train = simulate(plant, pid, r_train, ts, dither=dither)
     lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
-    refs = {k: config.references[k].sample(ts).r for k in (study.inside, study.outside)}
+    refs = {k: config.references[k].sample(ts).r for k in (study.inside, *study.outside)}
 
     def replay(model):
         u_ff = None if model is None else model.feedforward
@@ -168,16 +169,23 @@ def _ranges(features, r, ts) -> dict[str, float]:
             "acceleration_m_s2": float(np.max(np.abs(a)))}
 
 
+def beyond_range(features, r, ts, ranges: dict[str, float]) -> np.ndarray:
+    """Samples of reference ``r`` where position, velocity or acceleration exceeds ``ranges``
+    (those of the training reference) by more than 1 %."""
+    y, v, a = features.motion(r, ts)
+    return ((np.abs(y) > 1.01 * ranges["position_m"]) | (np.abs(v) > 1.01 * ranges["velocity_m_s"])
+            | (np.abs(a) > 1.01 * ranges["acceleration_m_s2"]))
+
+
 def _summarize(config, study, lip, refs, models, mae, runs) -> dict:
     ts = config.ts
-    inside, outside = study.inside, study.outside
-    pos_limit = float(np.max(np.abs(refs[inside])))
+    ranges = {r: _ranges(config.features, ref, ts) for r, ref in refs.items()}
     variants = {}
     for key, ms in models.items():
         parts = {}
         for r, ref in refs.items():
             phys, net = zip(*(m.predict_parts(y=ref, ts=ts) for m in ms))
-            beyond = np.abs(ref) > pos_limit * (1 + 1e-9)
+            beyond = beyond_range(config.features, ref, ts, ranges[study.inside])
             net_abs = np.abs(np.array(net))
             parts[r] = {
                 "network_max_abs_n": float(np.mean(net_abs.max(axis=1))),
@@ -185,6 +193,7 @@ def _summarize(config, study, lip, refs, models, mae, runs) -> dict:
                 "network_max_abs_beyond_n": float(np.mean(net_abs[:, beyond].max(axis=1)))
                 if beyond.any() else None,
                 "network_max_abs_within_n": float(np.mean(net_abs[:, ~beyond].max(axis=1))),
+                "fraction_beyond": float(beyond.mean()),
             }
         variants[key] = {
             "mae": {r: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1))
@@ -199,11 +208,10 @@ def _summarize(config, study, lip, refs, models, mae, runs) -> dict:
         variants[key] = {"mae": {r: {"mean": v[0], "std": 0.0, "per_seed": v}
                                  for r, v in mae[key].items()}}
     return {"lambdas": sorted(study.lambdas), "paper_lambda": study.paper_lambda,
-            "hidden": study.hidden, "seeds": study.seeds, "inside": inside, "outside": outside,
+            "hidden": study.hidden, "seeds": study.seeds, "inside": study.inside,
+            "outside": list(study.outside),
             "theta_lip": lip.theta_, "lip_residual_rms_n": lip.residual_rms_,
-            "training_position_limit_m": pos_limit,
-            "ranges": {r: _ranges(config.features, ref, ts) for r, ref in refs.items()},
-            "variants": variants}
+            "ranges": ranges, "variants": variants}
 
 
 def _um(x: float) -> str:
@@ -232,59 +240,64 @@ def _findings(s: dict) -> list[str]:
         " Only the sum of physics and network is constrained by the data, so without the penalty the "
         "network absorbs part of what the physical terms explained (and vice versa).")
     rz, rp = zero["parts"], paper["parts"]
-    beyond_z = rz[outside]["network_max_abs_beyond_n"]
-    beyond_p = rp[outside]["network_max_abs_beyond_n"]
-    rng_in, rng_out = s["ranges"][inside], s["ranges"][outside]
-    leaves = [name for name, key in (("position", "position_m"), ("velocity", "velocity_m_s"),
-                                     ("acceleration", "acceleration_m_s2"))
-              if rng_out[key] > rng_in[key] * 1.01]
-    lines.append(
-        f"**What leaves the training range.** {outside} reaches |y| = "
-        f"{rng_out['position_m'] * 1e3:.0f} mm, |v| = {rng_out['velocity_m_s']:.3g} m/s, "
-        f"|a| = {rng_out['acceleration_m_s2']:.3g} m/s² against {rng_in['position_m'] * 1e3:.0f} mm,"
-        f" {rng_in['velocity_m_s']:.3g} m/s, {rng_in['acceleration_m_s2']:.3g} m/s² on {inside}: "
-        f"it extrapolates in {', '.join(leaves) if leaves else 'nothing'}.")
-    if beyond_z is not None:
-        lines.append(
-            f"**How large the network output grows.** On {inside} the network force of λ = 0 "
-            f"peaks at {rz[inside]['network_max_abs_n']:.2f} N (rms "
-            f"{rz[inside]['network_rms_n']:.2f} N); on {outside} beyond the training positions it "
-            f"reaches {beyond_z:.2f} N. For λ = {s['paper_lambda']:g}: "
-            f"{rp[inside]['network_max_abs_n']:.2f} N (rms {rp[inside]['network_rms_n']:.2f} N) "
-            f"on {inside} and {beyond_p:.2f} N beyond the training positions on {outside}.")
     mz, mp = zero["mae"], paper["mae"]
     ml, ms = v["LIP"]["mae"], v["sequential"]["mae"]
-    ratio = mz[outside]["mean"] / mp[outside]["mean"]
-    verdict = ("λ = 0 loses more on the extrapolation reference" if ratio > 1.1 else
-               "λ = 0 does not lose more than the regularized PGNN here" if ratio > 0.9 else
-               "λ = 0 even does better than the regularized PGNN here")
+    rng_in = s["ranges"][inside]
     lines.append(
-        f"**What that does to the error.** MAE on {outside}: λ = 0 {_um(mz[outside]['mean'])} ± "
-        f"{_um(mz[outside]['std'])}, λ = {s['paper_lambda']:g} {_um(mp[outside]['mean'])} ± "
-        f"{_um(mp[outside]['std'])}, sequential {_um(ms[outside]['mean'])}, LIP "
-        f"{_um(ml[outside]['mean'])} (ratio λ = 0 / λ = {s['paper_lambda']:g}: {ratio:.2f}); "
-        f"on {inside}: {_um(mz[inside]['mean'])}, {_um(mp[inside]['mean'])}, "
-        f"{_um(ms[inside]['mean'])}, {_um(ml[inside]['mean'])}. So {verdict}.")
+        f"**Inside the training range ({inside}).** The network force of λ = 0 peaks at "
+        f"{rz[inside]['network_max_abs_n']:.2f} N (rms {rz[inside]['network_rms_n']:.2f} N), that "
+        f"of λ = {s['paper_lambda']:g} at {rp[inside]['network_max_abs_n']:.2f} N (rms "
+        f"{rp[inside]['network_rms_n']:.2f} N): with λ = 0 the network carries what the drifted "
+        f"physical terms no longer do. MAE on {inside}: λ = 0 {_um(mz[inside]['mean'])}, "
+        f"λ = {s['paper_lambda']:g} {_um(mp[inside]['mean'])}, sequential "
+        f"{_um(ms[inside]['mean'])}, LIP {_um(ml[inside]['mean'])}.")
+    for outside in s["outside"]:
+        rng_out = s["ranges"][outside]
+        leaves = [name for name, key in (("position", "position_m"), ("velocity", "velocity_m_s"),
+                                         ("acceleration", "acceleration_m_s2"))
+                  if rng_out[key] > rng_in[key] * 1.01]
+        text = (f"**{outside}.** It reaches |y| = {rng_out['position_m'] * 1e3:.0f} mm, |v| = "
+                f"{rng_out['velocity_m_s']:.3g} m/s, |a| = {rng_out['acceleration_m_s2']:.3g} m/s² "
+                f"against {rng_in['position_m'] * 1e3:.0f} mm, {rng_in['velocity_m_s']:.3g} m/s, "
+                f"{rng_in['acceleration_m_s2']:.3g} m/s² on {inside}: it extrapolates in "
+                f"{', '.join(leaves) if leaves else 'nothing'}")
+        bz, bp = rz[outside]["network_max_abs_beyond_n"], rp[outside]["network_max_abs_beyond_n"]
+        if bz is not None:
+            text += (f" ({rz[outside]['fraction_beyond'] * 100:.0f} % of its samples). There the "
+                     f"network force reaches {bz:.2f} N for λ = 0 and {bp:.2f} N for "
+                     f"λ = {s['paper_lambda']:g}")
+        ratio = mz[outside]["mean"] / mp[outside]["mean"]
+        verdict = ("λ = 0 loses more than the regularized PGNN" if ratio > 1.1 else
+                   "λ = 0 does not lose more than the regularized PGNN" if ratio > 0.9 else
+                   "λ = 0 even does better than the regularized PGNN")
+        text += (f". MAE: λ = 0 {_um(mz[outside]['mean'])} ± {_um(mz[outside]['std'])}, "
+                 f"λ = {s['paper_lambda']:g} {_um(mp[outside]['mean'])} ± "
+                 f"{_um(mp[outside]['std'])}, sequential {_um(ms[outside]['mean'])}, LIP "
+                 f"{_um(ml[outside]['mean'])}; ratio λ = 0 / λ = {s['paper_lambda']:g} "
+                 f"{ratio:.2f}: {verdict} here.")
+        lines.append(text)
     return lines
 
 
 def _report(s: dict, study: StudySettings) -> str:
     v = s["variants"]
-    inside, outside = s["inside"], s["outside"]
+    refs = [s["inside"], *s["outside"]]
     lines = [f"# Extrapolation study: PGNN with n_l = {s['hidden']}, λ swept over "
              f"{', '.join(f'{x:g}' for x in s['lambdas'])}", "",
-             f"One dithered training run on {inside}, one LIP (θ_LIP: " + ", ".join(
+             f"One dithered training run on {s['inside']}, one LIP (θ_LIP: " + ", ".join(
                  f"{k} {x:.4g} {UNITS[k]}" for k, x in s["theta_lip"].items())
              + f"), {s['seeds']} training seeds per variant; replays without dither on "
-             f"{inside} (inside the training range) and {outside}.", "", "## Findings", ""]
+             f"{s['inside']} (the training range) and {', '.join(s['outside'])}.", "",
+             "## Findings (generated from this run)", ""]
     lines += [f"- {x}" for x in _findings(s)] + [""]
-    head = ["variant", f"MAE {inside} [µm]", f"MAE {outside} [µm]", "m [kg]", "fv [N·s/m]",
-            "fc [N]", "fk [N/m]", "data term [N²]", "deviation term [N²]"]
+    head = (["variant"] + [f"MAE {r} [µm]" for r in refs]
+            + ["m [kg]", "fv [N·s/m]", "fc [N]", "fk [N/m]", "data term [N²]",
+               "deviation term [N²]"])
     lines += ["## Table (mean ± std over seeds)", "", "| " + " | ".join(head) + " |",
               "|" + "---|" * len(head)]
     for key, var in v.items():
         cells = [key] + [f"{var['mae'][r]['mean'] * 1e6:.3f} ± {var['mae'][r]['std'] * 1e6:.3f}"
-                         for r in (inside, outside)]
+                         for r in refs]
         th = var.get("theta_phy")
         cells += [f"{th[k]:.4g}" for k in THETA_NAMES] if th else ["–"] * 4
         cost = var.get("cost")
@@ -294,14 +307,13 @@ def _report(s: dict, study: StudySettings) -> str:
               "θ_phy over the LM iterations, relative to θ_LIP (seed 0):", "",
               "![theta](figures/theta_training.png)", "",
               "Data-fit term and parameter-deviation term over the iterations (seed 0):", "",
-              "![costs](figures/cost_terms.png)", "",
-              f"Feedforward on {outside} split into physical part θ_phy·T (minus the LIP "
-              f"force) and network part (seed 0; shaded: positions outside the training "
-              f"range):", "",
-              f"![split](figures/split_{outside}.png)", "",
-              "Tracking errors per variant (seed 0):", "",
-              f"![tracking {inside}](figures/tracking_{inside}.png)", "",
-              f"![tracking {outside}](figures/tracking_{outside}.png)", "",
-              f"MAE against λ (mean ± std over seeds; λ = 0 drawn at the left edge):", "",
+              "![costs](figures/cost_terms.png)", ""]
+    for r in s["outside"]:
+        lines += [f"Feedforward on {r} split into the physical part θ_phy·T (minus the LIP force) "
+                  f"and the network part (seed 0; shaded: samples outside the training range):",
+                  "", f"![split {r}](figures/split_{r}.png)", ""]
+    lines += ["Tracking errors per variant (seed 0):", ""]
+    lines += [f"![tracking {r}](figures/tracking_{r}.png)\n" for r in refs]
+    lines += ["MAE against λ (mean ± std over seeds; λ = 0 drawn at the left edge):", "",
               "![mae](figures/mae_vs_lambda.png)", ""]
     return "\n".join(lines)

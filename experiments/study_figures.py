@@ -76,7 +76,9 @@ def split(summary, models, lip, ref, r, ts, path: Path) -> None:
     lambda and sequential (seed 0): the physical part minus the LIP's (what the drift of theta_phy
     changes) and the network part (what the network adds), with their sum."""
     keys = ["lambda=0", f"lambda={summary['paper_lambda']:g}", "sequential"]
-    limit = summary["training_position_limit_m"]
+    from experiments.study import beyond_range
+
+    limit = summary["ranges"][summary["inside"]]["position_m"]
     t = np.arange(len(r)) * ts
     lip_force = lip.predict(y=r, ts=ts)
     fig, axes = plt.subplots(4, 1, figsize=(10, 9), sharex=True)
@@ -84,7 +86,7 @@ def split(summary, models, lip, ref, r, ts, path: Path) -> None:
     axes[0].axhline(limit * 1e3, color="r", lw=0.8, ls=":")
     axes[0].axhline(-limit * 1e3, color="r", lw=0.8, ls=":")
     axes[0].set_ylabel("r [mm]")
-    beyond = np.abs(r) > limit * (1 + 1e-9)
+    beyond = beyond_range(lip.features, r, ts, summary["ranges"][summary["inside"]])
     for key in keys:
         phys, net = models[key][0].predict_parts(y=r, ts=ts)
         axes[1].plot(t, phys - lip_force, lw=0.9, label=key)
@@ -102,7 +104,8 @@ def split(summary, models, lip, ref, r, ts, path: Path) -> None:
         pad = 0.15 * (hi - lo + 1e-9)
         ax.set_ylim(lo - pad, hi + pad)
     axes[1].legend(fontsize=7, loc="upper right")
-    axes[0].set_title(f"{ref}; shaded: positions outside the training range", fontsize=9)
+    axes[0].set_title(f"{ref}; shaded: position, velocity or acceleration outside the training "
+                      f"range", fontsize=9)
     axes[-1].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -134,7 +137,7 @@ def mae_vs_lambda(summary, path: Path) -> None:
     xs = [x if x > 0 else zero_at for x in lams]
     fig, ax = plt.subplots(figsize=(7, 4))
     v = summary["variants"]
-    for ref, marker in ((summary["inside"], "o"), (summary["outside"], "s")):
+    for ref, marker in zip([summary["inside"], *summary["outside"]], "osd^v"):
         mean = [v[f"lambda={x:g}"]["mae"][ref]["mean"] * 1e6 for x in lams]
         std = [v[f"lambda={x:g}"]["mae"][ref]["std"] * 1e6 for x in lams]
         line = ax.errorbar(xs, mean, yerr=std, marker=marker, capsize=3, label=f"PGNN on {ref}")
@@ -160,8 +163,8 @@ def draw(summary, study, lip, refs, models, runs, ts, folder: Path) -> None:
     folder = Path(folder)
     theta_training(summary, models, folder / "theta_training.png")
     cost_terms(summary, models, folder / "cost_terms.png")
-    split(summary, models, lip, summary["outside"], refs[summary["outside"]], ts,
-          folder / f"split_{summary['outside']}.png")
+    for ref in summary["outside"]:
+        split(summary, models, lip, ref, refs[ref], ts, folder / f"split_{ref}.png")
     for ref in refs:
         tracking(summary, runs, ref, folder / f"tracking_{ref}.png")
     mae_vs_lambda(summary, folder / "mae_vs_lambda.png")
