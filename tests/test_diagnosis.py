@@ -71,7 +71,8 @@ def diagnosed():
 
     def get(kind: str):
         if kind not in cache:
-            seed = np.random.SeedSequence(20261122, spawn_key=((CASES + ("none", "two")).index(kind),))
+            index = (CASES + ("none", "two")).index(kind)
+            seed = np.random.SeedSequence(20261122, spawn_key=(index,))
             rng_truth, rng_dither = (np.random.default_rng(s) for s in seed.spawn(2))
             truth = truth_plant(kind, rng_truth)
             run, model = measure(truth, NOMINAL, rng_dither)

@@ -36,7 +36,8 @@ def diagnose_emulated(*, model: Plant, truth: Plant, controller, features, recor
     """The truth-plant path of an experiment: diagnose ``model`` on ``record`` (measured on
     ``truth`` with ``controller``), write the report into ``out``, and measure the LIP
     feedforward's tracking MAE (m) on each reference, replayed on the truth, before and after
-    adding the found effects to the LIP. Returns the numbers (also in ``out/feedforward_gain.json``).
+    adding the found effects to the LIP. Returns the numbers (also written to
+    ``out/feedforward_gain.json``).
     """
     import json
     from pathlib import Path

@@ -4,8 +4,8 @@ A model file is YAML with a ``plant:`` mapping (``mass`` kg, ``viscous`` N*s/m, 
 ``stiffness`` N/m, optional ``effects`` in the simulator's vocabulary, ``encoder_resolution`` m) and
 optionally a ``controller:``, either a PID design (the keys of ``controllers.pid.PIDDesign``,
 designed on the plant at the record's sample time) or a linear discrete law
-``u = C(z) e + R(z) r`` given by ``b``, ``a`` (C on ``e = r - y``, N/m) and ``reference_b`` (FIR R on
-``r``, N/m) at sample time ``ts`` (s). An experiment config is read by the CLI, not here.
+``u = C(z) e + R(z) r`` given by ``b``, ``a`` (C on ``e = r - y``, N/m) and ``reference_b``
+(FIR R on ``r``, N/m) at sample time ``ts`` (s). An experiment config is read by the CLI, not here.
 """
 
 from __future__ import annotations

@@ -1,12 +1,10 @@
-"""Write a diagnosis: ``diagnosis.json``, ``report.md`` and its figures, into a folder atomically."""
+"""Write a diagnosis into a folder, atomically: ``diagnosis.json``, ``report.md``, figures."""
 
 from __future__ import annotations
 
 import json
 import shutil
 from pathlib import Path
-
-import numpy as np
 
 from clm_sim.diagnosis.diagnose import Diagnosis
 from clm_sim.errors import UserError
@@ -89,8 +87,8 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
              f"m/s left out; parallel low-pass {rec['lowpass_hz']:g} Hz. Residual RMS "
              f"{rec['residual_rms_n']:.4g} N.", "", "## Findings", ""]
     if not d.findings:
-        lines.append("Nothing is wrong: no candidate effect passes the significance rule; the model "
-                     "explains the record to within its noise.")
+        lines.append("Nothing is wrong: no candidate effect passes the significance rule; the "
+                     "model explains the record to within its noise.")
     else:
         lines += ["| rank | effect | parameters (SI) | explained fraction |", "|---|---|---|---|"]
         for k, f in enumerate(d.findings, 1):
@@ -112,7 +110,8 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
                      f"{g['resim_mismatch_rms_before'] * 1e6:.4g} | "
                      f"{g['resim_mismatch_rms_after'] * 1e6:.4g} |")
         lines.append(f"\nMeasured tracking error RMS {g['tracking_rms_measured'] * 1e6:.4g} µm.")
-    lines += ["", "## Figures", ""] + [f"![{cap}](figures/{name})\n\n{cap}.\n" for name, cap in figures]
+    lines += ["", "## Figures", ""]
+    lines += [f"![{cap}](figures/{name})\n\n{cap}.\n" for name, cap in figures]
     return "\n".join(lines) + "\n"
 
 

@@ -7,15 +7,17 @@ Nonlinear parameters are searched, never assumed:
 
 * periods (``cogging``, ``force_ripple``): the current residual is binned on a uniform position
   grid (cogging: bin mean; ripple: per-bin least-squares gain on the motor force), its spatial
-  spectrum (zero-padded FFT) gives the strongest peaks between 16 bins and a third of the stroke,
-  and the best peak is refined by bounded least squares on the period;
-* the Stribeck velocity: a logarithmic grid from 1.5 times the speed floor to half the typical speed, then bounded
-  least squares on ``log(velocity)`` around the best grid point (exponent fixed at 2).
+  spectrum (zero-padded FFT of 4096 bins) gives the three strongest peaks between the shortest
+  period the filter passes at the typical speed (``v90 / (cutoff / 2)``, at least 16 bins) and a
+  third of the stroke, and the best peak is refined by bounded least squares on the period;
+* the Stribeck velocity: a logarithmic grid from 1.5 times the speed floor to half the typical
+  speed, then bounded least squares on ``log(velocity)`` around the best grid point (exponent
+  fixed at 2).
 
 Significance rule (decided per step of a forward selection): with the accepted terms ``S``, a
 candidate ``c`` is accepted when, in a blocked ``folds``-fold cross-validation over contiguous
-blocks of the record, (1) it lowers the held-out MSE by at least ``min_gain`` of the current held-out
-MSE and by at least ``min_explained`` of the held-out MSE of the model's own residual (the
+blocks of the record, (1) it lowers the held-out MSE by at least ``min_gain`` of the current
+held-out MSE and by at least ``min_explained`` of the held-out MSE of the model's own residual (the
 noise floor: once the large causes are removed, ``min_gain`` alone would name model bias), (2) the
 held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
 folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an F-test of ``S + c``
