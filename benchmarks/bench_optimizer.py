@@ -8,6 +8,10 @@ machine. Adam runs for a fixed budget per learning rate; when it never comes wit
 ratio printed is a lower bound.
 
     python benchmarks/bench_optimizer.py [--hidden 16] [--lm-iter 200] [--adam-seconds 120]
+
+``--sensitivity`` instead prints how the replayed MAE on r1 and r2 and the CPU time of one fit
+depend on the LM iteration cap and on the decimation of the training data (3 seeds each), which
+is how the defaults (100 iterations, decimation 20) were chosen.
 """
 
 from __future__ import annotations
@@ -76,6 +80,7 @@ def main(argv=None):
     ap.add_argument("--adam-seconds", type=float, default=120.0)
     ap.add_argument("--adam-lr", type=float, nargs="+", default=[1e-3, 1e-2])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sensitivity", action="store_true")
     args = ap.parse_args(argv)
 
     config = ExperimentConfig(seed=1)
@@ -87,6 +92,8 @@ def main(argv=None):
         len(r), np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER)))
     train = simulate(plant, pid, r, ts, dither=dither)
     lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
+    if args.sensitivity:
+        return sensitivity(config, pid, train, lip, args.hidden)
     data = training_data(config.features, y=train.y, u=train.u, ts=ts)
     print(f"data: {len(data.target)} samples, n_l = {args.hidden}, lambda = {args.lam:g}, "
           f"init random (seed {args.seed})")
@@ -124,6 +131,32 @@ def main(argv=None):
             print(f"ratio {name} / LM > {wall / lm[0]:.0f} (wall), > {cpu / lm[1]:.0f} (CPU)")
         else:
             print(f"ratio {name} / LM = {got[0] / lm[0]:.1f} (wall), {got[1] / lm[1]:.1f} (CPU)")
+
+
+def sensitivity(config, pid, train, lip, hidden, seeds=3):
+    """MAE (mean ± std over seeds) and CPU time per fit against iterations and decimation."""
+    ts, plant = config.ts, config.plant
+    refs = {k: config.references[k].sample(ts).r for k in ("r1", "r2")}
+    print(f"n_l = {hidden}, {seeds} seeds; MAE in um (mean ± std), CPU s per fit")
+    for lam in (0.0, 0.01):
+        for decimation in (10, 20, 40):
+            data = training_data(config.features, y=train.y, u=train.u, ts=ts,
+                                 decimation=decimation)
+            for max_iter in (30, 100, 200):
+                maes, cpu = {k: [] for k in refs}, []
+                for seed in range(seeds):
+                    c0 = time.process_time()
+                    model = PGNNFeedforward(hidden=hidden, lam=lam, max_iter=max_iter,
+                                            decimation=decimation).fit_data(
+                        data=data, theta_lip=lip.theta_, rng=np.random.default_rng(seed))
+                    cpu.append(time.process_time() - c0)
+                    for k, r in refs.items():
+                        run = simulate(plant, pid, r, ts, u_ff=model.feedforward(r, ts))
+                        maes[k].append(np.mean(np.abs(run.e)) * 1e6)
+                print(f"lambda={lam:<5g} decimation={decimation:3d} ({len(data.target):6d} "
+                      f"samples) max_iter={max_iter:4d}: " + ", ".join(
+                          f"{k} {np.mean(v):.3f} ± {np.std(v, ddof=1):.3f}"
+                          for k, v in maes.items()) + f"; {np.mean(cpu):.1f} s CPU", flush=True)
 
 
 if __name__ == "__main__":

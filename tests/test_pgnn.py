@@ -156,3 +156,32 @@ def test_save_load_round_trip(tmp_path, data):
 def test_predict_refuses_before_fit():
     with pytest.raises(RuntimeError):
         PGNNFeedforward().feedforward(np.zeros(100), 1e-4)
+
+
+def test_paper_table_config_has_the_eight_rows():
+    from pathlib import Path
+
+    from experiments.config import load_config
+
+    root = Path(__file__).resolve().parents[1]
+    config = load_config(root / "experiments/configs/paper_table.yaml")
+    rows = [(f.kind, f.training, f.lam, f.hidden) for f in config.feedforwards]
+    assert rows == [("none", None, None, None), ("lip", None, None, None)] + [
+        ("pgnn", t, lam, n) for n in (16, 8)
+        for t, lam in (("sequential", None), ("simultaneous", 0.0), ("simultaneous", 0.01))]
+    assert all(f.seeds >= 5 for f in config.feedforwards if f.kind == "pgnn")
+
+
+def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
+    from pathlib import Path
+
+    from clm_sim.errors import UserError
+    from experiments.study import load_study
+
+    root = Path(__file__).resolve().parents[1]
+    config, study = load_study(root / "experiments/configs/extrapolation_study.yaml")
+    assert 0.0 in study.lambdas and study.paper_lambda in study.lambdas
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("study:\n  lambdaz: [0]\n")
+    with pytest.raises(UserError, match=r"bad.yaml: study.lambdaz: unknown key"):
+        load_study(bad)
