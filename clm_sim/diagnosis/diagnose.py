@@ -77,6 +77,7 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
             f"held-out final {100 * settings.holdout_fraction:.0f} % of the record",
             "significance_rule": {
                 "cv": f"blocked {settings.folds}-fold cross-validation, contiguous blocks",
-                "min_gain": settings.min_gain, "min_folds": settings.min_folds,
+                "min_gain": settings.min_gain, "min_explained": settings.min_explained,
+                "min_folds": settings.min_folds,
                 "p_value": settings.p_value, "max_findings": settings.max_findings}}
     return Diagnosis(findings, gain, model, extended, effects, correction, res, signals, info)

@@ -96,8 +96,10 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
                          f"{f['explained_fraction']:.3g} |")
     rule = d.info["significance_rule"]
     lines += ["", f"Significance rule: {rule['cv']}; a candidate is accepted when it lowers the "
-              f"held-out MSE by at least {100 * rule['min_gain']:g} %, in at least "
-              f"{rule['min_folds']} folds, with an F-test p < {rule['p_value']:g}.",
+              f"held-out MSE by at least {100 * rule['min_gain']:g} % (and by "
+              f"{100 * rule['min_explained']:g} % of the model's own residual), in at least "
+              f"{rule['min_folds']} of the folds, with an F-test p < {rule['p_value']:g}; "
+              f"explained fraction: held-out MSE drop when the cause joined, over the model's.",
               "", "## Out-of-sample gain", "", f"Validation: {d.info['validation']}.", "",
               "| quantity | before | after |", "|---|---|---|",
               f"| force residual RMS (N) | {g['residual_rms_before']:.4g} | "
@@ -110,6 +112,14 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
                      f"{g['resim_mismatch_rms_before'] * 1e6:.4g} | "
                      f"{g['resim_mismatch_rms_after'] * 1e6:.4g} |")
         lines.append(f"\nMeasured tracking error RMS {g['tracking_rms_measured'] * 1e6:.4g} µm.")
+    ff = d.info.get("feedforward_gain")
+    if ff:
+        lines += ["", "## LIP feedforward on the emulated machine", "",
+                  "Tracking MAE (µm), replayed on the truth plant; LIP extended with "
+                  + (", ".join(e["type"] for e in ff["lip_effects"]) or "no effect") + ".", "",
+                  "| reference | before | after |", "|---|---|---|"]
+        lines += [f"| {ref} | {v['before'] * 1e6:.4g} | {v['after'] * 1e6:.4g} |"
+                  for ref, v in ff["lip_mae_m"].items()]
     lines += ["", "## Figures", ""]
     lines += [f"![{cap}](figures/{name})\n\n{cap}.\n" for name, cap in figures]
     return "\n".join(lines) + "\n"
