@@ -71,7 +71,7 @@ def cost_terms(summary, models, path: Path) -> None:
     plt.close(fig)
 
 
-def split(summary, models, lip, ref, r, ts, path: Path) -> None:
+def split(summary, models, lip, ref, r, ts, path: Path, truth=None) -> None:
     """Feedforward on ``ref`` split into physical and network parts, for lambda = 0, the paper's
     lambda and sequential (seed 0): the physical part minus the LIP's (what the drift of theta_phy
     changes) and the network part (what the network adds), with their sum."""
@@ -92,8 +92,11 @@ def split(summary, models, lip, ref, r, ts, path: Path) -> None:
         axes[1].plot(t, phys - lip_force, lw=0.9, label=key)
         axes[2].plot(t, net, lw=0.9, label=key)
         axes[3].plot(t, phys + net - lip_force, lw=0.9, label=key)
+    if truth is not None:
+        axes[3].plot(t, truth - lip_force, "k--", lw=0.8, label="true plant force")
+        axes[3].legend(fontsize=7, loc="upper right")
     titles = ["physical part θ_phy·T minus LIP force [N]", "network part f_NN [N]",
-              "total minus LIP force [N]"]
+              "whole model (and true plant force) minus LIP force [N]"]
     for ax, title in zip(axes[1:], titles):
         ax.fill_between(t, 0, 1, where=beyond, color="r", alpha=0.08,
                         transform=ax.get_xaxis_transform())
@@ -158,13 +161,14 @@ def mae_vs_lambda(summary, path: Path) -> None:
     plt.close(fig)
 
 
-def draw(summary, study, lip, refs, models, runs, ts, folder: Path) -> None:
+def draw(summary, study, lip, refs, models, runs, ts, folder: Path, truth=None) -> None:
     """Every figure of the report into ``folder``."""
     folder = Path(folder)
     theta_training(summary, models, folder / "theta_training.png")
     cost_terms(summary, models, folder / "cost_terms.png")
     for ref in summary["outside"]:
-        split(summary, models, lip, ref, refs[ref], ts, folder / f"split_{ref}.png")
+        split(summary, models, lip, ref, refs[ref], ts, folder / f"split_{ref}.png",
+              None if truth is None else truth[ref])
     for ref in refs:
         tracking(summary, runs, ref, folder / f"tracking_{ref}.png")
     mae_vs_lambda(summary, folder / "mae_vs_lambda.png")
