@@ -91,6 +91,18 @@ def test_very_large_lambda_pins_theta_to_lip(data):
     np.testing.assert_allclose(got, theta, rtol=1e-6)
 
 
+@pytest.mark.parametrize("name", THETA_NAMES)
+def test_diagonal_lambda_pins_only_its_parameter(data, name):
+    theta = lip_theta(data) * 1.05
+    model = PGNNFeedforward(hidden=8, lam=0.0, lambda_diag={name: 1e10}, max_iter=30)
+    model.fit_data(data=data, theta_lip=as_dict(theta), rng=np.random.default_rng(0))
+    i = THETA_NAMES.index(name)
+    assert model.theta_[name] == pytest.approx(theta[i], rel=1e-6)  # as the scalar case
+    # The unpinned ones follow the data, away from the 5 % offset (the data's LS is theta/1.05).
+    others = [k for k in THETA_NAMES if k != name and k != "stiffness"]
+    assert any(abs(model.theta_[k] / theta[THETA_NAMES.index(k)] - 1) > 0.01 for k in others)
+
+
 def test_regularized_pgnn_learns_parasitic_force_and_keeps_theta(data):
     """A sine of position the LIP cannot express: the regularized PGNN keeps theta_LIP (which is
     near the truth here, the sine being nearly orthogonal to the LIP columns) and fits it."""
