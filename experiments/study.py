@@ -52,12 +52,12 @@ class StudySettings:
 
     def __post_init__(self):
         if not self.lambdas or any(lam < 0 for lam in self.lambdas):
-            raise UserError("study.lambdas: expected a non-empty list of numbers >= 0")
+            raise UserError("lambdas: expected a non-empty list of numbers >= 0")
         if 0.0 not in self.lambdas or self.paper_lambda not in self.lambdas:
-            raise UserError(f"study.lambdas: must contain 0 and paper_lambda "
+            raise UserError(f"lambdas: must contain 0 and paper_lambda "
                             f"({self.paper_lambda:g})")
         if not (isinstance(self.seeds, int) and self.seeds >= 1) or self.hidden < 1:
-            raise UserError("study: seeds and hidden must be integers >= 1")
+            raise UserError("seeds and hidden: expected integers >= 1")
 
 
 def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
