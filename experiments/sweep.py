@@ -521,6 +521,7 @@ def plot_mae(rows: list[dict], swept: list[str], x: str, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     data = series(rows, swept, x)
     refs = sorted({ref for _, ref in data})
@@ -553,6 +554,10 @@ def plot_mae(rows: list[dict], swept: list[str], x: str, path: Path) -> None:
             ax.set_xticks(range(len(cats)), cats)
         if min(means) > 0 and max(means) / min(means) > 20:
             ax.set_yscale("log")
+            plain = FuncFormatter(lambda v, _: f"{v:g}")  # 0.2, 0.4, 1, 2 rather than 2x10^-1
+            ax.yaxis.set_major_formatter(plain)
+            ax.yaxis.set_minor_formatter(FuncFormatter(
+                lambda v, _: f"{v:g}" if f"{v:.0e}"[0] in "25" else ""))
         ax.set_xlabel(x)
         ax.set_ylabel(f"MAE on {ref} [µm]")
         ax.grid(alpha=0.3, which="both")
