@@ -7,8 +7,9 @@ spread over the workers, not on the horizon. Each run starts from an empty resul
 
     python benchmarks/bench_sweep.py [--workers 2] [--full]
 
-Prints both wall times, their ratio (target >= 1.8 on 2 cores) and the load average, since another
-process on the machine takes cores from both runs alike. Also checks that both runs give the same
+Prints both wall times, their ratio (target >= 1.8 on 2 cores), the CPU time the workers used and
+the load average: on a shared machine, other processes take cores from the runs (the 'cores busy'
+figure, CPU / wall, then falls below the worker count). Also checks that both runs give the same
 table, bit for bit.
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -29,13 +31,20 @@ CONFIG = Path(__file__).resolve().parent.parent / "experiments" / "configs" / \
     "sweep_lambda_hidden.yaml"
 
 
-def timed_sweep(config: Path, out: Path, workers: int) -> tuple[float, list]:
-    start = time.perf_counter()
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)  # workers are joined at the end
+    return usage.ru_utime + usage.ru_stime
+
+
+def timed_sweep(config: Path, out: Path, workers: int) -> tuple[float, float, list]:
+    """Wall time (s), CPU time of the worker processes (s) and the table rows."""
+    cpu0, start = _children_cpu(), time.perf_counter()
     outcome = run_sweep(load_sweep(config), out, workers=workers, quiet=True)
     wall = time.perf_counter() - start
+    cpu = _children_cpu() - cpu0
     if outcome.exit_code:
         raise SystemExit(f"{out}: {len(outcome.failures)} tasks failed: {outcome.failures[:3]}")
-    return wall, json.loads((out / "table.json").read_text())["rows"]
+    return wall, cpu, json.loads((out / "table.json").read_text())["rows"]
 
 
 def main() -> None:
@@ -55,11 +64,12 @@ def main() -> None:
         print(f"{n} tasks ({CONFIG.name}, training repeats "
               f"{data.get('training', {}).get('repeats', 3)}); load average before "
               f"{os.getloadavg()[0]:.2f}", flush=True)
-        serial, rows_1 = timed_sweep(config, tmp / "serial", 1)
-        print(f"serial   (1 worker):  {serial:8.1f} s  ({serial / n:.2f} s per task)", flush=True)
-        parallel, rows_n = timed_sweep(config, tmp / "parallel", args.workers)
-        print(f"parallel ({args.workers} workers): {parallel:8.1f} s  "
-              f"({parallel / n:.2f} s per task)")
+        serial, cpu_1, rows_1 = timed_sweep(config, tmp / "serial", 1)
+        print(f"serial   (1 worker):  {serial:8.1f} s wall, {cpu_1:7.1f} s CPU in workers "
+              f"(cores busy {cpu_1 / serial:.2f})", flush=True)
+        parallel, cpu_n, rows_n = timed_sweep(config, tmp / "parallel", args.workers)
+        print(f"parallel ({args.workers} workers): {parallel:8.1f} s wall, {cpu_n:7.1f} s CPU in "
+              f"workers (cores busy {cpu_n / parallel:.2f})")
         ratio = serial / parallel
         print(f"speed-up {ratio:.2f}x (target >= 1.8x on 2 cores): "
               f"{'met' if ratio >= 1.8 else 'NOT met'}; load average after "
