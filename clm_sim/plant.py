@@ -11,6 +11,7 @@ stiffens towards the stroke ends, and a small Stribeck peak from the guides.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -21,6 +22,19 @@ from clm_sim.effects import CableSlab, Effect, ForceRipple, Stribeck, lower_effe
 from clm_sim.errors import UserError
 
 THETA_NAMES = ("mass", "viscous", "coulomb", "stiffness")
+
+
+@functools.lru_cache(maxsize=64)
+def _substep_matrices(mass, viscous, stiffness, substeps, ts):
+    # Cached: sweeps and replays simulate the same plant many times; expm is not free.
+    h = ts / substeps
+    m = np.zeros((3, 3))
+    m[:2, :2] = [[0.0, 1.0], [-stiffness / mass, -viscous / mass]]
+    m[1, 2] = 1.0 / mass
+    e = scipy.linalg.expm(m * h)
+    ad, bd = np.ascontiguousarray(e[:2, :2]), np.ascontiguousarray(e[:2, 2])
+    ad.flags.writeable = bd.flags.writeable = False
+    return h, ad, bd
 MAX_ENCODER_RESOLUTION = 1e-3  # m per count; a coarser value is a unit mistake (um or nm)
 
 
@@ -83,13 +97,8 @@ class Plant:
     def substep_matrices(self, ts: float) -> tuple[float, np.ndarray, np.ndarray]:
         """``(h, ad, bd)``: exact propagation of the linear part over one sub-step of ``h`` s
         for a constant force, ``[y, v] <- ad @ [y, v] + bd * F``."""
-        h = ts / self.substeps
-        a = np.array([[0.0, 1.0], [-self.stiffness / self.mass, -self.viscous / self.mass]])
-        m = np.zeros((3, 3))
-        m[:2, :2] = a
-        m[1, 2] = 1.0 / self.mass
-        e = scipy.linalg.expm(m * h)
-        return h, np.ascontiguousarray(e[:2, :2]), np.ascontiguousarray(e[:2, 2])
+        return _substep_matrices(float(self.mass), float(self.viscous), float(self.stiffness),
+                                 self.substeps, float(ts))
 
     def kernel_args(self, ts: float) -> tuple:
         """Positional arguments of :func:`clm_sim.kernel.plant_step` after ``(x, v, u)``."""
