@@ -127,6 +127,11 @@ def _cmd_study(args) -> int:
     from experiments.study import load_study, run_study
 
     config, study = load_study(args.config)
+    from experiments.runner import preflight
+    try:  # the checks clm-sim run makes before any computation
+        preflight(config)
+    except UserError as exc:
+        raise UserError(f"{args.config}: {exc}") from None
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     run_study(config, study, out, quiet=args.quiet)
     print((out / "report.md").read_text(), end="")
