@@ -175,6 +175,7 @@ CONFIG_COMMANDS = {
     "run": lambda cfg, out, valid: ["run", cfg, "--out", out, "--quiet"],
     "sweep": lambda cfg, out, valid: ["sweep", cfg, "--out", out, "--quiet", "--workers", "1"],
     "diagnose": lambda cfg, out, valid: ["diagnose", valid, "--model", cfg, "--out", out],
+    "study": lambda cfg, out, valid: ["study", cfg, "--out", out, "--quiet"],
 }
 DATA_COMMANDS = {
     "identify": lambda data, out: ["identify", data, "--out", out],
@@ -222,7 +223,8 @@ def _check_refused(argv, tmp_path, capsys, expected: str, name: str) -> None:
 
 def _config_cases():
     for case, (_, _, scope) in BAD_CONFIGS.items():
-        commands = {"all": ("run", "sweep", "diagnose"), "experiment": ("run", "sweep"),
+        commands = {"all": ("run", "sweep", "diagnose", "study"),
+                    "experiment": ("run", "sweep", "study"),
                     "sweep": ("sweep",)}[scope]
         for command in commands:
             if command in PRESENT:
