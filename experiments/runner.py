@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from clm_sim.outdir import atomic_folder
 from clm_sim import __version__
 from clm_sim.errors import UserError
 from clm_sim.loop import simulate
@@ -103,24 +103,9 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
         preflight(config)
     except UserError as exc:  # name the file: the config loaded fine, its values do not fit
         raise UserError(f"{config_path}: {exc}" if config_path else str(exc)) from None
-    out = Path(out)
-    if out.exists() and any(out.iterdir()) and not (out / "config.resolved.yaml").exists():
-        raise UserError(f"{out}: output folder exists and does not hold clm-sim results; "
-                        f"choose another --out")
-    tmp = out.with_name(f".{out.name}.partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "runs").mkdir(parents=True)
-    (tmp / "params").mkdir()
-    (tmp / "figures").mkdir()
-    try:
+    with atomic_folder(out, marker="config.resolved.yaml", what="clm-sim results",
+                       subdirs=("runs", "params", "figures")) as tmp:
         rows = _run(config, tmp, progress, config_path)
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     progress(f"results in {out}/ (table.md, table.json, figures/)")
     return rows
 

@@ -12,15 +12,14 @@ reference that leaves the training range (r2).
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from clm_sim.outdir import atomic_folder
 from clm_sim.errors import UserError
-from clm_sim.features import lip_regressors
 from clm_sim.loop import simulate
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml
@@ -82,21 +81,8 @@ def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,
     """Run the study and write it into ``out`` (replaced atomically). Returns the summary."""
     progress = Progress(quiet)
     out = Path(out)
-    if out.exists() and any(out.iterdir()) and not (out / "study.json").exists():
-        raise UserError(f"{out}: output folder exists and does not hold a clm-sim study; "
-                        f"choose another --out")
-    tmp = out.with_name(f".{out.name}.partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "figures").mkdir(parents=True)
-    try:
+    with atomic_folder(out, marker="study.json", what="a clm-sim study") as tmp:
         summary = _study(config, study, tmp, progress)
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     progress(f"report in {out}/report.md")
     return summary
 

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
+from clm_sim.outdir import atomic_folder
 from clm_sim.diagnosis.diagnose import Diagnosis
-from clm_sim.errors import UserError
 
 
 def _figures(d: Diagnosis, folder: Path) -> list[tuple[str, str]]:
@@ -128,21 +127,7 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
 def write(d: Diagnosis, out: Path) -> None:
     """Write ``diagnosis.json``, ``report.md`` and ``figures/`` into ``out`` (replaced as a
     whole; an interrupted write leaves nothing behind)."""
-    out = Path(out)
-    if out.exists() and any(out.iterdir()) and not (out / "diagnosis.json").exists():
-        raise UserError(f"{out}: output folder exists and does not hold a diagnosis; "
-                        f"choose another --out")
-    tmp = out.with_name(f".{out.name}.partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "figures").mkdir(parents=True)
-    try:
+    with atomic_folder(out, marker="diagnosis.json", what="a diagnosis") as tmp:
         shown = _figures(d, tmp / "figures")
         (tmp / "diagnosis.json").write_text(json.dumps(d.to_json(), indent=1))
         (tmp / "report.md").write_text(markdown(d, shown))
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
