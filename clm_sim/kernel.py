@@ -93,7 +93,8 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
         g = fa - s * fc - friction_extra(v, s, st_amp, st_v, st_exp, asym, v_flat)
         x1 = ad[0, 0] * x + ad[0, 1] * v + bd[0] * g
         v1 = ad[1, 0] * x + ad[1, 1] * v + bd[1] * g
-        if v1 * s >= 0.0 or v == 0.0:
+        # Friction continuous at v = 0 (no breakaway force): the exact step needs no event.
+        if v1 * s >= 0.0 or v == 0.0 or (break_pos == 0.0 and break_neg == 0.0):
             x, v = x1, v1
             continue
         # Velocity reverses inside this sub-step: stop at the crossing, then stick or slip.
