@@ -62,7 +62,7 @@ class Plant:
     stiffness: float = 0.0
     effects: tuple[Effect, ...] = field(default_factory=default_effects)
     encoder_resolution: float = 1e-7
-    substeps: int = 4
+    substeps: int = 2
 
     def __post_init__(self):
         object.__setattr__(self, "effects", tuple(self.effects))

@@ -77,7 +77,7 @@ def test_linear_closed_loop_matches_sampled_state_space(stiffness, ts):
     run = simulate(plant, pid, r, ts)
     np.testing.assert_array_equal(run.y, run.y_true)  # encoder_resolution = 0: ideal reading
     # Until the first velocity reversal both sides propagate the same exact ZOH matrices
-    # (product: 4 sub-steps of expm(A h); python-control: expm(A ts)), so they differ by
+    # (product: sub-steps of expm(A h); python-control: expm(A ts)), so they differ by
     # float64 round-off only, accumulated by the loop's integrator: 1e-12 of the stroke is
     # ~100x above that.
     k = _first_reversal(y_ref)
@@ -312,7 +312,7 @@ def test_effect_in_plant_matches_ode(name, direction, ts, zero_controller):
 
     e4, e16, e1000 = error(4), error(16), error(1000)
     assert e1000 < 1e-9
-    # The product's default 4 sub-steps on these exaggerated effects, open loop (nothing
+    # 4 sub-steps (twice the product's default) on these exaggerated effects, open loop (nothing
     # corrects the drift): measured <= 1.2e-7 m over 0.2 s.
     assert e4 < 2e-7
     if not isinstance(effect, ForceOffset):  # a constant force is integrated exactly
