@@ -11,10 +11,9 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 
-from clm_sim.diagnosis import diagnose
-from clm_sim.diagnosis.emulate import measure
+from experiments.diagnosis import diagnose
+from experiments.diagnosis.emulate import measure
 from clm_sim.effects import Cogging, Stribeck
 from clm_sim.plant import Plant
 
@@ -25,7 +24,7 @@ def main() -> None:
     nominal = Plant(effects=())
     truth = Plant(effects=(Cogging(amplitude=3.0, period=0.0117, phase=0.4),
                            Stribeck(static=2.5, velocity=0.008)))
-    run, model = measure(truth, nominal, np.random.default_rng(2024), repeats=3)
+    run, model = measure(truth, nominal, 2024, repeats=3)
     run = run.slice(0, N_SAMPLES)
     diagnose(run.slice(0, 120_000), model)  # compile and warm caches outside the timing
     start = time.perf_counter()

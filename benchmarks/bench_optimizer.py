@@ -23,11 +23,9 @@ import numpy as np
 
 from clm_sim.loop import simulate
 from controllers import optim
-from controllers.lip import LIPFeedforward
 from controllers.pgnn import PGNNFeedforward, training_data
-from controllers.pid import design_pid
 from experiments.config import ExperimentConfig
-from experiments.runner import STREAM_TRAINING_DITHER, stream, training_reference
+from experiments.testbed import Testbed
 
 
 class Clock:
@@ -84,14 +82,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     config = ExperimentConfig(seed=1)
-    plant, ts = config.plant, config.ts
-    pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
-                     design=config.controller, ts=ts)
-    r = training_reference(config)
-    dither = config.training.dither.draw(
-        len(r), np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER)))
-    train = simulate(plant, pid, r, ts, dither=dither)
-    lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
+    tb = Testbed(config)
+    ts, pid = config.ts, tb.pid
+    train = tb.training_run()
+    lip = tb.fit_lip(train)
     if args.sensitivity:
         return sensitivity(config, pid, train, lip, args.hidden)
     data = training_data(config.features, y=train.y, u=train.u, ts=ts)

@@ -1,3 +1,51 @@
-"""clm-sim: a 10 kHz simulation of a coreless linear motor and its feedforward identification."""
+"""clm-sim: a 10 kHz simulation of a coreless linear motor and its feedforward identification.
+
+The public API, one import away (see the README's "Python API")::
+
+    from clm_sim import Testbed
+
+``clm_sim`` itself holds the physics and the data (plant, effects, loop, records). The names below
+that live in the layers above it (controllers, experiments) are resolved lazily on first use
+(PEP 562), so ``import clm_sim.plant`` never loads the controllers, torch or matplotlib, and this
+package's modules never import a layer above them.
+"""
 
 __version__ = "0.1.0"
+
+# public name -> module that defines it
+_EXPORTS = {
+    "Testbed": "experiments.testbed",
+    "ExperimentConfig": "experiments.config",
+    "FeedforwardSpec": "experiments.config",
+    "load_config": "experiments.config",
+    "Plant": "clm_sim.plant",
+    "EFFECTS": "clm_sim.effects",
+    "Run": "clm_sim.record",
+    "load_record": "clm_sim.record",
+    "simulate": "clm_sim.loop",
+    "Dither": "clm_sim.loop",
+    "PointToPoint": "clm_sim.reference",
+    "FeatureMap": "clm_sim.features",
+    "UserError": "clm_sim.errors",
+    "PIDDesign": "controllers.pid",
+    "design_pid": "controllers.pid",
+    "LIPFeedforward": "controllers.lip",
+    "PGNNFeedforward": "controllers.pgnn",
+    "diagnose": "experiments.diagnosis",
+    "load_model": "experiments.diagnosis",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name):
+    if name in _EXPORTS:
+        import importlib
+        value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'clm_sim' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(__all__)

@@ -65,6 +65,25 @@ class Run:
     def __len__(self) -> int:
         return len(self.t)
 
+    @property
+    def mae(self) -> float:
+        """Mean absolute tracking error ``mean |e|`` (m)."""
+        return float(np.mean(np.abs(self.e)))
+
+    @property
+    def rms(self) -> float:
+        """Root-mean-square tracking error (m)."""
+        return float(np.sqrt(np.mean(self.e ** 2)))
+
+    @property
+    def max(self) -> float:
+        """Largest absolute tracking error (m)."""
+        return float(np.max(np.abs(self.e)))
+
+    def metrics(self) -> dict[str, float]:
+        """``{"mae", "rms", "max"}`` of the tracking error (m)."""
+        return {"mae": self.mae, "rms": self.rms, "max": self.max}
+
     def signals(self) -> dict[str, np.ndarray]:
         return {name: getattr(self, name) for name in SIGNALS}
 

@@ -436,20 +436,3 @@ class PGNNFeedforward:
         model.cost_ = info["cost"]
         model.n_samples_ = info["n_samples"]
         return model
-
-
-def from_spec(spec, features: FeatureMap) -> PGNNFeedforward:
-    """An unfitted model for a table row (``experiments.config.FeedforwardSpec``)."""
-    s = spec.pgnn
-    return PGNNFeedforward(
-        hidden=spec.hidden, training=spec.training, lam=spec.lam or 0.0,
-        lambda_diag=s.lambda_diag, pinn_weight=s.pinn_weight, init=s.init,
-        optimizer=s.optimizer, max_iter=s.max_iter, adam_lr=s.adam_lr,
-        validation_fraction=s.validation_fraction, decimation=s.decimation, features=features)
-
-
-def fit_pgnn(spec, features: FeatureMap, train_run, lip, ts: float,
-             seedseq: np.random.SeedSequence) -> PGNNFeedforward:
-    """The runner's hook: fit one seed of a PGNN row on the logged training run."""
-    return from_spec(spec, features).fit(y=train_run.y, u=train_run.u, ts=ts,
-                                         theta_lip=lip.theta_, rng=np.random.default_rng(seedseq))

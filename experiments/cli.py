@@ -105,7 +105,7 @@ def _pairs(text: str | None, option: str, number: bool) -> dict:
 
 def _diagnosis_model(path, ts: float):
     """The simulation's model: a model file (``plant:``) or an experiment config."""
-    from clm_sim.diagnosis.model import SimulationModel, controller_for, is_model_file, load_model
+    from experiments.diagnosis.model import SimulationModel, controller_for, is_model_file, load_model
     from clm_sim.schema import load_yaml
 
     if path is None:
@@ -139,8 +139,8 @@ def _cmd_study(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    from clm_sim.diagnosis import diagnose
-    from clm_sim.diagnosis.report import write
+    from experiments.diagnosis import diagnose
+    from experiments.diagnosis.report import write
     from clm_sim.record import load_record
 
     columns = _pairs(args.columns, "--columns", number=False)

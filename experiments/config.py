@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -12,6 +13,7 @@ from clm_sim.loop import Dither
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from clm_sim.schema import build, load_yaml, to_plain
+from controllers.pgnn_settings import PGNNSettings
 from controllers.pid import PIDDesign
 
 
@@ -35,43 +37,6 @@ class Training:
     def __post_init__(self):
         if not (isinstance(self.repeats, int) and 1 <= self.repeats <= 1000):
             raise UserError(f"repeats: expected an integer in 1..1000, got {self.repeats!r}")
-
-
-@dataclass(frozen=True)
-class PGNNSettings:
-    """Network and optimizer settings of a PGNN feedforward (see controllers.pgnn).
-
-    init: optimized (the lemma's least squares) or random; max_iter: LM iterations (Jacobian
-    evaluations) or Adam steps; optimizer: lm or adam; adam_lr: Adam step size;
-    validation_fraction: last part of the data held out to pick the best iterate (0: none);
-    pinn_weight: weight of the PINN term (training pinn only); lambda_diag: per-parameter
-    regularization weights (mass, viscous, coulomb, stiffness; physical units) overriding lambda;
-    decimation: keep every n-th sample of the filtered training data.
-    """
-
-    init: Literal["optimized", "random"] = "optimized"
-    max_iter: int = 100
-    optimizer: Literal["lm", "adam"] = "lm"
-    adam_lr: float = 1e-3
-    validation_fraction: float = 0.0
-    pinn_weight: float = 1.0
-    lambda_diag: dict[str, float] | None = None
-    decimation: int = 20
-
-    def __post_init__(self):
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise UserError(f"pgnn.max_iter: expected an integer >= 1, got {self.max_iter!r}")
-        if not (isinstance(self.decimation, int) and self.decimation >= 1):
-            raise UserError(f"pgnn.decimation: expected an integer >= 1, got {self.decimation!r}")
-        if not 0.0 <= self.validation_fraction < 0.5:
-            raise UserError(f"pgnn.validation_fraction: expected a number in [0, 0.5), "
-                            f"got {self.validation_fraction!r}")
-        if not self.pinn_weight >= 0 or not self.adam_lr > 0:
-            raise UserError("pgnn: pinn_weight must be >= 0 and adam_lr > 0")
-        for k, v in (self.lambda_diag or {}).items():
-            if k not in ("mass", "viscous", "coulomb", "stiffness") or not v >= 0:
-                raise UserError(f"pgnn.lambda_diag.{k}: expected one of mass, viscous, coulomb, "
-                                f"stiffness with a weight >= 0, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -112,6 +77,19 @@ class FeedforwardSpec:
         if not (isinstance(self.seeds, int) and self.seeds >= 1):
             raise UserError(f"seeds must be an integer >= 1, got {self.seeds!r}")
 
+    @classmethod
+    def pgnn_row(cls, *, training: str, lam: float | None, hidden: int, seeds: int = 1,
+                 settings: dict | None = None) -> "FeedforwardSpec":
+        """A PGNN row from keyword settings (see :class:`PGNNSettings`)."""
+        return cls(kind="pgnn", training=training, hidden=hidden, seeds=seeds,
+                   lam=lam if training != "sequential" else (lam or None),
+                   pgnn=PGNNSettings(**(settings or {})))
+
+    def pgnn_settings(self) -> dict:
+        """The keyword arguments of ``controllers.pgnn.PGNNFeedforward`` for this row."""
+        return {"hidden": self.hidden, "training": self.training, "lam": self.lam or 0.0,
+                **dataclasses.asdict(self.pgnn)}
+
     def label(self) -> str:
         if self.name:
             return self.name
@@ -133,7 +111,7 @@ class ExperimentConfig:
 
     ``plant`` is what the simulation believes (the PID is designed on it); ``truth``, when given,
     is the emulated machine the runs are measured on (with effects the model lacks), and the run
-    then diagnoses ``plant`` against it (``clm_sim.diagnosis``).
+    then diagnoses ``plant`` against it (``experiments.diagnosis``).
     """
 
     name: str = "experiment"

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import re
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,35 +20,10 @@ import yaml
 from clm_sim.outdir import atomic_folder
 from clm_sim import __version__
 from clm_sim.errors import UserError
-from clm_sim.loop import simulate
 from clm_sim.record import save_npz
-from controllers.lip import LIPFeedforward
-from controllers.pid import design_pid
 from experiments import figures, table
-from experiments.config import ExperimentConfig, FeedforwardSpec, resolved
-
-# Purposes of the child random streams; the numbers are part of the reproducibility contract.
-STREAM_TRAINING_DITHER = 0
-STREAM_NETWORK = 1
-
-
-def stream(seed: int, purpose: int, index: int = 0) -> np.random.SeedSequence:
-    """The random stream for one purpose, independent of how many rows a config has."""
-    return np.random.SeedSequence(entropy=seed, spawn_key=(purpose, index))
-
-
-class Progress:
-    """Timed progress lines on stderr (silent when ``quiet``)."""
-
-    def __init__(self, quiet: bool = False):
-        self.quiet = quiet
-        self.start = time.perf_counter()
-
-    def __call__(self, message: str) -> None:
-        if not self.quiet:
-            print(f"[{time.perf_counter() - self.start:7.1f} s] {message}", file=sys.stderr,
-                  flush=True)
-
+from experiments.config import ExperimentConfig, resolved
+from experiments.testbed import Progress, Testbed
 
 def versions() -> dict[str, str]:
     import control
@@ -64,31 +38,6 @@ def versions() -> dict[str, str]:
     except ImportError:
         pass
     return out
-
-
-def training_reference(config: ExperimentConfig) -> np.ndarray:
-    """The training reference, its profile repeated ``training.repeats`` times."""
-    spec = config.references[config.training.reference]
-    r = spec.sample(config.ts).r
-    if config.training.repeats > 1 and r[0] != r[-1]:
-        raise UserError(f"training.repeats: reference {config.training.reference!r} must end "
-                        f"where it starts to be repeated")
-    return np.concatenate([np.tile(r[:-1], config.training.repeats), r[-1:]])
-
-
-def fit_feedforwards(spec: FeedforwardSpec, config: ExperimentConfig, train, lip, progress):
-    """The fitted models of one table row (one per seed; ``[None]`` for feedback only)."""
-    if spec.kind == "none":
-        return [None]
-    if spec.kind == "lip":
-        return [lip]
-    from controllers.pgnn import fit_pgnn  # torch is imported only when a PGNN is asked for
-    models = []
-    for s in range(spec.seeds):
-        progress(f"  training {spec.label()} seed {s + 1}/{spec.seeds}")
-        models.append(fit_pgnn(spec, config.features, train, lip, config.ts,
-                               stream(config.seed, STREAM_NETWORK, s)))
-    return models
 
 
 def slug(text: str) -> str:
@@ -146,17 +95,12 @@ def run_task(config: ExperimentConfig, *, progress=None) -> list[dict]:
 
 def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> list[dict]:
     """Compute the rows of ``config``; with ``out`` also write runs, parameters and figures."""
-    ts = config.ts
-    meta = {"config": resolved(config), "seed": config.seed, "versions": versions(),
-            "config_path": config_path}
+    tb = Testbed(config, progress=progress)
     if out is not None:
         (out / "config.resolved.yaml").write_text(yaml.safe_dump(resolved(config),
                                                                  sort_keys=False))
-
-    plant = config.plant
     try:
-        pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
-                         design=config.controller, ts=ts)
+        pid = tb.pid
     except UserError as exc:
         raise UserError(f"{config_path or 'config'}: controller: {exc}") from None
     progress(pid.summary())
@@ -166,57 +110,36 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
             "gain_margin_db": pid.gain_margin_db, "b": pid.b.tolist(), "a": pid.a.tolist(),
             "kp": pid.kp, "ki": pid.ki, "kd": pid.kd, "tau_d": pid.tau_d}, indent=1))
 
-    r_train = training_reference(config)
-    rng = np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER))
-    dither = config.training.dither.draw(len(r_train), rng)
-    progress(f"training run on {config.training.reference}: {len(r_train)} samples "
-             f"({len(r_train) * ts:.1f} s) with dither {config.training.dither.std_n:g} N")
-    machine = config.truth or plant  # runs are measured on the truth when one is given
-    train = simulate(machine, pid, r_train, ts, dither=dither, meta={**meta, "run": "training"})
+    train = tb.training_run()
+    train.meta.update(versions=versions(), config_path=config_path)
     if out is not None:
         save_npz(train, out / "runs" / "training.npz")
-
-    lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
-    progress("LIP: " + ", ".join(f"{k} {v:.4g}" for k, v in lip.theta_.items()))
+    lip = tb.fit_lip(train)
     if out is not None:
         (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
 
-    refs = {name: config.references[name].sample(ts).r for name in config.replay}
     rows, shown = [], {}
     for spec in config.feedforwards:
-        models = fit_feedforwards(spec, config, train, lip, progress)
-        per_seed, thetas = [], []
-        for s, model in enumerate(models):
-            metrics = {}
-            for name, r in refs.items():
-                u_ff = None if model is None else model.feedforward(r, ts)
-                run = simulate(machine, pid, r, ts, u_ff=u_ff,
-                               meta={**meta, "run": f"replay {spec.label()} on {name}", "seed": s})
-                metrics[name] = table.tracking_metrics(run.e)
-                if s == 0 and out is not None:
-                    shown.setdefault(spec.label(), {})[name] = run
-                    save_npz(run, out / "runs" / f"replay_{slug(spec.label())}_{name}.npz")
-            per_seed.append(metrics)
-            if model is not None:
-                thetas.append(dict(model.theta_))
-                if spec.kind == "pgnn" and out is not None:
+        result = tb.evaluate(spec, train, lip)
+        thetas = [dict(m.theta_) for m in result.models if m is not None]
+        rows.append(table.make_row(spec, result.metrics, thetas))
+        if out is not None:
+            shown[spec.label()] = result.first_replays
+            for name, run in result.first_replays.items():
+                save_npz(run, out / "runs" / f"replay_{slug(spec.label())}_{name}.npz")
+            if spec.kind == "pgnn":
+                for s, model in enumerate(result.models):
                     model.save(out / "params" / f"{slug(spec.label())}_seed{s}")
-        row = table.make_row(spec, per_seed, thetas)
-        rows.append(row)
-        progress(f"{spec.label()}: " + ", ".join(
-            f"MAE {name} {row['mae'][name]['mean'] * 1e6:.3f} µm" for name in refs))
 
     if out is None:
         return rows
     if config.truth is not None:  # diagnose the model against the emulated machine
-        from clm_sim.diagnosis.emulate import diagnose_emulated
-        diagnose_emulated(model=plant, truth=config.truth, controller=pid,
-                          features=config.features, record=train, references=refs,
-                          out=out / "diagnosis", name=config.name, progress=progress)
+        from experiments.diagnosis.emulate import diagnose_emulated
+        diagnose_emulated(tb, record=train, out=out / "diagnosis", progress=progress)
     (out / "table.json").write_text(table.to_json(rows))
     (out / "table.md").write_text(table.to_markdown(rows))
     (out / "table.csv").write_text(table.to_csv(rows))
-    for name in refs:
+    for name in config.replay:
         figures.tracking_errors(shown, name, out / "figures" / f"tracking_{name}.png")
         figures.feedforward_signals(shown, name, out / "figures" / f"feedforward_{name}.png")
     return rows

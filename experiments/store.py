@@ -21,7 +21,7 @@ _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 # config into table rows. Sweep, CLI, figure and diagnosis code do not change a task's numbers.
 _RESULT_SOURCES = ("clm_sim", "controllers", "experiments/config.py", "experiments/runner.py",
                    "experiments/table.py")
-_NOT_RESULT_SOURCES = ("clm_sim/diagnosis",)
+_NOT_RESULT_SOURCES = ("experiments/diagnosis",)
 
 
 def code_version() -> str:

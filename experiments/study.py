@@ -20,15 +20,11 @@ import yaml
 
 from clm_sim.outdir import atomic_folder
 from clm_sim.errors import UserError
-from clm_sim.loop import simulate
 from clm_sim.plant import THETA_NAMES
-from clm_sim.schema import build, load_yaml
-from controllers.lip import LIPFeedforward
-from controllers.pgnn import PGNNFeedforward, from_spec
-from controllers.pid import design_pid
-from experiments.config import ExperimentConfig, FeedforwardSpec, PGNNSettings, resolved
-from experiments.runner import (STREAM_NETWORK, STREAM_TRAINING_DITHER, Progress, stream,
-                                training_reference)
+from clm_sim.schema import build, load_yaml, to_plain
+from controllers.pgnn_settings import PGNNSettings
+from experiments.config import ExperimentConfig, FeedforwardSpec, resolved
+from experiments.testbed import Progress, Testbed
 
 UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
@@ -98,38 +94,28 @@ def _variants(study: StudySettings):
 
 
 def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) -> dict:
-    ts, plant = config.ts, config.plant
+    ts = config.ts
     (out / "config.resolved.yaml").write_text(yaml.safe_dump(
-        {**resolved(config), "study": _plain(study)}, sort_keys=False))
-    pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
-                     design=config.controller, ts=ts)
-    r_train = training_reference(config)
-    dither = config.training.dither.draw(
-        len(r_train), np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER)))
-    progress(f"training run: {len(r_train)} samples")
-    train = simulate(plant, pid, r_train, ts, dither=dither)
-    lip = LIPFeedforward(features=config.features).fit(y=train.y, u=train.u, ts=ts)
-    refs = {k: config.references[k].sample(ts).r for k in (study.inside, *study.outside)}
+        {**resolved(config), "study": to_plain(study)}, sort_keys=False))
+    tb = Testbed(config, progress=progress)
+    train = tb.training_run()
+    lip = tb.fit_lip(train)
+    names = (study.inside, *study.outside)
+    refs = {k: tb.reference(k) for k in names}
 
     def replay(model):
-        u_ff = None if model is None else model.feedforward
-        return {k: simulate(plant, pid, r, ts, u_ff=None if u_ff is None else u_ff(r, ts))
-                for k, r in refs.items()}
+        return {k: tb.replay(model, k) for k in names}
 
     runs = {"feedback only": replay(None), "LIP": replay(lip)}
-    models: dict[str, list[PGNNFeedforward]] = {}
+    models: dict[str, list] = {}
     mae: dict[str, dict[str, list[float]]] = {
-        k: {r: [float(np.mean(np.abs(run.e)))] for r, run in v.items()} for k, v in runs.items()}
+        k: {r: [run.mae] for r, run in v.items()} for k, v in runs.items()}
     for key, label, spec in _variants(study):
         models[key], mae[key] = [], {r: [] for r in refs}
-        for s in range(study.seeds):
-            progress(f"  PGNN {label}, seed {s + 1}/{study.seeds}")
-            model = from_spec(spec, config.features).fit(
-                y=train.y, u=train.u, ts=ts, theta_lip=lip.theta_,
-                rng=np.random.default_rng(stream(config.seed, STREAM_NETWORK, s)))
+        for s, model in enumerate(tb.fit_row(spec, train, lip)):
             replays = replay(model)
             for r, run in replays.items():
-                mae[key][r].append(float(np.mean(np.abs(run.e))))
+                mae[key][r].append(run.mae)
             if s == 0:
                 runs[key] = replays
             models[key].append(model)
@@ -139,18 +125,13 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
     truth = {}
     for k, r in refs.items():  # the simulator's own plant: the oracle a real machine lacks
         y, v, a = config.features.motion(r, ts)
-        truth[k] = plant.inverse_force(y, v, a)
+        truth[k] = tb.machine.inverse_force(y, v, a)
     summary = _summarize(config, study, lip, refs, models, mae, runs, truth)
     (out / "study.json").write_text(json.dumps(summary, indent=1))
     from experiments import study_figures
     study_figures.draw(summary, study, lip, refs, models, runs, ts, out / "figures", truth)
     (out / "report.md").write_text(_report(summary, study))
     return summary
-
-
-def _plain(obj):
-    from clm_sim.schema import to_plain
-    return to_plain(obj)
 
 
 def _ranges(features, r, ts) -> dict[str, float]:

@@ -14,13 +14,11 @@ import math
 import numpy as np
 import pytest
 
-from clm_sim.loop import simulate
 from clm_sim.plant import Plant
 from controllers.lip import LIPFeedforward
-from controllers.pid import design_pid
 from experiments.cli import main
 from experiments.config import ExperimentConfig
-from experiments.runner import STREAM_TRAINING_DITHER, stream, training_reference
+from experiments.testbed import Testbed
 
 CRUISE = 0.05  # m/s: the references' cruise speed, where the friction force is compared
 
@@ -49,14 +47,8 @@ def check_recovery(theta: dict, true: dict) -> dict:
 def effect_free_training():
     """The runner's training experiment on a plant without parasitic forces, 1 nm encoder."""
     config = ExperimentConfig(seed=3, plant=Plant(effects=(), encoder_resolution=1e-9))
-    plant = config.plant
-    pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
-                     design=config.controller, ts=config.ts)
-    r = training_reference(config)
-    dither = config.training.dither.draw(
-        len(r), np.random.default_rng(stream(config.seed, STREAM_TRAINING_DITHER)))
     assert config.training.dither.std_n == 50.0  # the issue's dither
-    return config, simulate(plant, pid, r, config.ts, dither=dither)
+    return config, Testbed(config).training_run()
 
 
 def test_lip_recovers_effect_free_plant(effect_free_training):

@@ -11,7 +11,8 @@ from clm_sim.loop import Dither, simulate
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from experiments.config import ExperimentConfig, FeedforwardSpec, Training
-from experiments.runner import STREAM_TRAINING_DITHER, run_experiment, stream
+from experiments.runner import run_experiment
+from experiments.testbed import STREAM_TRAINING_DITHER, stream
 
 
 def test_run_signals_are_consistent(default_training_run, default_pid, r1, r1_dither, ts):

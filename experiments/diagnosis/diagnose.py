@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from clm_sim.diagnosis.extend import extended_plant, gains, joint_fit
-from clm_sim.diagnosis.model import SimulationModel
-from clm_sim.diagnosis.residual import DiagnosisSettings, Residual, source_of
-from clm_sim.diagnosis.search import forward_select
+from experiments.diagnosis.extend import extended_plant, gains, joint_fit
+from experiments.diagnosis.model import SimulationModel
+from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
+from experiments.diagnosis.search import forward_select
 from clm_sim.effects import Effect
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant

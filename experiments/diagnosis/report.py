@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from clm_sim.outdir import atomic_folder
-from clm_sim.diagnosis.diagnose import Diagnosis
+from experiments.diagnosis.diagnose import Diagnosis
 
 
 def _figures(d: Diagnosis, folder: Path) -> list[tuple[str, str]]:

@@ -11,9 +11,9 @@ import dataclasses
 
 import numpy as np
 
-from clm_sim.diagnosis.model import Controller
-from clm_sim.diagnosis.residual import DiagnosisSettings, Residual
-from clm_sim.diagnosis.search import Step, fit_cv
+from experiments.diagnosis.model import Controller
+from experiments.diagnosis.residual import DiagnosisSettings, Residual
+from experiments.diagnosis.search import Step, fit_cv
 from clm_sim.effects import Effect
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force

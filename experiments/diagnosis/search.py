@@ -43,7 +43,7 @@ import numpy as np
 import scipy.optimize
 import scipy.stats
 
-from clm_sim.diagnosis.residual import Residual
+from experiments.diagnosis.residual import Residual
 from clm_sim.effects import Cogging, Effect, ForceOffset, ForceRipple, FrictionAsymmetry, Stribeck
 from clm_sim.plant import THETA_NAMES
 

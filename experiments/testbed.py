@@ -1,0 +1,233 @@
+"""The testbed: the one pipeline of clm-sim, for the CLI, the studies, the sweeps, the emulated
+machine, the tests, the benchmarks and notebooks.
+
+    config -> plant + PID + references -> dithered training run (logged) -> LIP -> PGNN per seed
+           -> replay on each reference (on the truth plant when one is given) -> metrics
+
+>>> from clm_sim import Testbed
+>>> tb = Testbed()                                   # the default CLM, PID, r1/r2, dither
+>>> run = tb.training_run(seed=1)                    # doctest: +SKIP
+>>> lip = tb.fit_lip(run)                            # doctest: +SKIP
+>>> pgnn = tb.fit_pgnn(run, hidden=16, lam=0.01, seed=0)   # doctest: +SKIP
+>>> tb.replay(pgnn, "r2").mae                        # doctest: +SKIP
+
+The README's "Python API" section is run by ``tests/test_testbed.py``.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from clm_sim.errors import UserError
+from clm_sim.loop import simulate
+from clm_sim.plant import Plant
+from clm_sim.record import Run
+from controllers.lip import LIPFeedforward
+from controllers.pid import PIDController, design_pid
+from experiments.config import ExperimentConfig, FeedforwardSpec, load_config, resolved
+
+# Purposes of the child random streams; the numbers are part of the reproducibility contract.
+STREAM_TRAINING_DITHER = 0
+STREAM_NETWORK = 1
+
+
+def stream(seed: int, purpose: int, index: int = 0) -> np.random.SeedSequence:
+    """The random stream for one purpose, independent of how many rows a config has."""
+    return np.random.SeedSequence(entropy=seed, spawn_key=(purpose, index))
+
+
+class Progress:
+    """Timed progress lines on stderr (silent when ``quiet``)."""
+
+    def __init__(self, quiet: bool = False):
+        self.quiet = quiet
+        self.start = time.perf_counter()
+
+    def __call__(self, message: str) -> None:
+        if not self.quiet:
+            print(f"[{time.perf_counter() - self.start:7.1f} s] {message}", file=sys.stderr,
+                  flush=True)
+
+
+def _silent(message: str) -> None:
+    pass
+
+
+@dataclass
+class RowResult:
+    """One table row computed: the fitted models (``[None]`` for feedback only), the per-seed
+    tracking metrics ``[{ref: {"mae", "rms", "max"}}]`` (m) and the replays of the first seed."""
+
+    spec: FeedforwardSpec
+    models: list
+    metrics: list[dict[str, dict[str, float]]]
+    first_replays: dict[str, Run]
+
+
+class Testbed:
+    """The simulated CLM under PID feedback, with its references, training experiment and
+    feedforward identification. Built from an :class:`ExperimentConfig` (default: the default
+    CLM, 30 Hz PID, r1/r2, 50 N dither); every method is deterministic given its seed.
+
+    ``plant`` is what the engineer believes (the PID is designed on it); runs are measured on
+    ``truth`` when the config gives one (an emulated machine), else on ``plant``.
+    """
+
+    __test__ = False  # not a pytest class, despite its name
+
+    def __init__(self, config: ExperimentConfig | None = None, *, progress=None):
+        self.config = ExperimentConfig() if config is None else config
+        self.progress = progress or _silent
+
+    @classmethod
+    def from_config(cls, path, **kwargs) -> "Testbed":
+        """A testbed from an experiment config file (errors name the file and the key)."""
+        return cls(load_config(path), **kwargs)
+
+    # -- the set-up ---------------------------------------------------------------------------
+    @property
+    def ts(self) -> float:
+        """Sample time (s)."""
+        return self.config.ts
+
+    @property
+    def plant(self) -> Plant:
+        """The model plant (what the PID is designed on)."""
+        return self.config.plant
+
+    @property
+    def machine(self) -> Plant:
+        """The plant every run is measured on: ``truth`` if given, else ``plant``."""
+        return self.config.truth or self.config.plant
+
+    @functools.cached_property
+    def pid(self) -> PIDController:
+        """The PID designed on the model plant (crossover, margins in ``pid.summary()``)."""
+        p = self.config.plant
+        return design_pid(mass=p.mass, viscous=p.viscous, stiffness=p.stiffness,
+                          design=self.config.controller, ts=self.ts)
+
+    def reference(self, name: str) -> np.ndarray:
+        """Reference ``name`` of the config, sampled at ``ts`` (m)."""
+        if name not in self.config.references:
+            raise UserError(f"reference {name!r} is not defined (defined: "
+                            f"{', '.join(self.config.references)})")
+        return self.config.references[name].sample(self.ts).r
+
+    def training_reference(self) -> np.ndarray:
+        """The training reference, its profile repeated ``training.repeats`` times (m)."""
+        cfg = self.config.training
+        r = self.reference(cfg.reference)
+        if cfg.repeats > 1 and r[0] != r[-1]:
+            raise UserError(f"training.repeats: reference {cfg.reference!r} must end where it "
+                            f"starts to be repeated")
+        return np.concatenate([np.tile(r[:-1], cfg.repeats), r[-1:]])
+
+    def meta(self, **extra) -> dict:
+        return {"config": resolved(self.config), **extra}
+
+    # -- the pipeline -------------------------------------------------------------------------
+    def training_run(self, seed: int | None = None) -> Run:
+        """The dithered closed-loop identification experiment on the training reference,
+        measured on the machine. ``seed`` (default: the config's) draws the dither."""
+        seed = self.config.seed if seed is None else seed
+        r = self.training_reference()
+        dither = self.config.training.dither.draw(
+            len(r), np.random.default_rng(stream(seed, STREAM_TRAINING_DITHER)))
+        self.progress(f"training run on {self.config.training.reference}: {len(r)} samples "
+                      f"({len(r) * self.ts:.1f} s) with dither "
+                      f"{self.config.training.dither.std_n:g} N")
+        return simulate(self.machine, self.pid, r, self.ts, dither=dither,
+                        meta=self.meta(run="training", seed=seed))
+
+    def fit_lip(self, run: Run) -> LIPFeedforward:
+        """The LIP feedforward identified from a logged run (the config's feature map)."""
+        lip = LIPFeedforward(features=self.config.features).fit(y=run.y, u=run.u, ts=run.ts)
+        self.progress("LIP: " + ", ".join(f"{k} {v:.4g}" for k, v in lip.theta_.items()))
+        return lip
+
+    def fit_pgnn(self, run: Run, *, hidden: int = 16, lam: float = 0.0,
+                 training: str = "simultaneous", seed: int = 0,
+                 lip: LIPFeedforward | None = None, **settings):
+        """A PGNN feedforward identified from a logged run.
+
+        hidden: tanh neurons; lam: regularization toward theta_LIP (simultaneous training);
+        training: simultaneous, sequential or pinn; seed: the network's draw (the run's own seed
+        and this index select the random stream); lip: the LIP of ``run`` (fitted if omitted);
+        settings: further PGNN settings (see ``pgnn:`` in the config reference).
+        """
+        spec = FeedforwardSpec.pgnn_row(training=training, lam=lam, hidden=hidden,
+                                        settings=settings)
+        return self._fit_pgnn(spec, run, lip or self.fit_lip(run), seed)
+
+    def _fit_pgnn(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward, index: int):
+        from controllers.pgnn import PGNNFeedforward  # torch is imported only for a PGNN
+        run_seed = run.meta.get("seed", self.config.seed)
+        model = PGNNFeedforward(**spec.pgnn_settings(), features=self.config.features)
+        return model.fit(y=run.y, u=run.u, ts=run.ts, theta_lip=lip.theta_,
+                         rng=np.random.default_rng(stream(run_seed, STREAM_NETWORK, index)))
+
+    def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:
+        """The fitted models of one table row: one per seed; ``[None]`` for feedback only."""
+        if spec.kind == "none":
+            return [None]
+        if spec.kind == "lip":
+            return [lip]
+        models = []
+        for s in range(spec.seeds):
+            self.progress(f"  training {spec.label()} seed {s + 1}/{spec.seeds}")
+            models.append(self._fit_pgnn(spec, run, lip, s))
+        return models
+
+    def replay(self, model, reference, *, meta: dict | None = None) -> Run:
+        """The closed loop on ``reference`` (a name or an array, m) with ``model``'s
+        feedforward (``None``: feedback only), without dither, measured on the machine. The
+        record's ``.mae``, ``.rms`` and ``.max`` are its tracking-error metrics (m)."""
+        r = self.reference(reference) if isinstance(reference, str) else np.asarray(reference)
+        u_ff = None if model is None else model.feedforward(r, self.ts)
+        name = reference if isinstance(reference, str) else "array"
+        return simulate(self.machine, self.pid, r, self.ts, u_ff=u_ff,
+                        meta=meta if meta is not None else self.meta(run=f"replay on {name}"))
+
+    def evaluate(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward,
+                 references: tuple[str, ...] | None = None) -> RowResult:
+        """Fit one row and replay every seed on ``references`` (default: the config's
+        ``replay``). Only the first seed's replays are kept (the others' metrics are)."""
+        refs = self.config.replay if references is None else references
+        models = self.fit_row(spec, run, lip)
+        metrics, first = [], {}
+        for s, model in enumerate(models):
+            per_ref = {}
+            for name in refs:
+                rep = self.replay(model, name, meta=self.meta(
+                    run=f"replay {spec.label()} on {name}", seed=s))
+                per_ref[name] = rep.metrics()
+                if s == 0:
+                    first[name] = rep
+            metrics.append(per_ref)
+        row = RowResult(spec, models, metrics, first)
+        self.progress(f"{spec.label()}: " + ", ".join(
+            f"MAE {name} {np.mean([m[name]['mae'] for m in metrics]) * 1e6:.3f} µm"
+            for name in refs))
+        return row
+
+    def rows(self) -> list[RowResult]:
+        """Every row of the config's table: one training run, one LIP, each feedforward."""
+        run = self.training_run()
+        lip = self.fit_lip(run)
+        return [self.evaluate(spec, run, lip) for spec in self.config.feedforwards]
+
+    def with_config(self, **changes) -> "Testbed":
+        """A testbed whose config differs in the given top-level fields."""
+        return Testbed(replace(self.config, **changes), progress=self.progress)
+
+
+def default_config_path() -> Path:
+    """The paper-table config shipped with the package."""
+    return Path(__file__).resolve().parent / "configs" / "paper_table.yaml"
