@@ -87,8 +87,10 @@ class Testbed:
 
     @classmethod
     def from_config(cls, path, **kwargs) -> "Testbed":
-        """A testbed from an experiment config file (errors name the file and the key)."""
-        return cls(load_config(path), **kwargs)
+        """A testbed from an experiment config file (errors name the file and the key). A
+        relative path that is not in the current folder is looked up among the configs shipped
+        with clm-sim (``experiments/configs/paper_table.yaml``, or just ``paper_table``)."""
+        return cls(load_config(shipped_config(path)), **kwargs)
 
     # -- the set-up ---------------------------------------------------------------------------
     @property
@@ -228,6 +230,17 @@ class Testbed:
         return Testbed(replace(self.config, **changes), progress=self.progress)
 
 
-def default_config_path() -> Path:
-    """The paper-table config shipped with the package."""
-    return Path(__file__).resolve().parent / "configs" / "paper_table.yaml"
+CONFIGS = Path(__file__).resolve().parent / "configs"
+
+
+def shipped_config(path) -> Path:
+    """``path`` if it exists; else the shipped config it names (``experiments/configs/X.yaml``,
+    ``X.yaml`` or ``X``), so that notebooks in any folder can name the shipped configs."""
+    path = Path(path)
+    if path.exists() or path.is_absolute():
+        return path
+    for candidate in (CONFIGS.parent.parent / path, CONFIGS / path.name,
+                      CONFIGS / f"{path.name}.yaml"):
+        if candidate.is_file():
+            return candidate
+    return path  # load_config names it: "file not found"

@@ -1,0 +1,121 @@
+"""The import graph points down and has no cycle.
+
+Layers, bottom to top: ``clm_sim`` (physics, data) -> ``controllers`` (feedback, feedforwards,
+their identification) -> ``experiments`` (testbed, runner, studies, sweeps, diagnosis) ->
+``experiments.cli``. The package facade ``clm_sim/__init__.py`` is the public API: it resolves its
+names lazily (PEP 562) and is the only place allowed to name a higher layer. Every import counts,
+function-local ones too: a local import that hides a cycle is still a cycle.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("clm_sim", "controllers", "experiments")
+TOP = {"experiments.cli": 3}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            out[name] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def layer(module: str) -> int:
+    if module in TOP:
+        return TOP[module]
+    return PACKAGES.index(module.split(".")[0])
+
+
+def _resolve(name: str) -> str | None:
+    """The project module an imported name refers to (``a.b.c`` -> ``a.b`` if ``c`` is a name)."""
+    while name:
+        if name in MODULES:
+            return name
+        name = name.rpartition(".")[0]
+    return None
+
+
+def imports(module: str) -> set[str]:
+    """Project modules imported anywhere in ``module`` (module level or inside functions)."""
+    tree = ast.parse(MODULES[module].read_text(encoding="utf-8"))
+    is_package = MODULES[module].name == "__init__.py"
+    found = set()
+    for node in ast.walk(tree):
+        names = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = module.split(".") if is_package else module.split(".")[:-1]
+                anchor = anchor[:len(anchor) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            names = [f"{base}.{a.name}" for a in node.names] + [base]
+        for name in names:
+            target = _resolve(name)
+            if target and target != module:
+                found.add(target)
+    return found
+
+
+GRAPH = {m: imports(m) for m in MODULES}
+
+
+def test_the_layers_are_the_expected_packages():
+    assert {"clm_sim.plant", "controllers.pid", "experiments.testbed",
+            "experiments.cli"} <= set(MODULES)
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if m != "clm_sim"))
+def test_no_module_imports_a_layer_above_it(module):
+    upward = sorted(t for t in GRAPH[module] if layer(t) > layer(module))
+    assert not upward, f"{module} (layer {layer(module)}) imports {upward}"
+
+
+def test_import_graph_has_no_cycle():
+    state, stack, cycles = {}, [], []
+
+    def visit(m):
+        state[m] = "open"
+        stack.append(m)
+        for t in sorted(GRAPH[m]):
+            if state.get(t) == "open":
+                cycles.append(stack[stack.index(t):] + [t])
+            elif t not in state:
+                visit(t)
+        stack.pop()
+        state[m] = "done"
+
+    for m in sorted(GRAPH):
+        if m not in state:
+            visit(m)
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_facade_names_only_public_objects_that_exist():
+    import clm_sim
+    for name in clm_sim.__all__:
+        assert getattr(clm_sim, name) is not None, name
+
+
+def test_physics_import_loads_no_higher_layer_nor_heavy_library():
+    code = ("import sys, clm_sim.plant, clm_sim.loop, clm_sim.record; "
+            "bad = [m for m in sys.modules if m.split('.')[0] in "
+            "('controllers', 'experiments', 'torch', 'matplotlib')]; print(bad)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, check=True).stdout.strip()
+    assert out == "[]", out
