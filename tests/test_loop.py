@@ -12,7 +12,7 @@ from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from experiments.config import ExperimentConfig, FeedforwardSpec, Training
 from experiments.runner import run_experiment
-from experiments.testbed import STREAM_TRAINING_DITHER, stream
+from experiments.testbed import Testbed
 
 
 def test_run_signals_are_consistent(default_training_run, default_pid, r1, r1_dither, ts):
@@ -79,17 +79,12 @@ def test_wrong_length_feedforward_is_refused(default_pid, ts):
 # Determinism
 # --------------------------------------------------------------------------------------------
 
-def _training_run(seed, pid, r, ts):
-    """The runner's training experiment for ``seed`` (dither from its named child stream)."""
-    dither = Dither().draw(len(r), np.random.default_rng(stream(seed, STREAM_TRAINING_DITHER)))
-    return simulate(Plant(), pid, r, ts, dither=dither)
-
-
-def test_same_seed_gives_identical_runs(default_pid, r1, ts):
-    a, b = (_training_run(7, default_pid, r1, ts) for _ in range(2))
+def test_same_seed_gives_identical_runs():
+    tb = Testbed(ExperimentConfig(training=Training(repeats=1)))  # one pass of r1
+    a, b = (tb.training_run(7) for _ in range(2))
     for name, value in a.signals().items():
         np.testing.assert_array_equal(value, b.signals()[name], err_msg=name)
-    c = _training_run(8, default_pid, r1, ts)
+    c = tb.training_run(8)
     assert not np.array_equal(a.dither, c.dither)
     assert not np.array_equal(a.y_true, c.y_true)
 
