@@ -23,7 +23,7 @@ N_SAMPLES = 400_000
 def main() -> None:
     nominal = Plant(effects=())
     truth = Plant(effects=(Cogging(amplitude=3.0, period=0.0117, phase=0.4),
-                           Stribeck(static=2.5, velocity=0.008)))
+                           Stribeck(peak=2.5, velocity=0.008)))
     run, model = measure(truth, nominal, 2024, repeats=3)
     run = run.slice(0, N_SAMPLES)
     diagnose(run.slice(0, 120_000), model)  # compile and warm caches outside the timing

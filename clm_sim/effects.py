@@ -10,7 +10,11 @@ Each effect is a small frozen dataclass with named SI parameters. It knows three
   effect from the least-squares coefficients of those columns;
 * ``lower(terms)``: how it appears in the compiled simulator, as primitive terms of
   :class:`KernelTerms` (position harmonics, motor-force ripple, a position polynomial, Stribeck
-  friction, direction-dependent friction, a constant force).
+  friction, direction-dependent friction, a constant force, Dahl pre-sliding friction).
+
+Most forces are functions of the instantaneous ``(y, v, u)``. Pre-sliding friction has a state
+(the bristle deflection), but Dahl's state is a function of the position *path* alone, so its
+``force`` and ``regressors`` read ``y`` as an ordered path (a record's samples, any sample rate).
 
 ``EFFECTS`` maps a config ``type:`` to its class; it is the only place names are resolved.
 """
@@ -33,7 +37,7 @@ class KernelTerms:
     ``harmonic_*``: additive position-periodic forces ``amp*sin(k*y + phase)`` (N, rad/m, rad).
     ``ripple_*``: motor-force modulation, motor force ``u*(1 + sum amp*sin(k*y + phase))``.
     ``poly_coef``: additive ``sum c_i*(y - poly_center)**i`` (N/m**i), ``i = 0..len-1``.
-    ``stribeck_*``: ``sign(v)*static*exp(-(|v|/velocity)**exponent)`` (N, m/s, -).
+    ``stribeck_*``: ``sign(v)*peak*exp(-(|v|/velocity)**exponent)`` (N, m/s, -).
     ``asym``: extra friction per direction ``[coulomb_pos, coulomb_neg, viscous_pos, viscous_neg]``.
     ``offset``: a constant force (N).
     """
@@ -46,11 +50,13 @@ class KernelTerms:
     ripple_phase: list = field(default_factory=list)
     poly_coef: list = field(default_factory=list)
     poly_center: float = 0.0
-    stribeck_static: list = field(default_factory=list)
+    stribeck_peak: list = field(default_factory=list)
     stribeck_velocity: list = field(default_factory=list)
     stribeck_exponent: list = field(default_factory=list)
     asym: list = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
     offset: float = 0.0
+    dahl_sliding: list = field(default_factory=list)
+    dahl_length: list = field(default_factory=list)
 
     def arrays(self) -> tuple:
         """The terms as contiguous float64 arrays, in the order the kernel takes them."""
@@ -60,8 +66,10 @@ class KernelTerms:
             f(self.ripple_amp), f(self.ripple_k), f(self.ripple_phase),
             f(self.poly_coef if self.poly_coef else [0.0]), float(self.poly_center),
             float(self.offset),
-            f(self.stribeck_static), f(self.stribeck_velocity), f(self.stribeck_exponent),
+            f(self.stribeck_peak), f(self.stribeck_velocity), f(self.stribeck_exponent),
             f(self.asym),
+            f(self.dahl_sliding), f(self.dahl_length),
+            np.zeros(len(self.dahl_sliding)),  # the bristle states (relaxed at the start)
         )
 
 
@@ -232,42 +240,103 @@ class CableSlab(Effect):
 
 @dataclass(frozen=True)
 class Stribeck(Effect):
-    """Friction peak at low speed: ``sign(v)*static*exp(-(|v|/velocity)**exponent)``.
+    """Friction peak at low speed: ``sign(v)*peak*exp(-(|v|/velocity)**exponent)``.
 
-    ``static`` (N) is the peak *above* the Coulomb level, so the breakaway force is
-    ``coulomb + static``; ``velocity`` (m/s) is the Stribeck velocity; ``exponent`` is usually 2.
+    ``peak`` (N) is the rise *above* the Coulomb level, so the static (breakaway) friction is
+    ``coulomb + peak``; ``velocity`` (m/s) is the Stribeck velocity; ``exponent`` is usually 2.
+    (Called ``static`` before; renamed because the literature's static friction is the total.)
     """
 
-    static: float = 2.0
+    peak: float = 2.0
     velocity: float = 0.002
     exponent: float = 2.0
     type: ClassVar[str] = "stribeck"
     nonlinear: ClassVar[tuple[str, ...]] = ("velocity",)
 
     def __post_init__(self):
-        _check_finite("stribeck", static=self.static)
+        _check_finite("stribeck", peak=self.peak)
         _check_positive("stribeck", velocity=self.velocity, exponent=self.exponent)
-        if self.static < 0:
-            raise UserError(f"stribeck: static must be >= 0 N, got {self.static!r}")
+        if self.peak < 0:
+            raise UserError(f"stribeck: peak must be >= 0 N, got {self.peak!r}")
 
     def _shape(self, v):
         v = np.asarray(v)
         return np.sign(v) * np.exp(-((np.abs(v) / self.velocity) ** self.exponent))
 
     def force(self, y, v, u):
-        return self.static * self._shape(v)
+        return self.peak * self._shape(v)
 
     def regressors(self, y, v, u):
         return {"stribeck": self._shape(v)}
 
     def from_coefficients(self, coef):
-        return Stribeck(static=max(coef["stribeck"], 0.0), velocity=self.velocity,
+        return Stribeck(peak=max(coef["stribeck"], 0.0), velocity=self.velocity,
                         exponent=self.exponent)
 
     def lower(self, terms):
-        terms.stribeck_static.append(self.static)
+        terms.stribeck_peak.append(self.peak)
         terms.stribeck_velocity.append(self.velocity)
         terms.stribeck_exponent.append(self.exponent)
+
+
+def dahl_path(y, length: float) -> np.ndarray:
+    """Normalised Dahl state ``z`` (-1..1) along the position path ``y`` (m), from ``z = 0``.
+
+    ``dz/dy = (1 - sign(dy)*z)/length`` integrated exactly between samples (the path is taken as
+    monotone between two samples): ``z1 = s - (s - z0)*exp(-|dy|/length)``, ``s = sign(dy)``.
+    Rate-independent: the same path sampled at 1 kHz or 10 kHz gives the same state.
+    """
+    from clm_sim.kernel import dahl_states  # lazy: numba compiles on first use
+    y = np.atleast_1d(np.asarray(y, dtype=np.float64))
+    return dahl_states(np.ascontiguousarray(y.reshape(-1)), float(length)).reshape(y.shape)
+
+
+@dataclass(frozen=True)
+class Presliding(Effect):
+    """Pre-sliding (Dahl) friction: ``sliding*z``, with the bristle state ``z`` of :func:`dahl_path`.
+
+    ``sliding`` (N): the friction it reaches in steady sliding (on top of the plant's ``coulomb``;
+    a stage whose whole Coulomb friction is pre-sliding has ``coulomb = 0``). ``stiffness`` (N/m):
+    the initial pre-sliding stiffness ``dF/dy`` at a reversal. Their ratio ``length`` (m) is the
+    pre-sliding displacement scale: after a reversal the force has turned by 1 - 1/e of the
+    way to the other side within ``2*length`` of travel. Dahl's model is LuGre without the
+    Stribeck peak (a separate effect here) and without bristle damping, which makes the force a
+    function of the position path alone.
+    """
+
+    sliding: float = 7.0
+    stiffness: float = 2.0e6
+    type: ClassVar[str] = "presliding"
+    nonlinear: ClassVar[tuple[str, ...]] = ("length",)
+
+    def __post_init__(self):
+        _check_finite("presliding", sliding=self.sliding)
+        _check_positive("presliding", stiffness=self.stiffness)
+        if self.sliding < 0:
+            raise UserError(f"presliding: sliding must be >= 0 N, got {self.sliding!r}")
+
+    @property
+    def length(self) -> float:
+        """Pre-sliding length ``sliding/stiffness`` (m); the template's when sliding is 0."""
+        return self.sliding / self.stiffness if self.sliding > 0 else 1.0 / self.stiffness
+
+    @classmethod
+    def with_length(cls, sliding: float, length: float) -> Presliding:
+        return cls(sliding=sliding, stiffness=(sliding if sliding > 0 else 1.0) / length)
+
+    def force(self, y, v, u):
+        return self.sliding * dahl_path(y, self.length)
+
+    def regressors(self, y, v, u):
+        return {"presliding": dahl_path(y, self.length)}
+
+    def from_coefficients(self, coef):
+        return Presliding.with_length(max(float(coef["presliding"]), 0.0), self.length)
+
+    def lower(self, terms):
+        if self.sliding > 0:
+            terms.dahl_sliding.append(self.sliding)
+            terms.dahl_length.append(self.length)
 
 
 @dataclass(frozen=True)
@@ -344,7 +413,7 @@ class ForceOffset(Effect):
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.type: cls for cls in (Cogging, ForceRipple, CableSlab, Stribeck, FrictionAsymmetry,
-                              ForceOffset)
+                              ForceOffset, Presliding)
 }
 
 

@@ -11,6 +11,12 @@ sub-step is located (constant-acceleration estimate of the crossing time); at ze
 stage sticks while the net applied force stays within the breakaway band (Karnopp's stick-slip
 model), so a stage at rest under a small force never creeps.
 
+Dahl pre-sliding friction is stiff (a bristle stiffness of 1e6-1e8 N/m on a 20 kg mass): inside a
+sub-step its state is advanced exactly along the sub-step's displacement ``dx``
+(``z1 = s - (s - z0)*exp(-|dx|/length)``) and the force it exerts over the sub-step is taken as the
+trapezoidal mean of its start and end values, which makes the sub-step implicit in ``dx``; the
+scalar equation is monotone and is solved by safeguarded Newton iteration (:func:`dahl_substep`).
+
 Speed (see ``benchmarks/README.md``): the helpers are inlined into :func:`closed_loop`, which is
 compiled without numba's reference counting (``_nrt=False``; it allocates nothing, its caller
 passes the controller state) because counting references to the dozen parameter arrays on every
@@ -24,6 +30,7 @@ from __future__ import annotations
 import math
 
 import numba as nb
+import numpy as np
 
 _JIT = dict(cache=True, nogil=True, fastmath=False)
 _INLINE = dict(_JIT, inline="always")
@@ -76,21 +83,111 @@ def friction_extra(v, s, st_amp, st_v, st_exp, asym, v_flat):
     return -f - asym[1] + asym[3] * v
 
 
+@nb.njit(**_JIT)
+def dahl_states(y, length):
+    """Normalised Dahl state along the path ``y`` (m) from 0, exact between monotone samples."""
+    z = 0.0
+    out = np.empty(y.shape[0])
+    for k in range(y.shape[0]):
+        if k > 0:
+            dy = y[k] - y[k - 1]
+            if dy != 0.0:
+                s = 1.0 if dy > 0.0 else -1.0
+                z = s - (s - z) * math.exp(-abs(dy) / length)
+        out[k] = z
+    return out
+
+
+@nb.njit(**_INLINE)
+def dahl_force(d_f, d_z):
+    """Force (N) of the Dahl elements in state ``d_z``."""
+    f = 0.0
+    for i in range(d_f.shape[0]):
+        f += d_f[i] * d_z[i]
+    return f
+
+
+@nb.njit(**_INLINE)
+def dahl_move(d_l, d_z, dx):
+    """Advance the Dahl states in place along a monotone displacement ``dx`` (m)."""
+    if dx != 0.0:
+        s = 1.0 if dx > 0.0 else -1.0
+        for i in range(d_z.shape[0]):
+            d_z[i] = s - (s - d_z[i]) * math.exp(-abs(dx) / d_l[i])
+
+
+@nb.njit(**_INLINE)
+def _dahl_mean(d_f, d_l, d_z, dx):
+    """Trapezoidal mean force over a displacement ``dx`` and its derivative ``d/d(dx)``."""
+    f = 0.0
+    df = 0.0
+    s = 1.0 if dx > 0.0 else -1.0
+    for i in range(d_f.shape[0]):
+        e = math.exp(-abs(dx) / d_l[i])
+        z1 = s - (s - d_z[i]) * e
+        f += 0.5 * d_f[i] * (d_z[i] + z1)
+        df += 0.5 * d_f[i] * (1.0 - s * d_z[i]) * e / d_l[i]
+    return f, df
+
+
+@nb.njit(**_INLINE)
+def dahl_substep(x, v, g, ad, bd, d_f, d_l, d_z):
+    """One sub-step under the held force ``g`` (N) minus the Dahl force, implicit in ``dx``.
+
+    Solves ``dx = X0 - x + bd0*(g - F(dx))`` with ``F`` the trapezoidal mean Dahl force over
+    ``dx`` (increasing in ``dx``, so the root is unique and bracketed by ``F = +-sum d_f``).
+    Returns ``(x1, v1, dx)``; the caller commits the states with ``dahl_move(d_l, d_z, dx)``.
+    """
+    x0 = ad[0, 0] * x + ad[0, 1] * v - x
+    fmax = 0.0
+    for i in range(d_f.shape[0]):
+        fmax += d_f[i]
+    lo = x0 + bd[0] * (g - fmax)
+    hi = x0 + bd[0] * (g + fmax)
+    f0 = dahl_force(d_f, d_z)
+    dx = x0 + bd[0] * (g - f0)  # the explicit step: exact for a relaxed, slow bristle
+    for _ in range(60):
+        f, df = _dahl_mean(d_f, d_l, d_z, dx)
+        phi = dx - x0 - bd[0] * (g - f)
+        if phi > 0.0:
+            hi = dx
+        else:
+            lo = dx
+        if phi == 0.0 or hi - lo <= 1e-15 * (abs(dx) + 1e-12):
+            break
+        step = dx - phi / (1.0 + bd[0] * df)
+        dx = step if lo < step < hi else 0.5 * (lo + hi)
+    f, _ = _dahl_mean(d_f, d_l, d_z, dx)
+    return x + dx, ad[1, 0] * x + ad[1, 1] * v + bd[1] * (g - f), dx
+
+
 @nb.njit(**_INLINE)
 def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
             hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-            st_amp, st_v, st_exp, asym, break_pos, break_neg, v_flat):
+            st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat):
     """:func:`plant_step` with the friction levels of :func:`friction_levels` given."""
+    dahl = d_f.shape[0] > 0
     for _ in range(nsub):
         fa = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset)
         if v == 0.0:
             fn = fa - fk * x
+            if dahl:
+                fn -= dahl_force(d_f, d_z)
             if fn <= break_pos and fn >= -break_neg:
                 continue  # stuck: static friction balances the net force
             s = 1.0 if fn > 0.0 else -1.0
         else:
             s = 1.0 if v > 0.0 else -1.0
         g = fa - s * fc - friction_extra(v, s, st_amp, st_v, st_exp, asym, v_flat)
+        if dahl:
+            # Dahl's force is continuous in the motion: the reversal event below is for Coulomb.
+            x1, v1, dx = dahl_substep(x, v, g, ad, bd, d_f, d_l, d_z)
+            if v1 * s >= 0.0 or v == 0.0 or (break_pos == 0.0 and break_neg == 0.0):
+                dahl_move(d_l, d_z, dx)
+                x, v = x1, v1
+                continue
+            # A Coulomb reversal inside the sub-step: the event below, Dahl force held.
+            g -= dahl_force(d_f, d_z)
         x1 = ad[0, 0] * x + ad[0, 1] * v + bd[0] * g
         v1 = ad[1, 0] * x + ad[1, 1] * v + bd[1] * g
         # Friction continuous at v = 0 (no breakaway force): the exact step needs no event.
@@ -102,17 +199,25 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
         t0 = -v / a0 if a0 != 0.0 else h
         if t0 > h:
             t0 = h
-        x = x + v * t0 + 0.5 * a0 * t0 * t0
+        xc = x + v * t0 + 0.5 * a0 * t0 * t0
+        if dahl:
+            dahl_move(d_l, d_z, xc - x)
+        x = xc
         v = 0.0
         rest = h - t0
         fn = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c,
                            offset) - fk * x
+        if dahl:
+            fn -= dahl_force(d_f, d_z)
         if rest <= 0.0 or (fn <= break_pos and fn >= -break_neg):
             continue
         s = 1.0 if fn > 0.0 else -1.0
         a1 = (fn - s * fc - friction_extra(0.0, s, st_amp, st_v, st_exp, asym, v_flat)) / mass
         if a1 * s > 0.0:
-            x = x + 0.5 * a1 * rest * rest
+            xe = x + 0.5 * a1 * rest * rest
+            if dahl:
+                dahl_move(d_l, d_z, xe - x)
+            x = xe
             v = a1 * rest
     return x, v
 
@@ -120,23 +225,24 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
 @nb.njit(**_JIT)
 def plant_step(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-               st_amp, st_v, st_exp, asym):
+               st_amp, st_v, st_exp, asym, d_f, d_l, d_z):
     """Advance the motor over one held-input sample of ``nsub`` sub-steps of ``h`` seconds.
 
     ``ad`` (2x2) and ``bd`` (2,) propagate ``[x, v]`` over one sub-step for a constant force
-    ``G``: ``[x, v] <- ad @ [x, v] + bd * G``. Returns the new ``(x, v)``.
+    ``G``: ``[x, v] <- ad @ [x, v] + bd * G``. ``d_f, d_l`` (N, m): Dahl elements' sliding force
+    and length; ``d_z``: their states, advanced in place. Returns the new ``(x, v)``.
     """
     break_pos, break_neg, v_flat = friction_levels(fc, st_amp, st_v, st_exp, asym)
     return advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                    hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                   st_amp, st_v, st_exp, asym, break_pos, break_neg, v_flat)
+                   st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat)
 
 
 @nb.njit(_nrt=False, **_JIT)
 def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
                 h, nsub, ad, bd, mass, fv, fc, fk,
                 hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                st_amp, st_v, st_exp, asym,
+                st_amp, st_v, st_exp, asym, d_f, d_l, d_z,
                 y_out, x_out, u_out, ufb_out, z):
     """Run the sampled loop over ``len(r)`` samples, writing into the four output arrays.
 
@@ -144,7 +250,8 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
     ``resolution == 0``); the controller (direct form II transposed of ``b``, ``a``, state ``z``
     of length ``len(a)``, zeros at the start, left holding the final state) maps ``e = r - y`` to
     ``u_fb``; ``u = u_fb + u_ff + dither`` is held over the sample and the motor advanced by
-    :func:`plant_step`. Returns 0, or ``k + 1`` if the state became non-finite at sample k (a
+    :func:`plant_step` (the Dahl states ``d_z`` are advanced in place from the caller's start
+    values). Returns 0, or ``k + 1`` if the state became non-finite at sample k (a
     diverging loop).
     """
     n = r.shape[0]
@@ -166,7 +273,7 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
         ufb_out[k] = ufb
         x, v = advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                        hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                       st_amp, st_v, st_exp, asym, break_pos, break_neg, v_flat)
+                       st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat)
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1
     return 0

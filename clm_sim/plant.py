@@ -43,7 +43,7 @@ def default_effects() -> tuple[Effect, ...]:
     return (
         ForceRipple(amplitude=0.01, period=0.024, phase=0.0),
         CableSlab(coefficients=(0.0, 10.0, 0.0, 2000.0), center=0.0),
-        Stribeck(static=1.0, velocity=0.001, exponent=2.0),
+        Stribeck(peak=1.0, velocity=0.001, exponent=2.0),
     )
 
 

@@ -37,7 +37,7 @@ def draw(kind: str, rng: np.random.Generator):
         return ForceRipple(amplitude=float(rng.uniform(0.01, 0.04)),
                            period=float(rng.uniform(0.01, 0.04)), phase=phase)
     if kind == "stribeck":  # guide friction peak; velocity >= 3x the encoder speed floor (2 mm/s)
-        return Stribeck(static=float(rng.uniform(1.5, 4.0)),
+        return Stribeck(peak=float(rng.uniform(1.5, 4.0)),
                         velocity=float(rng.uniform(0.006, 0.015)))
     if kind == "friction_asymmetry":  # direction-dependent viscous friction
         d = float(rng.uniform(10.0, 40.0))
@@ -113,9 +113,9 @@ def test_hidden_effect_is_named_first_with_its_parameters(diagnosed, kind):
         # Only ~1 % of the samples lie between the encoder speed floor and a few Stribeck
         # velocities, and static and velocity trade off there: the friction curve above the
         # floor is held to 15 % of the peak, the velocity to 25 %.
-        found = Stribeck(static=p["static"], velocity=p["velocity"])
+        found = Stribeck(peak=p["peak"], velocity=p["velocity"])
         v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.05, 200)
-        assert np.max(np.abs(found.force(0, v, 0) - true.force(0, v, 0))) < 0.15 * true.static
+        assert np.max(np.abs(found.force(0, v, 0) - true.force(0, v, 0))) < 0.15 * true.peak
         assert p["velocity"] == pytest.approx(true.velocity, rel=0.25)
     elif kind == "friction_asymmetry":
         assert p["viscous_pos"] == pytest.approx(true.viscous_pos, rel=0.05)  # 5 %: linear term
