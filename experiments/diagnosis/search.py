@@ -22,7 +22,7 @@ noise floor: once the large causes are removed, ``min_gain`` alone would name mo
 held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
 folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an F-test of ``S + c``
 against ``S`` on all fitted samples, with the effective sample count of the filtered data, has
-p < ``p_value``; a Stribeck term must also be a peak (static > 0). Each step takes the candidate
+p < ``p_value``; a Stribeck term must also be a peak (peak > 0). Each step takes the candidate
 with the largest held-out gain that passes; the search stops when none does, so a model that
 already explains the data yields no finding. A backward pass then drops any term whose removal
 from the final model raises the held-out MSE by less than these thresholds (made redundant by
@@ -90,7 +90,7 @@ def periodic_term(kind: str, period: float) -> Term:
 
 
 def stribeck_term(velocity: float) -> Term:
-    return Term("stribeck", Stribeck(static=0.0, velocity=velocity, exponent=2.0), ("stribeck",))
+    return Term("stribeck", Stribeck(peak=0.0, velocity=velocity, exponent=2.0), ("stribeck",))
 
 
 # ---------------------------------------------------------------- least squares and validation
@@ -335,7 +335,7 @@ def forward_select(res: Residual) -> list[Step]:
 
 
 def _physical(term: Term, x: np.ndarray, z: np.ndarray) -> bool:
-    """A Stribeck term must be a friction *peak* (static > 0) to carry that name."""
+    """A Stribeck term must be a friction *peak* (peak > 0) to carry that name."""
     if term.effect != "stribeck":
         return True
     coef = _solve(x.T @ x, x.T @ z)
