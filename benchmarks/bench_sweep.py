@@ -25,7 +25,8 @@ from pathlib import Path
 
 import yaml
 
-from experiments.sweep import load_sweep, run_sweep
+from experiments.grid import load_sweep
+from experiments.sweep import run_sweep
 
 CONFIG = Path(__file__).resolve().parent.parent / "experiments" / "configs" / \
     "sweep_lambda_hidden.yaml"

@@ -14,7 +14,6 @@ Measured records need only ``t, r, y, u``; columns can be renamed and scaled on 
 from __future__ import annotations
 
 import json
-import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from clm_sim.errors import UserError
+from clm_sim.outdir import atomic_write
 
 SIGNALS = ("t", "r", "y", "y_true", "u", "u_fb", "u_ff", "dither", "e")
 REQUIRED = ("t", "r", "y", "u")
@@ -92,36 +92,23 @@ class Run:
         return Run(**{k: v[start:stop] for k, v in self.signals().items()}, meta=self.meta)
 
 
-def _atomic_write(path: Path, write) -> None:
-    """Write through a temporary file in the same folder, then rename: never a half-written file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def save_npz(run: Run, path: Path) -> None:
     """Save as NPZ: one array per signal plus ``meta`` (JSON text)."""
     def write(tmp):
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, meta=np.array(json.dumps(run.meta, default=str)),
                                 **run.signals())
-    _atomic_write(path, write)
+    atomic_write(path, write)
 
 
 def save_csv(run: Run, path: Path) -> None:
     """Save as CSV with a header of signal names; ``meta`` goes to ``<path>.meta.json``."""
     path = Path(path)
     data = np.column_stack([run.signals()[k] for k in SIGNALS])
-    _atomic_write(path, lambda tmp: np.savetxt(tmp, data, delimiter=",", header=",".join(SIGNALS),
-                                               comments="", fmt="%.17g"))
-    meta = path.with_name(path.name + ".meta.json")
-    _atomic_write(meta, lambda tmp: tmp.write_text(json.dumps(run.meta, indent=1, default=str)))
+    atomic_write(path, lambda tmp: np.savetxt(tmp, data, delimiter=",", header=",".join(SIGNALS),
+                                              comments="", fmt="%.17g"))
+    atomic_write(path.with_name(path.name + ".meta.json"),
+                 json.dumps(run.meta, indent=1, default=str))
 
 
 def save_mat(run: Run, path: Path) -> None:
@@ -132,7 +119,7 @@ def save_mat(run: Run, path: Path) -> None:
         with open(tmp, "wb") as fh:
             scipy.io.savemat(fh, {**{k: v[:, None] for k, v in run.signals().items()},
                                   "meta": json.dumps(run.meta, default=str)})
-    _atomic_write(path, write)
+    atomic_write(path, write)
 
 
 def _read_columns(path: Path) -> dict[str, np.ndarray]:

@@ -65,7 +65,8 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from experiments.sweep import check_output, load_sweep, run_sweep
+    from experiments.grid import load_sweep
+    from experiments.sweep import check_output, run_sweep
 
     sweep = load_sweep(args.config)  # every grid point checked before anything runs
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem

@@ -17,13 +17,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from clm_sim.outdir import atomic_folder
 from clm_sim import __version__
 from clm_sim.errors import UserError
+from clm_sim.outdir import atomic_folder
 from clm_sim.record import save_npz
-from experiments import figures, table
+from experiments import plots, table
 from experiments.config import ExperimentConfig, resolved
 from experiments.testbed import Progress, Testbed
+
 
 def versions() -> dict[str, str]:
     import control
@@ -140,6 +141,8 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     (out / "table.md").write_text(table.to_markdown(rows))
     (out / "table.csv").write_text(table.to_csv(rows))
     for name in config.replay:
-        figures.tracking_errors(shown, name, out / "figures" / f"tracking_{name}.png")
-        figures.feedforward_signals(shown, name, out / "figures" / f"feedforward_{name}.png")
+        plots.save(plots.tracking_figure(shown, name), out / "figures" / f"tracking_{name}.png")
+        if any(spec.kind != "none" for spec in config.feedforwards):
+            plots.save(plots.feedforward_figure(shown, name),
+                       out / "figures" / f"feedforward_{name}.png")
     return rows

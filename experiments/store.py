@@ -2,19 +2,19 @@
 
 Each task's result is one JSON file ``<root>/<key>.json`` where ``key`` hashes the task's resolved
 config and the code version, so a re-run finds finished tasks and a code change recomputes them.
-Files are written atomically (temporary file in the same folder, ``fsync``, ``os.replace``,
-``fsync`` of the folder): a reader, or a sweep resumed after ``SIGKILL``, sees either the whole
-file or none of it. Temporary files are dot-files and never count as results.
+Files are written by :func:`clm_sim.outdir.atomic_write`: a reader, or a sweep resumed after
+``SIGKILL``, sees either the whole file or none of it. Temporary files are dot-files and never
+count as results.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 
 from clm_sim import __version__
+from clm_sim.outdir import atomic_write
 
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 # The sources a task result depends on: physics, controllers, and the runner chain that turns a
@@ -46,36 +46,6 @@ def task_key(resolved_config: dict, version: str | None = None) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that no reader ever sees a partial file, even after a crash."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    _fsync_dir(path.parent)
-
-
-def _fsync_dir(folder: Path) -> None:
-    # Makes the rename itself durable; not supported on every platform (e.g. Windows).
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 class ResultStore:
     """Task results under ``root``, one JSON document per key."""
 
@@ -100,4 +70,4 @@ class ResultStore:
             return None
 
     def put(self, key: str, result: dict) -> None:
-        atomic_write_bytes(self.path(key), json.dumps(result, indent=1, allow_nan=False).encode())
+        atomic_write(self.path(key), json.dumps(result, indent=1, allow_nan=False))

@@ -18,15 +18,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from clm_sim.outdir import atomic_folder
 from clm_sim.errors import UserError
+from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
+from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, resolved
+from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
-
-UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
 
 @dataclass(frozen=True)
@@ -128,10 +128,32 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
         truth[k] = tb.machine.inverse_force(y, v, a)
     summary = _summarize(config, study, lip, refs, models, mae, runs, truth)
     (out / "study.json").write_text(json.dumps(summary, indent=1))
-    from experiments import study_figures
-    study_figures.draw(summary, study, lip, refs, models, runs, ts, out / "figures", truth)
+    _figures(summary, config, lip, refs, models, runs, truth, out / "figures")
     (out / "report.md").write_text(_report(summary, study))
     return summary
+
+
+def _figures(summary, config, lip, refs, models, runs, truth, folder: Path) -> None:
+    """The report's figures into ``folder``."""
+    ts = config.ts
+    plots.save(plots.theta_figure(summary, models), folder / "theta_training.png")
+    plots.save(plots.cost_figure(summary, models), folder / "cost_terms.png")
+    inside = summary["ranges"][summary["inside"]]
+    for ref in summary["outside"]:
+        beyond = beyond_range(config.features, refs[ref], ts, inside)
+        plots.save(plots.split_figure(summary, models, lip, refs[ref], ts, ref, beyond,
+                                      truth[ref]), folder / f"split_{ref}.png")
+    shown = ["feedback only", "LIP", "sequential", "lambda=0",
+             f"lambda={summary['paper_lambda']:g}"]
+    for ref in refs:
+        replays = {_label(k): runs[k] for k in shown}
+        plots.save(plots.tracking_figure(replays, ref), folder / f"tracking_{ref}.png")
+    plots.save(plots.mae_vs_lambda_figure(summary), folder / "mae_vs_lambda.png")
+
+
+def _label(key: str) -> str:
+    """A variant key as the figures name it (``lambda=0`` -> ``PGNN λ = 0``)."""
+    return {"sequential": "PGNN sequential"}.get(key, key.replace("lambda=", "PGNN λ = "))
 
 
 def _ranges(features, r, ts) -> dict[str, float]:
@@ -216,7 +238,7 @@ def _findings(s: dict) -> list[str]:
     lines = []
     lines.append(
         "**Which parameters drift.** Without regularization (λ = 0) θ_phy moves away from θ_LIP: "
-        + "; ".join(f"{k} {lip[k]:.4g} → {zero['theta_phy'][k]:.4g} {UNITS[k]} "
+        + "; ".join(f"{k} {lip[k]:.4g} → {zero['theta_phy'][k]:.4g} {THETA_UNITS[k]} "
                     f"({dz[k] * 100:+.0f} %)" for k in order[:3])
         + f" (mean over {s['seeds']} seeds). With λ = {s['paper_lambda']:g} the largest relative "
         f"change is {max(abs(x) for x in dp.values()) * 100:.2f} % ({max(dp, key=lambda k: abs(dp[k]))})."
@@ -280,7 +302,7 @@ def _report(s: dict, study: StudySettings) -> str:
     lines = [f"# Extrapolation study: PGNN with n_l = {s['hidden']}, λ swept over "
              f"{', '.join(f'{x:g}' for x in s['lambdas'])}", "",
              f"One dithered training run on {s['inside']}, one LIP (θ_LIP: " + ", ".join(
-                 f"{k} {x:.4g} {UNITS[k]}" for k, x in s["theta_lip"].items())
+                 f"{k} {x:.4g} {THETA_UNITS[k]}" for k, x in s["theta_lip"].items())
              + f"), {s['seeds']} training seeds per variant; replays without dither on "
              f"{s['inside']} (the training range) and {', '.join(s['outside'])}.", "",
              "## Findings (generated from this run)", ""]

@@ -19,9 +19,11 @@ import numpy as np
 import pytest
 
 from clm_sim.errors import UserError
-from experiments.store import ResultStore, atomic_write_bytes, code_version, task_key
-from experiments.sweep import (MAX_TASKS, execute, load_sweep, parse_path, run_sweep, series,
-                               set_path)
+from clm_sim.outdir import atomic_write
+from experiments.store import ResultStore, code_version, task_key
+from experiments.grid import MAX_TASKS, load_sweep, parse_path, set_path
+from experiments.sweep import execute, run_sweep
+from experiments.table import series
 
 BASE = """\
 name: small
@@ -164,8 +166,8 @@ def test_huge_grid_is_refused_before_expansion(tmp_path):
 
 def test_atomic_write_replaces_whole_file_and_leaves_no_temporary(tmp_path):
     target = tmp_path / "r.json"
-    atomic_write_bytes(target, b'{"a": 1}')
-    atomic_write_bytes(target, b'{"a": 2}')
+    atomic_write(target, b'{"a": 1}')
+    atomic_write(target, b'{"a": 2}')
     assert json.loads(target.read_text()) == {"a": 2}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
 

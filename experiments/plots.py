@@ -1,0 +1,396 @@
+"""Every figure of clm-sim: runs, the extrapolation study and sweeps.
+
+Two kinds of functions. ``plot_*(..., ax=None) -> Axes`` draw one panel on ``ax`` (default: the
+current pyplot axes, for notebooks). ``*_figure(...) -> Figure`` compose a whole figure from
+panels without pyplot, so writing files needs no backend; :func:`save` writes one atomically.
+No backend is chosen here (the CLI picks Agg). One palette (Okabe–Ito, colour-blind safe), units
+on every axis, legends outside the data.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
+
+from clm_sim.outdir import atomic_write
+from clm_sim.plant import THETA_NAMES
+from experiments.table import THETA_UNITS, series
+
+# Okabe & Ito's colour-blind-safe set (yellow left out: unreadable on white), then grey.
+PALETTE = ("#000000", "#E69F00", "#56B4E9", "#009E73", "#D55E00", "#0072B2", "#CC79A7",
+           "#999999", "#882255", "#44AA99")
+UM, MM = 1e6, 1e3  # m -> µm, m -> mm
+
+# Swept key path (list indices written [*]) -> quantity, unit, factor from the SI value.
+KEY_LABELS = {
+    "plant.encoder_resolution": ("encoder resolution", "µm", 1e6),
+    "plant.mass": ("mass m", "kg", 1.0),
+    "plant.viscous": ("viscous friction fv", "N·s/m", 1.0),
+    "plant.coulomb": ("Coulomb friction fc", "N", 1.0),
+    "plant.stiffness": ("stiffness fk", "N/m", 1.0),
+    "plant.substeps": ("sub-steps per sample", "–", 1.0),
+    "controller.crossover_hz": ("PID crossover frequency", "Hz", 1.0),
+    "feedforwards[*].lambda": ("regularization weight λ", "–", 1.0),
+    "feedforwards[*].hidden": ("neurons n_l", "–", 1.0),
+    "training.dither.std_n": ("dither std", "N", 1.0),
+    "training.dither.hold_samples": ("dither hold", "samples", 1.0),
+    "training.repeats": ("training repeats", "–", 1.0),
+    "ts": ("sample time", "s", 1.0),
+    "seed": ("seed", "–", 1.0),
+}
+
+
+def color(i: int) -> str:
+    """The ``i``-th colour of the palette (cycling)."""
+    return PALETTE[i % len(PALETTE)]
+
+
+def key_label(key: str) -> tuple[str, float]:
+    """``(axis label with unit, factor from SI)`` of a swept key path; unknown keys are shown
+    as they are written, in the config's own (SI) units."""
+    quantity, unit, factor = KEY_LABELS.get(re.sub(r"\[\d+\]", "[*]", key), (key, "SI", 1.0))
+    return f"{quantity} [{unit}]", factor
+
+
+def _describe(key: str, value) -> str:
+    """``encoder resolution 0.1 µm`` for a swept key and its value."""
+    label, factor = key_label(key)
+    quantity, unit = label[:-1].split(" [")
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = f"{value * factor:g}"
+    return f"{quantity} {value}" + ("" if unit in ("–", "SI") else f" {unit}")
+
+
+def _ax(ax):
+    if ax is None:
+        import matplotlib.pyplot as plt
+        ax = plt.gca()
+    return ax
+
+
+def _figure(width: float, height: float) -> Figure:
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def _legend_right(ax, **kwargs) -> None:
+    """A legend beside the panel, never on the data."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, fontsize=8,
+              frameon=False, **kwargs)
+
+
+def save(fig: Figure, path, dpi: int = 110) -> Path:
+    """Write ``fig`` to ``path`` (format from the suffix) atomically."""
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi))
+
+
+# ----------------------------------------------------------------------------- runs
+
+def plot_reference(run, ax=None):
+    """The reference position r (mm) against time (s)."""
+    ax = _ax(ax)
+    ax.plot(run.t, run.r * MM, color="k", lw=1)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("r [mm]")
+    ax.grid(alpha=0.3)
+    return ax
+
+
+def plot_tracking_error(run, ax=None, *, label: str | None = None, color: str = PALETTE[0]):
+    """The tracking error e = r − y (µm) against time (s); the title names ``label`` and the
+    MAE."""
+    ax = _ax(ax)
+    ax.plot(run.t, run.e * UM, color=color, lw=0.7)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("e [µm]")
+    ax.grid(alpha=0.3)
+    if label:
+        ax.set_title(f"{label}: MAE {run.mae * UM:.3f} µm", loc="left", fontsize=9,
+                     color=color)
+    return ax
+
+
+def plot_feedforward(run, ax=None, *, base=None, label: str | None = None,
+                     color: str = PALETTE[0]):
+    """The feedforward force u_ff (N) against time (s), or its difference from ``base`` (a run
+    on the same reference) when given."""
+    ax = _ax(ax)
+    force = run.u_ff if base is None else run.u_ff - base.u_ff
+    ax.plot(run.t, force, color=color, lw=0.7)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("u_ff [N]" if base is None else "Δu_ff [N]")
+    ax.grid(alpha=0.3)
+    if label:
+        ax.set_title(label, loc="left", fontsize=9, color=color)
+    return ax
+
+
+def _panels(n: int, heights: list[float], width: float = 10.0):
+    fig = _figure(width, 0.45 + 1.25 * sum(heights))
+    axes = fig.subplots(n, 1, sharex=True, gridspec_kw={"height_ratios": heights})
+    axes = np.atleast_1d(axes)
+    for ax in axes[:-1]:
+        ax.set_xlabel("")
+    return fig, axes
+
+
+def tracking_figure(replays: dict, ref: str) -> Figure:
+    """``replays[label][ref]`` are Runs on reference ``ref`` in table order. Panels: the
+    reference; feedback only (its own scale); then one panel per feedforward on one shared
+    scale, so that LIP and PGNN errors compare at a glance. Feedback only is the run whose
+    feedforward is zero throughout."""
+    runs = {label: r[ref] for label, r in replays.items()}
+    colors = {label: color(i) for i, label in enumerate(runs)}
+    fb = [label for label, run in runs.items() if not np.any(run.u_ff)]
+    ff = [label for label in runs if label not in fb]
+    fig, axes = _panels(1 + len(fb) + len(ff), [0.8] + [1.0] * (len(fb) + len(ff)))
+    for ax in axes[2 + len(fb):]:
+        ax.sharey(axes[1 + len(fb)])  # shared before plotting: the scale fits every panel
+    plot_reference(next(iter(runs.values())), axes[0])
+    axes[0].set_title(f"Reference {ref} and tracking error per feedforward", loc="left",
+                      fontsize=10)
+    for ax, label in zip(axes[1:], fb + ff):
+        plot_tracking_error(runs[label], ax, label=label, color=colors[label])
+    for ax in axes[:-1]:
+        ax.set_xlabel("")
+    return fig
+
+
+def feedforward_figure(replays: dict, ref: str) -> Figure:
+    """The feedforward forces on ``ref``: the LIP's (else the first feedforward's) u_ff in N,
+    then every other feedforward as its difference from it, on one shared scale."""
+    runs = {label: r[ref] for label, r in replays.items()}
+    colors = {label: color(i) for i, label in enumerate(runs)}
+    ff = [label for label, run in runs.items() if np.any(run.u_ff)]
+    if not ff:
+        raise ValueError("feedforward_figure: no run has a feedforward")
+    base = "LIP" if "LIP" in ff else ff[0]
+    others = [label for label in ff if label != base]
+    fig, axes = _panels(1 + len(others), [1.2] + [1.0] * len(others))
+    for ax in axes[2:]:
+        ax.sharey(axes[1])
+    plot_feedforward(runs[base], axes[0], label=f"{base} feedforward on {ref}",
+                     color=colors[base])
+    for ax, label in zip(axes[1:], others):
+        plot_feedforward(runs[label], ax, base=runs[base], label=f"{label} minus {base}",
+                         color=colors[label])
+    for ax in axes[:-1]:
+        ax.set_xlabel("")
+    return fig
+
+
+# ----------------------------------------------------------------------------- the study
+
+def _variant_colors(summary) -> dict[str, str]:
+    keys = ["feedback only", "LIP", "sequential"] + [f"lambda={x:g}" for x in summary["lambdas"]]
+    return {k: color(i) for i, k in enumerate(keys)}
+
+
+def _lambda_label(key: str) -> str:
+    return key.replace("lambda=", "λ = ")
+
+
+def plot_theta_history(models: dict, lip_theta: dict, name: str, keys: list[str], ax=None, *,
+                       colors: dict | None = None):
+    """θ_phy[name] / θ_LIP[name] over the LM iterations of the first seed of each variant."""
+    ax = _ax(ax)
+    ref = lip_theta[name] if lip_theta[name] else 1.0
+    for i, key in enumerate(keys):
+        hist = models[key][0].history_
+        ax.plot([h["iteration"] for h in hist], [h["theta"][name] / ref for h in hist],
+                color=(colors or {}).get(key, color(i)), lw=1.2, label=_lambda_label(key))
+    ax.set_title(f"{name} (θ_LIP = {lip_theta[name]:.4g} {THETA_UNITS[name]})", fontsize=9)
+    ax.set_xlabel("LM iteration [–]")
+    ax.set_ylabel(f"{name} / {name}_LIP [–]")
+    ax.grid(alpha=0.3)
+    return ax
+
+
+def theta_figure(summary: dict, models: dict) -> Figure:
+    """θ_phy relative to θ_LIP over the iterations, one panel per parameter, one line per λ."""
+    keys = [f"lambda={x:g}" for x in summary["lambdas"]]
+    colors = _variant_colors(summary)
+    fig = _figure(11, 6.5)
+    axes = fig.subplots(2, 2, sharex=True)
+    for ax, name in zip(axes.flat, THETA_NAMES):
+        plot_theta_history(models, summary["theta_lip"], name, keys, ax, colors=colors)
+    for ax in axes[0]:
+        ax.set_xlabel("")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right upper", fontsize=8, frameon=False)
+    fig.suptitle("θ_phy over the Levenberg–Marquardt iterations (seed 0)", fontsize=10)
+    return fig
+
+
+def cost_figure(summary: dict, models: dict) -> Figure:
+    """Data-fit term (N²) and deviation term (N²) over the iterations, per λ and sequential."""
+    colors = _variant_colors(summary)
+    fig = _figure(12, 4.2)
+    ax_d, ax_p = fig.subplots(1, 2, sharex=True)
+    for key in ["sequential"] + [f"lambda={x:g}" for x in summary["lambdas"]]:
+        hist = models[key][0].history_
+        it = [h["iteration"] for h in hist]
+        ax_d.plot(it, [h["data"] for h in hist], color=colors[key], lw=1.2,
+                  ls="--" if key == "sequential" else "-", label=_lambda_label(key))
+        dev = [h["deviation"] for h in hist]
+        if max(dev) > 0:
+            ax_p.plot(it, dev, color=colors[key], lw=1.2)
+    ax_d.axhline(summary["lip_residual_rms_n"] ** 2, color=colors["LIP"], lw=1, ls=":",
+                 label="LIP (all samples)")
+    ax_d.set_title("data-fit term: mean squared force error", fontsize=9)
+    ax_p.set_title("deviation term (θ−θ_LIP)ᵀΛ(θ−θ_LIP)", fontsize=9)
+    for ax in (ax_d, ax_p):
+        ax.set_yscale("log")
+        ax.set_xlabel("LM iteration [–]")
+        ax.set_ylabel("cost [N²]")
+        ax.grid(alpha=0.3, which="both")
+    fig.legend(*ax_d.get_legend_handles_labels(), loc="outside right upper", fontsize=8,
+               frameon=False)
+    return fig
+
+
+def split_figure(summary: dict, models: dict, lip, r: np.ndarray, ts: float, ref: str,
+                 beyond: np.ndarray, truth: np.ndarray | None = None) -> Figure:
+    """The feedforward on ``ref`` split into its physical part (minus the LIP force: what the
+    drift of θ_phy changes) and its network part, and their sum against the true plant force,
+    for λ = 0, the paper's λ and sequential (seed 0); shaded: samples of ``beyond`` (outside
+    the training range)."""
+    keys = ["lambda=0", f"lambda={summary['paper_lambda']:g}", "sequential"]
+    colors = _variant_colors(summary)
+    limit = summary["ranges"][summary["inside"]]["position_m"]
+    t = np.arange(len(r)) * ts
+    lip_force = lip.predict(y=r, ts=ts)
+    fig, axes = _panels(4, [0.8, 1, 1, 1], width=11)
+    axes[0].plot(t, r * MM, "k", lw=1)
+    for sign in (1, -1):
+        axes[0].axhline(sign * limit * MM, color=PALETTE[4], lw=0.8, ls=":")
+    axes[0].set_ylabel("r [mm]")
+    axes[0].set_title(f"{ref}; dotted: training position range; shaded: position, velocity or "
+                      f"acceleration outside the training range", loc="left", fontsize=9)
+    for key in keys:
+        phys, net = models[key][0].predict_parts(y=r, ts=ts)
+        kw = {"color": colors[key], "lw": 0.9, "label": _lambda_label(key)}
+        axes[1].plot(t, phys - lip_force, **kw)
+        axes[2].plot(t, net, **kw)
+        axes[3].plot(t, phys + net - lip_force, **kw)
+    if truth is not None:
+        axes[3].plot(t, truth - lip_force, color=PALETTE[7], ls="--", lw=0.9,
+                     label="true plant force")
+    titles = ["physical part θ_phy·T minus the LIP force", "network part f_NN",
+              "whole model minus the LIP force"]
+    for ax, title in zip(axes[1:], titles):
+        ax.fill_between(t, 0, 1, where=beyond, color=PALETTE[4], alpha=0.1,
+                        transform=ax.get_xaxis_transform())
+        ax.set_title(title, loc="left", fontsize=9)
+        ax.set_ylabel("force [N]")
+        ax.grid(alpha=0.3)
+        # The Coulomb and acceleration steps of the physical part would hide the rest.
+        lo, hi = np.percentile(np.concatenate([ln.get_ydata() for ln in ax.lines]), [0.5, 99.5])
+        pad = 0.15 * (hi - lo + 1e-9)
+        ax.set_ylim(lo - pad, hi + pad)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("t [s]")
+    fig.legend(*axes[3].get_legend_handles_labels(), loc="outside right upper", fontsize=8,
+               frameon=False)
+    return fig
+
+
+def plot_mae_vs_lambda(summary: dict, ref: str, ax=None, *, marker: str = "o",
+                       color: str = PALETTE[5]):
+    """MAE (µm, mean ± std over seeds) on ``ref`` against λ; λ = 0 is drawn one decade left
+    of the smallest positive λ; the LIP and the sequential PGNN as horizontal lines."""
+    ax = _ax(ax)
+    lams = summary["lambdas"]
+    positive = [x for x in lams if x > 0]
+    zero_at = min(positive) / 10 if positive else 1e-4
+    xs = [x if x > 0 else zero_at for x in lams]
+    v = summary["variants"]
+    mean = [v[f"lambda={x:g}"]["mae"][ref]["mean"] * UM for x in lams]
+    std = [v[f"lambda={x:g}"]["mae"][ref]["std"] * UM for x in lams]
+    ax.errorbar(xs, mean, yerr=std, marker=marker, capsize=3, color=color,
+                label=f"PGNN on {ref}")
+    ax.axhline(v["LIP"]["mae"][ref]["mean"] * UM, color=color, ls=":", lw=1,
+               label=f"LIP on {ref}")
+    ax.axhline(v["sequential"]["mae"][ref]["mean"] * UM, color=color, ls="--", lw=1,
+               label=f"sequential on {ref}")
+    ax.set_xscale("log")
+    ax.set_xticks(xs, [f"{x:g}" for x in lams])
+    ax.minorticks_off()
+    ax.set_xlabel("regularization weight λ [–] (λ = 0 at the left edge)")
+    ax.set_ylabel("MAE [µm]")
+    ax.grid(alpha=0.3, which="both")
+    return ax
+
+
+def mae_vs_lambda_figure(summary: dict) -> Figure:
+    """MAE against λ on every reference of the study, one colour per reference."""
+    fig = _figure(8.5, 4.2)
+    ax = fig.subplots()
+    for i, ref in enumerate([summary["inside"], *summary["outside"]]):
+        plot_mae_vs_lambda(summary, ref, ax, marker="osd^v"[i % 5], color=color(i + 5))
+    _legend_right(ax)
+    return fig
+
+
+# ----------------------------------------------------------------------------- sweeps
+
+def plot_mae_vs_key(rows: list[dict], swept: list[str], x: str, ref: str, ax=None):
+    """MAE (µm) on ``ref`` against swept key ``x``: one line per series
+    (:func:`experiments.table.series`), mean ± spread over seeds as a band."""
+    ax = _ax(ax)
+    data = {name: by_x for (name, r), by_x in series(rows, swept, x, _describe).items()
+            if r == ref}
+    label, factor = key_label(x)
+    xs = [row[x] for row in rows]
+    numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in xs)
+    cats = None if numeric else list(dict.fromkeys(map(str, xs)))
+    means = []
+    for i, (name, by_x) in enumerate(data.items()):
+        keys = sorted(by_x) if numeric else sorted(by_x, key=lambda v: cats.index(str(v)))
+        pos = (np.array(keys, float) * factor if numeric
+               else np.array([cats.index(str(k)) for k in keys], float))
+        mean = np.array([by_x[k][0] for k in keys]) * UM
+        spread = np.array([by_x[k][1] for k in keys]) * UM
+        means.extend(mean)
+        ax.plot(pos, mean, marker="o", ms=3, lw=1.2, color=color(i), label=name)
+        ax.fill_between(pos, np.maximum(mean - spread, 1e-6), mean + spread, color=color(i),
+                        alpha=0.2, lw=0)
+    if numeric:
+        vals = np.array(sorted(set(xs)), float) * factor
+        positive = vals[vals > 0]
+        if len(positive) and positive.max() / positive.min() > 20:
+            if (vals <= 0).any():
+                ax.set_xscale("symlog", linthresh=positive.min())
+            else:
+                ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    else:
+        ax.set_xticks(range(len(cats)), cats)
+    if means and min(means) > 0 and max(means) / min(means) > 20:
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))  # 0.2 not 2x10^-1
+        ax.yaxis.set_minor_formatter(FuncFormatter(
+            lambda v, _: f"{v:g}" if f"{v:.0e}"[0] in "25" else ""))
+    ax.set_xlabel(label)
+    ax.set_ylabel(f"MAE on {ref} [µm]")
+    ax.grid(alpha=0.3, which="both")
+    return ax
+
+
+def mae_vs_key_figure(rows: list[dict], swept: list[str], x: str) -> Figure:
+    """MAE against swept key ``x``, one panel per reference, the legend below the panels."""
+    refs = list(rows[0]["mae"])
+    fig = _figure(5.2 * len(refs), 4.6)
+    axes = np.atleast_1d(fig.subplots(1, len(refs)))
+    for ax, ref in zip(axes, refs):
+        plot_mae_vs_key(rows, swept, x, ref, ax)
+    fig.suptitle(f"MAE against {key_label(x)[0].split(' [')[0]} (band: spread over seeds)",
+                 fontsize=10)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(3, len(labels)),
+               fontsize=8, frameon=False)
+    return fig
