@@ -8,47 +8,65 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from clm_sim.errors import UserError
 
 
 def _cmd_run(args) -> int:
+    from clm_sim.schema import load_yaml
     from experiments.config import load_config
     from experiments.runner import run_experiment
+    from experiments.table import to_markdown
 
-    from clm_sim.schema import load_yaml
-
-    if "sweep" in load_yaml(args.config):
-        raise UserError(f"{args.config}: has a 'sweep:' section; run it with "
-                        f"'clm-sim sweep {args.config}'")
+    data = load_yaml(args.config)
+    for section in ("sweep", "study"):
+        if section in data:
+            raise UserError(f"{args.config}: has a '{section}:' section; run it with "
+                            f"'clm-sim {section} {args.config}'")
     config = load_config(args.config)
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
-    from experiments.table import to_markdown
     print(to_markdown(rows), end="")
     return 0
 
 
+def _record_options(p: argparse.ArgumentParser) -> None:
+    """``--columns`` and ``--scale``: how a measured file's columns map onto a record."""
+    p.add_argument("--columns", help="signal=column names in the files, e.g. y=qm,r=qg,u=vir")
+    p.add_argument("--scale", help="signal=factor or signal=scalar-variable of the file, "
+                   "e.g. u=gtau or y=0.001")
+
+
+def _load(path, args):
+    """The record at ``path``, read with the command's ``--columns`` and ``--scale``."""
+    from clm_sim.record import load_record
+
+    return load_record(path, columns=_pairs(args.columns, "--columns", number=False),
+                       scale=_pairs(args.scale, "--scale", number=True))
+
+
 def _cmd_identify(args) -> int:
     from clm_sim.features import FeatureMap
-    from clm_sim.record import load_record
+    from clm_sim.outdir import atomic_write
     from controllers.lip import LIPFeedforward
+    from experiments.table import THETA_UNITS
 
-    run = load_record(args.data)
+    run = _load(args.data, args)
     features = FeatureMap(regression_lowpass_hz=None if args.lowpass_hz <= 0 else args.lowpass_hz)
     lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
-    out = Path(args.out) if args.out else Path(".")
-    out.mkdir(parents=True, exist_ok=True)
-    units = {"mass": "kg", "viscous": "N*s/m", "coulomb": "N", "stiffness": "N/m"}
+    out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
     for name, value in lip.theta_.items():
-        print(f"{name:10s} {value:12.6g} {units[name]:6s} (std {lip.std_[name]:.2g})")
+        print(f"{name:10s} {value:12.6g} {THETA_UNITS[name]:6s} (std {lip.std_[name]:.2g})")
     print(f"residual rms {lip.residual_rms_:.4g} N over {len(run)} samples at "
           f"{1 / run.ts:g} Hz")
-    (out / "lip.json").write_text(json.dumps({**lip.theta_, "std": lip.std_,
-                                              "residual_rms_n": lip.residual_rms_,
-                                              "source": str(args.data)}, indent=1))
+    atomic_write(out / "lip.json", json.dumps({**lip.to_json(), "source": str(args.data)},
+                                              indent=1))
+    print(f"wrote {out / 'lip.json'} (a model for clm-sim diagnose --model)")
     return 0
 
 
@@ -105,14 +123,23 @@ def _pairs(text: str | None, option: str, number: bool) -> dict:
 
 
 def _diagnosis_model(path, ts: float):
-    """The simulation's model: a model file (``plant:``) or an experiment config."""
-    from experiments.diagnosis.model import SimulationModel, controller_for, is_model_file, load_model
+    """The simulation's model: a model file (``plant:``), a LIP parameter file (``kind: lip``,
+    as ``identify`` and ``run`` write it) or an experiment config."""
     from clm_sim.schema import load_yaml
+    from experiments.diagnosis.model import (
+        SimulationModel,
+        controller_for,
+        is_model_file,
+        load_model,
+    )
 
     if path is None:
         return SimulationModel()
-    if is_model_file(load_yaml(path)):
+    data = load_yaml(path)
+    if is_model_file(data):
         return load_model(path, ts)
+    if data.get("kind") == "lip":
+        return _lip_model(path, data)
     from experiments.config import load_config
     config = load_config(path)
     try:
@@ -124,15 +151,28 @@ def _diagnosis_model(path, ts: float):
     return SimulationModel(config.plant, controller, config.name)
 
 
+def _lip_model(path, data: dict):
+    """An identified LIP as the model: a plant with its mass, friction and stiffness and only
+    the effects identified with it (no defaults), controller unknown."""
+    from clm_sim.plant import THETA_NAMES, Plant
+    from clm_sim.schema import build
+    from experiments.diagnosis.model import SimulationModel
+
+    missing = [k for k in THETA_NAMES if k not in data]
+    if missing:
+        raise UserError(f"{path}: a LIP parameter file (kind: lip) needs {', '.join(missing)}")
+    plant = {k: data[k] for k in THETA_NAMES}
+    try:
+        plant = build(Plant, {**plant, "effects": data.get("effects") or []}, "plant")
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    return SimulationModel(plant, None, f"LIP from {data.get('source', path)}")
+
+
 def _cmd_study(args) -> int:
     from experiments.study import load_study, run_study
 
-    config, study = load_study(args.config)
-    from experiments.runner import preflight
-    try:  # the checks clm-sim run makes before any computation
-        preflight(config)
-    except UserError as exc:
-        raise UserError(f"{args.config}: {exc}") from None
+    config, study = load_study(args.config)  # checked as clm-sim run checks, before any work
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     run_study(config, study, out, quiet=args.quiet)
     print((out / "report.md").read_text(), end="")
@@ -142,13 +182,9 @@ def _cmd_study(args) -> int:
 def _cmd_diagnose(args) -> int:
     from experiments.diagnosis import diagnose
     from experiments.diagnosis.report import write
-    from clm_sim.record import load_record
 
-    columns = _pairs(args.columns, "--columns", number=False)
-    scale = _pairs(args.scale, "--scale", number=True)
-    record = load_record(args.data, columns=columns, scale=scale)
-    validation = load_record(args.validate, columns=columns, scale=scale) \
-        if args.validate else None
+    record = _load(args.data, args)
+    validation = _load(args.validate, args) if args.validate else None
     model = _diagnosis_model(args.model, record.ts)
     result = diagnose(record, model, validation=validation)
     out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"
@@ -186,7 +222,8 @@ def parser() -> argparse.ArgumentParser:
     run.set_defaults(func=_cmd_run)
     ident = sub.add_parser("identify", help="identify the LIP feedforward from a record")
     ident.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
-    ident.add_argument("--out", help="folder for lip.json (default: current folder)")
+    ident.add_argument("--out", help="folder for lip.json (default results/identify/<data name>)")
+    _record_options(ident)
     ident.add_argument("--lowpass-hz", type=float, default=250.0,
                        help="zero-phase parallel filter of the regression, Hz (0 = none)")
     ident.set_defaults(func=_cmd_identify)
@@ -211,12 +248,11 @@ def parser() -> argparse.ArgumentParser:
     diag = sub.add_parser("diagnose", help="show what the simulation gets wrong on a measured "
                           "record, name the cause, extend the model, measure the gain")
     diag.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
-    diag.add_argument("--model", help="model YAML (plant:, optional controller:) or experiment "
-                      "config (default: the default CLM)")
+    diag.add_argument("--model", help="model YAML (plant:, optional controller:), a lip.json "
+                      "from identify or run, or an experiment config (default: the default CLM)")
     diag.add_argument("--validate", help="validation record (default: the final 25 %% of DATA)")
     diag.add_argument("--out", help="output folder (default results/diagnosis_<data name>)")
-    diag.add_argument("--columns", help="signal=column names in the files, e.g. y=qm,r=qg,u=vir")
-    diag.add_argument("--scale", help="signal=factor or signal=scalar-variable, e.g. u=gtau")
+    _record_options(diag)
     diag.set_defaults(func=_cmd_diagnose)
     study = sub.add_parser("study", help="the PGNN extrapolation study: lambda sweep, report.md "
                            "with figures")
@@ -227,16 +263,35 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every clean-up (temporary result folders, sweep
+    workers) runs the same way."""
+
+
+def _terminate(signum, frame):
+    raise Terminated
+
+
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    # Files only, never a window: the one place where clm-sim picks matplotlib's backend.
+    os.environ["MPLBACKEND"] = "Agg"
+    previous = signal.signal(signal.SIGTERM, _terminate) \
+        if threading.current_thread() is threading.main_thread() else None
     try:
         return args.func(args)
     except UserError as exc:
         print(f"clm-sim: error: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("clm-sim: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print("clm-sim: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from clm_sim import __version__
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_folder
 from clm_sim.record import save_npz
-from experiments import plots, table
+from experiments import table
 from experiments.config import ExperimentConfig, resolved
 from experiments.testbed import Progress, Testbed
 
@@ -140,6 +140,9 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     (out / "table.json").write_text(table.to_json(rows))
     (out / "table.md").write_text(table.to_markdown(rows))
     (out / "table.csv").write_text(table.to_csv(rows))
+    from experiments import (
+        plots,  # matplotlib only where figures are drawn (not in tasks)
+    )
     for name in config.replay:
         plots.save(plots.tracking_figure(shown, name), out / "figures" / f"tracking_{name}.png")
         if any(spec.kind != "none" for spec in config.feedforwards):

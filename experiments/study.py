@@ -25,6 +25,7 @@ from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, resolved
+from experiments.runner import preflight
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
 
@@ -56,12 +57,19 @@ class StudySettings:
 
 
 def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
-    """Read a study config; errors name the file and the key."""
+    """Read a study config and make ``clm-sim run``'s checks before any computation; errors
+    name the file and the key. A config without a ``study:`` section is refused (it is an
+    experiment for ``clm-sim run``)."""
     path = Path(path)
     data = dict(load_yaml(path))
+    has_study = "study" in data  # an empty 'study:' takes every default
     settings = data.pop("study", None)
     try:
         config = build(ExperimentConfig, data, "config")
+        preflight(config)
+        if not has_study:
+            raise UserError("needs a 'study:' section (lambdas, seeds, ...); a plain experiment "
+                            "runs with 'clm-sim run'")
         study = build(StudySettings, settings, "study")
     except UserError as exc:
         raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import json
 import numbers
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -208,3 +212,144 @@ def test_export_round_trips_a_logged_run(baseline, fmt, tmp_path, capsys):
     for name, value in a.signals().items():
         # CSV is written with %.17g (round-trips float64); MAT is binary float64.
         np.testing.assert_allclose(getattr(b, name), value, rtol=1e-15, atol=0, err_msg=name)
+
+
+# --------------------------------------------------------------------------------------------
+# identify: column names and units, where it writes, and its lip.json as a diagnose model
+# --------------------------------------------------------------------------------------------
+
+def _moving_record(n=60000, ts=1e-4):
+    """A stage moving through two sines (1 Hz, 20 mm and 3.3 Hz, 5 mm: acceleration not
+    proportional to position) with the exact rigid-body force (m 12 kg, fv 90 N*s/m, fc 4 N,
+    fk 30 N/m): motion in both directions that excites every LIP parameter."""
+    t = np.arange(n) * ts
+    w1, w2 = 2 * np.pi * 1.0, 2 * np.pi * 3.3
+    y = 0.02 * np.sin(w1 * t) + 0.005 * np.sin(w2 * t)
+    v = 0.02 * w1 * np.cos(w1 * t) + 0.005 * w2 * np.cos(w2 * t)
+    a = -0.02 * w1**2 * np.sin(w1 * t) - 0.005 * w2**2 * np.sin(w2 * t)
+    return {"t": t, "r": y, "y": y, "u": 12 * a + 90 * v + 4 * np.sign(v) + 30 * y}
+
+
+def test_identify_reads_renamed_columns_in_mm_like_the_si_record(tmp_path, capsys):
+    si = _moving_record()
+    _write_csv(tmp_path / "si.csv", si)
+    # The same record as a logger might write it: other names, positions in mm, force in V.
+    _write_csv(tmp_path / "logger.csv", {"time": si["t"], "ref_mm": si["r"] * 1e3,
+                                         "pos_mm": si["y"] * 1e3, "volts": si["u"] / 35.0})
+    code, _, _ = _cli(["identify", tmp_path / "si.csv", "--out", tmp_path / "a"], capsys)
+    assert code == 0
+    code, _, err = _cli(["identify", tmp_path / "logger.csv", "--out", tmp_path / "b",
+                         "--columns", "t=time,r=ref_mm,y=pos_mm,u=volts",
+                         "--scale", "r=0.001,y=0.001,u=35"], capsys)
+    assert code == 0, err
+    a = json.loads((tmp_path / "a" / "lip.json").read_text())
+    b = json.loads((tmp_path / "b" / "lip.json").read_text())
+    for k in ("mass", "viscous", "coulomb", "stiffness"):
+        # Same doubles up to the rounding of *1e3*1e-3 and /35*35: far below any fit error.
+        assert b[k] == pytest.approx(a[k], rel=1e-9), k
+    assert a["mass"] == pytest.approx(12.0, rel=0.01)  # and the fit itself is sane
+
+
+def test_identify_writes_under_results_never_into_the_current_folder(tmp_path, capsys,
+                                                                    monkeypatch):
+    _write_csv(tmp_path / "rec.csv", _moving_record())
+    monkeypatch.chdir(tmp_path)
+    code, printed, _ = _cli(["identify", "rec.csv"], capsys)
+    assert code == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "results"]
+    assert (tmp_path / "results" / "identify" / "rec" / "lip.json").is_file()
+    assert "results/identify/rec/lip.json" in printed
+
+
+def test_identify_bad_column_option_is_one_line(tmp_path, capsys):
+    _write_csv(tmp_path / "rec.csv", _moving_record())
+    code, _, err = _cli(["identify", tmp_path / "rec.csv", "--out", tmp_path / "o",
+                         "--columns", "y"], capsys)
+    assert code == 2 and len(err) == 1 and "--columns" in err[0]
+    code, _, err = _cli(["identify", tmp_path / "rec.csv", "--out", tmp_path / "o",
+                         "--columns", "y=pos"], capsys)
+    assert code == 2 and len(err) == 1 and "'pos'" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_lip_json_of_identify_is_a_diagnose_model(tmp_path, capsys):
+    _write_csv(tmp_path / "rec.csv", _moving_record())
+    code, _, _ = _cli(["identify", tmp_path / "rec.csv", "--out", tmp_path / "id"], capsys)
+    assert code == 0
+    lip = json.loads((tmp_path / "id" / "lip.json").read_text())
+    code, _, err = _cli(["diagnose", tmp_path / "rec.csv", "--model",
+                         tmp_path / "id" / "lip.json", "--out", tmp_path / "diag"], capsys)
+    assert code == 0, err
+    report = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    assert "LIP from" in (tmp_path / "diag" / "report.md").read_text()
+    # The model is the identified LIP: on its own record it leaves (nearly) nothing to find.
+    assert report["gain"]["residual_rms_before"] < 0.05 * np.std(_moving_record()["u"])
+    assert lip["kind"] == "lip"
+
+
+def test_a_lip_file_without_parameters_is_refused_as_model(tmp_path, capsys):
+    _write_csv(tmp_path / "rec.csv", _moving_record())
+    bad = tmp_path / "lip.json"
+    bad.write_text('{"kind": "lip", "mass": 12.0}')
+    code, _, err = _cli(["diagnose", tmp_path / "rec.csv", "--model", bad, "--out",
+                         tmp_path / "d"], capsys)
+    assert code == 2 and len(err) == 1 and str(bad) in err[0] and "viscous" in err[0]
+    assert not (tmp_path / "d").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# run and study on each other's configs; SIGTERM
+# --------------------------------------------------------------------------------------------
+
+SMALL = """\
+name: small
+seed: 1
+references:
+  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}
+  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}
+training: {repeats: 1}
+feedforwards:
+  - kind: none
+  - kind: lip
+"""
+
+
+def test_study_refuses_a_config_without_study_section(tmp_path, capsys):
+    cfg = tmp_path / "plain.yaml"
+    cfg.write_text(SMALL)
+    code, out, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and out == "" and len(err) == 1
+    assert str(cfg) in err[0] and "'study:' section" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.yaml"]
+
+
+def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys):
+    cfg = tmp_path / "study.yaml"
+    cfg.write_text(SMALL + "study:\n  seeds: 1\n")
+    code, out, err = _cli(["run", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and out == "" and len(err) == 1
+    assert f"clm-sim study {cfg}" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["study.yaml"]
+
+
+def test_sigterm_during_run_cleans_up_like_ctrl_c(tmp_path):
+    """A real process: SIGTERM once the temporary result folder exists leaves nothing."""
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL)
+    out = tmp_path / "out"
+    partial = tmp_path / ".out.partial"
+    proc = subprocess.Popen([sys.executable, "-m", "experiments.cli", "run", str(cfg), "--out",
+                             str(out), "--quiet"], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        while proc.poll() is None and not partial.exists():
+            time.sleep(0.005)
+        seen = partial.exists()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert seen, "the run finished before it could be terminated"
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines()[-1] == "clm-sim: terminated"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.yaml"]
