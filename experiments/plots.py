@@ -394,3 +394,114 @@ def mae_vs_key_figure(rows: list[dict], swept: list[str], x: str) -> Figure:
     fig.legend(handles, labels, loc="outside lower center", ncol=min(3, len(labels)),
                fontsize=8, frameon=False)
     return fig
+
+
+# ----------------------------------------------------------------------------- failure map
+
+def plot_failure_ratios(summary: dict, direction: str, ax=None):
+    """MAE(λ = 0)/MAE(λ) on the reference that leaves the training range in ``direction``, per
+    case (rows) and n_l (colours), with the paired interval (``experiments.failure_map``); log
+    axis, 1 marked (right of it: λ = 0 loses)."""
+    ax = _ax(ax)
+    st = summary["settings"]
+    cases, hidden = list(st["cases"]), st["hidden"]
+    cells = {(c["case"], c["hidden"]): c for c in summary["cells"]
+             if c["direction"] == direction}
+    offsets = np.linspace(-0.25, 0.25, len(hidden)) if len(hidden) > 1 else [0.0]
+    for j, (h, dy) in enumerate(zip(hidden, offsets)):
+        pts = [(i + dy, cells[(case, h)]["ratio"]) for i, case in enumerate(cases)
+               if (case, h) in cells]
+        if not pts:
+            continue
+        r = np.array([[p["ratio"], p["low"], p["high"]] for _, p in pts])
+        ax.errorbar(r[:, 0], [y for y, _ in pts], xerr=[r[:, 0] - r[:, 1], r[:, 2] - r[:, 0]],
+                    fmt="o", color=color(j + 1), capsize=3, label=f"n_l = {h}")
+    ax.axvline(1.0, color="k", lw=0.8)
+    ax.set_xscale("log")
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.set_yticks(range(len(cases)), cases)
+    ax.set_ylim(len(cases) - 0.5, -0.5)
+    ref = st["outside"][direction]
+    ax.set_xlabel(f"MAE(λ = 0) / MAE(λ = {st['lambda']:g}) on {ref} [–]")
+    ax.set_title(f"leaves the training range in {direction} ({ref})", loc="left", fontsize=9)
+    ax.grid(alpha=0.3, which="both", axis="x")
+    return ax
+
+
+def plot_failure_mechanism(summary: dict, ax=None):
+    """Per extrapolation cell of a failure map, the MAE ratio against the ratio of the model's
+    rms force error beyond the training range (λ = 0 over λ, both [–]); colour: case, marker:
+    direction; bars: the MAE ratio's interval."""
+    from matplotlib.lines import Line2D
+
+    ax = _ax(ax)
+    st = summary["settings"]
+    cases, directions = list(st["cases"]), list(st["outside"])
+    markers = "os^vD"
+    for c in summary["cells"]:
+        if c["direction"] == "inside":
+            continue
+        e0, e1 = (c["network"][k]["error_beyond_rms_n"] for k in ("lam0", "reg"))
+        if not (e0 and e1):
+            continue
+        r = c["ratio"]
+        ax.errorbar(e0 / e1, r["ratio"], yerr=[[r["ratio"] - r["low"]], [r["high"] - r["ratio"]]],
+                    fmt=markers[directions.index(c["direction"]) % len(markers)],
+                    color=color(cases.index(c["case"]) + 1), capsize=2, alpha=0.85)
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.axvline(1.0, color="k", lw=0.8, ls=":")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        axis.set_minor_formatter(FuncFormatter(
+            lambda v, _: f"{v:g}" if f"{v:.0e}"[0] in "25" else ""))
+    ax.set_xlabel(f"force error beyond the training range, rms, λ = 0 / λ = {st['lambda']:g} [–]")
+    ax.set_ylabel(f"MAE(λ = 0) / MAE(λ = {st['lambda']:g}) [–]")
+    ax.grid(alpha=0.3, which="both")
+    handles = [Line2D([], [], color=color(i + 1), marker="o", ls="", label=case)
+               for i, case in enumerate(cases)]
+    handles += [Line2D([], [], color=PALETTE[7], marker=markers[i % len(markers)], ls="",
+                       label=f"{d} ({st['outside'][d]})") for i, d in enumerate(directions)]
+    _legend_right(ax, handles=handles)
+    return ax
+
+
+def plot_theta_drift(summary: dict, hidden: int, ax=None):
+    """The drift of θ_phy under λ = 0 per case of a failure map, as the force it moves at the
+    edge of the training range (|θ_phy − θ_LIP| times the largest |a|, |v|, 1, |y| of the
+    training reference, N, mean over seeds), one bar per parameter."""
+    ax = _ax(ax)
+    feature = {"mass": "a", "viscous": "v", "coulomb": "sign v", "stiffness": "y"}
+    cases = list(summary["settings"]["cases"])
+    width = 0.8 / len(THETA_NAMES)
+    for j, k in enumerate(THETA_NAMES):
+        vals = [summary["drift"].get(f"{case}/{hidden}", {}).get("lam0", {}).get(k, {})
+                .get("edge_force_n", np.nan) for case in cases]
+        ax.bar(np.arange(len(cases)) + (j - (len(THETA_NAMES) - 1) / 2) * width, vals, width,
+               color=color(j + 1), label=f"{k} × max |{feature[k]}|")
+    ax.set_xticks(range(len(cases)), cases, rotation=20, fontsize=8)
+    ax.set_ylabel("|θ_phy − θ_LIP| × max |feature| [N]")
+    ax.set_title(f"drift of θ_phy with λ = 0, n_l = {hidden}", loc="left", fontsize=9)
+    ax.grid(alpha=0.3, axis="y")
+    return ax
+
+
+def failure_map_figures(summary: dict) -> dict[str, Figure]:
+    """The failure map's figures by file stem: ``ratio`` (one panel per direction),
+    ``mechanism`` and ``drift`` (one panel per n_l)."""
+    directions = list(summary["settings"]["outside"])
+    hidden = summary["settings"]["hidden"]
+    ratio = _figure(4.6 * len(directions) + 1.4, 4.2)
+    axes = np.atleast_1d(ratio.subplots(1, len(directions), sharex=True))
+    for ax, d in zip(axes, directions):
+        plot_failure_ratios(summary, d, ax)
+    _legend_right(axes[-1])
+    mechanism = _figure(8.5, 4.6)
+    plot_failure_mechanism(summary, mechanism.subplots())
+    drift = _figure(4.6 * len(hidden) + 1.8, 4.2)
+    axes = np.atleast_1d(drift.subplots(1, len(hidden), sharey=True))
+    for ax, h in zip(axes, hidden):
+        plot_theta_drift(summary, h, ax)
+    _legend_right(axes[-1])
+    return {"ratio": ratio, "mechanism": mechanism, "drift": drift}

@@ -1,0 +1,604 @@
+"""Where does lambda = 0 fail? The failure map of the PGNN paper's finding (iii).
+
+Finding (iii): outside the training range a PGNN trained without regularization (lambda = 0)
+tracks much worse than one regularized toward theta_LIP (lambda = 0.01). This study measures the
+ratio ``MAE(lambda = 0) / MAE(lambda = lam)`` on references that leave the training range, over
+the factors that decide it:
+
+* the parasitic force of the plant (one case per set of effects, e.g. none, cable carrier,
+  cogging, force ripple, Stribeck), which decides what the network has to learn;
+* the direction of extrapolation (a reference per direction: position r2, velocity r3);
+* the network size n_l.
+
+Pairing. For each case and seed there is one training run (its dither drawn from the seed) and
+one LIP; for each n_l the two PGNNs start from the same random hidden layer. So the two MAEs of
+one seed share everything but lambda, and the comparison is paired by seed: the interval is a
+t-interval on the per-seed log ratio ``ln MAE(0) - ln MAE(lam)`` (a ratio is what the paper's
+claim is about, and the log makes it symmetric), transformed back to a ratio. A cell is
+``holds`` when the whole interval lies above 1, ``reversed`` when it lies below 1, else
+``undecided``; Holm's correction over all extrapolation cells is reported beside it.
+
+``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
+(:class:`FailureMapSettings`); the cells (case x n_l x seed) are independent and run on a
+process pool (``experiments.backends.run_local``, one thread per worker). The output folder holds
+``failure_map.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/*.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import yaml
+
+from clm_sim.effects import CableSlab, Cogging, Effect, ForceRipple, Stribeck
+from clm_sim.errors import UserError
+from clm_sim.outdir import atomic_folder
+from clm_sim.plant import THETA_NAMES
+from clm_sim.schema import build, load_yaml, to_plain
+from controllers.pgnn_settings import PGNNSettings
+from experiments.config import ExperimentConfig, resolved
+from experiments.testbed import Progress, Testbed
+
+UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
+VERDICTS = ("holds", "reversed", "undecided")
+
+
+def _default_cases() -> dict[str, tuple[Effect, ...]]:
+    # The sizes are argued in experiments/configs/failure_map.yaml.
+    return {
+        "none": (),
+        "cable_carrier": (CableSlab(coefficients=(0.0, 10.0, 0.0, 2000.0), center=0.0),),
+        "cogging": (Cogging(amplitude=1.0, period=0.012, phase=0.0),),
+        "force_ripple": (ForceRipple(amplitude=0.01, period=0.024, phase=0.0),),
+        "stribeck": (Stribeck(peak=1.0, velocity=0.001, exponent=2.0),),
+    }
+
+
+@dataclass(frozen=True)
+class FailureMapSettings:
+    """The ``failure_map:`` section of a config.
+
+    cases: name -> the parasitic effects of the plant in that case (they replace
+    ``plant.effects``; ``[]`` is the plant without any); outside: direction of extrapolation ->
+    the reference that leaves the training range that way; inside: the training reference
+    (reported for context); hidden: network sizes n_l; lam: the regularization weight compared
+    with lambda = 0 (physical units, > 0); seeds: paired seeds per cell (>= 2 for an interval);
+    confidence: level of the intervals; pgnn: network and optimizer settings shared by every fit.
+    """
+
+    cases: dict[str, tuple[Effect, ...]] = field(default_factory=_default_cases)
+    outside: dict[str, str] = field(
+        default_factory=lambda: {"position": "r2", "velocity": "r3"})
+    inside: str = "r1"
+    hidden: tuple[int, ...] = (8, 32)
+    lam: float = 0.01
+    seeds: int = 10
+    confidence: float = 0.95
+    pgnn: PGNNSettings = field(default_factory=PGNNSettings)
+    aliases: ClassVar[dict[str, str]] = {"lambda": "lam"}  # config name -> field
+
+    def __post_init__(self):
+        if not self.cases:
+            raise UserError("cases: expected at least one case")
+        if not self.outside:
+            raise UserError("outside: expected at least one direction: reference")
+        if not self.hidden or any(h < 1 for h in self.hidden) or len(set(self.hidden)) < len(
+                self.hidden):
+            raise UserError(f"hidden: expected distinct integers >= 1, got {list(self.hidden)}")
+        if not self.lam > 0:
+            raise UserError(f"lambda: expected a number > 0 (compared with lambda = 0), "
+                            f"got {self.lam!r}")
+        if not (isinstance(self.seeds, int) and self.seeds >= 2):
+            raise UserError(f"seeds: expected an integer >= 2 (a paired interval needs two), "
+                            f"got {self.seeds!r}")
+        if not 0.5 <= self.confidence < 1:
+            raise UserError(f"confidence: expected a level in [0.5, 1), got {self.confidence!r}")
+
+
+def load_failure_map(path) -> tuple[ExperimentConfig, FailureMapSettings]:
+    """Read a failure-map config; errors name the file and the key."""
+    path = Path(path)
+    data = dict(load_yaml(path))
+    section = data.pop("failure_map", None)
+    try:
+        if "effects" in (data.get("plant") or {}):
+            raise UserError("plant.effects: the effects are set per case under "
+                            "failure_map.cases")
+        if data.get("truth") is not None:
+            raise UserError("truth: not supported by the failure map (the cases set the plant)")
+        config = build(ExperimentConfig, data, "config")
+        settings = build(FailureMapSettings, section, "failure_map")
+    except UserError as exc:
+        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
+            from None
+    for key in (settings.inside, *settings.outside.values()):
+        if key not in config.references:
+            raise UserError(f"{path}: failure_map: reference {key!r} is not defined under "
+                            f"'references'")
+    return config, settings
+
+
+# ----------------------------------------------------------------------------- one cell
+
+@dataclass(frozen=True)
+class Cell:
+    """One independent task: a case, a network size and a seed (both lambdas, paired)."""
+
+    config: ExperimentConfig
+    settings: FailureMapSettings
+    case: str
+    hidden: int
+    seed: int
+
+
+def fit_record(model, max_iter: int) -> dict:
+    """How a fit stopped: the model's own record (``fit_info_``) where it gives one, else the
+    iteration count against the cap (``stop: max_iter`` at the cap, ``unknown`` below it, as an
+    optimizer without a convergence test cannot say more)."""
+    info = getattr(model, "fit_info_", None)
+    if isinstance(info, dict) and "stop" in info:
+        keys = ("stop", "iterations", "data_cost", "reg_cost", "grad_norm")
+        return {k: _plain(info.get(k)) for k in keys}
+    history = getattr(model, "history_", None) or []
+    iterations = max(len(history) - 1, 0)
+    cost = getattr(model, "cost_", {}) or {}
+    return {"stop": "max_iter" if iterations >= max_iter else "unknown",
+            "iterations": iterations, "data_cost": _plain(cost.get("data")),
+            "reg_cost": _plain(cost.get("deviation")), "grad_norm": None}
+
+
+def _plain(x):
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if hasattr(x, "item") and getattr(x, "ndim", 1) == 0:  # a torch scalar
+        return x.item()
+    return x
+
+
+def run_cell(cell: Cell) -> dict:
+    """Compute one cell in a worker (single-threaded torch). Never raises for the cell's own
+    failure: ``{"status": "failed", "error"}`` is returned instead, so the others go on."""
+    start = time.perf_counter()
+    try:
+        import torch
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)  # one core per cell; cells run in parallel
+        try:
+            out = _cell(cell)
+        finally:
+            torch.set_num_threads(threads)
+        json.dumps(out, allow_nan=False)  # a NaN in the results is a failure
+        return {"status": "ok", **out, "elapsed_s": time.perf_counter() - start}
+    except Exception as exc:  # noqa: BLE001 (recorded, not raised: the other cells go on)
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        return {"status": "failed", "case": cell.case, "hidden": cell.hidden, "seed": cell.seed,
+                "error": f"{type(exc).__name__}: {text}"}
+
+
+def _cell(cell: Cell) -> dict:
+    from experiments.study import _ranges, beyond_range
+
+    st = cell.settings
+    config = replace(cell.config, plant=replace(cell.config.plant,
+                                                effects=st.cases[cell.case]))
+    tb = Testbed(config)
+    ts = config.ts
+    run = tb.training_run(seed=cell.seed)
+    lip = tb.fit_lip(run)
+    names = (st.inside, *st.outside.values())
+    refs = {k: tb.reference(k) for k in names}
+    ranges_in = _ranges(config.features, refs[st.inside], ts)
+    beyond, truth = {}, {}
+    for k, r in refs.items():
+        y, v, a = config.features.motion(r, ts)
+        truth[k] = tb.machine.inverse_force(y, v, a)  # the simulator's oracle force
+        beyond[k] = beyond_range(config.features, r, ts, ranges_in)
+
+    def error_beyond(force, k):
+        return float(np.sqrt(np.mean((force - truth[k])[beyond[k]] ** 2))) \
+            if beyond[k].any() else None
+
+    out = {"case": cell.case, "hidden": cell.hidden, "seed": cell.seed,
+           "ranges": ranges_in,
+           "lip": {"theta": lip.theta_, "mae": {k: tb.replay(lip, k).mae for k in names},
+                   "error_beyond_rms_n": {k: error_beyond(lip.predict(y=r, ts=ts), k)
+                                          for k, r in refs.items()}}}
+    pgnn = dataclasses.asdict(st.pgnn)
+    for key, lam in (("lam0", 0.0), ("reg", st.lam)):
+        # seed=0: the network's stream is (the run's seed, 0), so both lambdas start from the
+        # same random hidden layer; the pairing rests on it.
+        model = tb.fit_pgnn(run, hidden=cell.hidden, lam=lam, seed=0, lip=lip, **pgnn)
+        parts = {}
+        for k, r in refs.items():
+            phys, net = model.predict_parts(y=r, ts=ts)
+            phys, net = np.asarray(phys, dtype=float), np.asarray(net, dtype=float)
+            parts[k] = {"network_peak_beyond_n": float(np.max(np.abs(net[beyond[k]])))
+                        if beyond[k].any() else None,
+                        "network_peak_within_n": float(np.max(np.abs(net[~beyond[k]]))),
+                        "error_beyond_rms_n": error_beyond(phys + net, k)}
+        out[key] = {"lambda": lam, "theta": {k: float(v) for k, v in model.theta_.items()},
+                    "mae": {k: tb.replay(model, k).mae for k in names}, "parts": parts,
+                    "fit": fit_record(model, st.pgnn.max_iter)}
+    return out
+
+
+# ----------------------------------------------------------------------------- statistics
+
+def paired_log_ratio(a, b, confidence: float = 0.95) -> dict:
+    """The ratio ``a / b`` of paired positive samples: ``exp(mean(ln a - ln b))`` with its
+    t-interval at ``confidence`` and the two-sided p-value of ``mean(ln a - ln b) = 0``."""
+    from scipy import stats
+
+    d = np.log(np.asarray(a, dtype=float)) - np.log(np.asarray(b, dtype=float))
+    n = len(d)
+    if n < 2:
+        raise ValueError("a paired interval needs at least two pairs")
+    mean, sd = float(np.mean(d)), float(np.std(d, ddof=1))
+    se = sd / math.sqrt(n)
+    q = float(stats.t.ppf(0.5 + confidence / 2, n - 1))
+    p = float(2 * stats.t.sf(abs(mean) / se, n - 1)) if se > 0 else (0.0 if mean else 1.0)
+    return {"ratio": math.exp(mean), "low": math.exp(mean - q * se),
+            "high": math.exp(mean + q * se), "p": p, "n": n, "log_mean": mean, "log_sd": sd}
+
+
+def paired_difference(a, b, confidence: float = 0.95) -> dict:
+    """Mean of ``a - b`` over pairs with its t-interval (same units as the samples)."""
+    from scipy import stats
+
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    n = len(d)
+    se = float(np.std(d, ddof=1)) / math.sqrt(n)
+    q = float(stats.t.ppf(0.5 + confidence / 2, n - 1))
+    mean = float(np.mean(d))
+    return {"mean": mean, "low": mean - q * se, "high": mean + q * se}
+
+
+def holm(pvalues: list[float]) -> list[float]:
+    """Holm's step-down adjusted p-values (family-wise error), in the input order."""
+    order = np.argsort(pvalues, kind="stable")
+    m = len(pvalues)
+    adjusted, running = [0.0] * m, 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * pvalues[i]))
+        adjusted[i] = running
+    return adjusted
+
+
+def verdict(stat: dict) -> str:
+    """``holds`` (interval above 1: lambda = 0 loses), ``reversed`` (below 1) or ``undecided``."""
+    return "holds" if stat["low"] > 1 else "reversed" if stat["high"] < 1 else "undecided"
+
+
+def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
+    """The failure map from the cell results (any order): per case, direction and n_l the
+    paired ratio with its interval and verdict, the mechanism numbers and every fit's stop."""
+    ok = [r for r in results if r["status"] == "ok"]
+    failures = [{k: r.get(k) for k in ("case", "hidden", "seed", "error")}
+                for r in results if r["status"] != "ok"]
+    by = {(r["case"], r["hidden"]): sorted((x for x in ok if (x["case"], x["hidden"]) ==
+                                            (r["case"], r["hidden"])), key=lambda x: x["seed"])
+          for r in ok}
+    directions = {**{d: ref for d, ref in settings.outside.items()},
+                  "inside": settings.inside}
+    cells, drift, fits = [], {}, []
+    for case in settings.cases:
+        for hidden in settings.hidden:
+            rows = by.get((case, hidden), [])
+            for r in rows:
+                for key in ("lam0", "reg"):
+                    fits.append({"case": case, "hidden": hidden, "seed": r["seed"],
+                                 "lambda": r[key]["lambda"], **r[key]["fit"]})
+            if len(rows) < 2:
+                continue
+            drift[f"{case}/{hidden}"] = _drift(rows)
+            for direction, ref in directions.items():
+                cells.append(_cell_stats(settings, case, hidden, direction, ref, rows))
+    outside = [c for c in cells if c["direction"] != "inside"]
+    for c, p in zip(outside, holm([c["ratio"]["p"] for c in outside])):
+        c["ratio"]["p_holm"] = p
+        c["holm_significant"] = p < 1 - settings.confidence
+    region = {v: [_label(c) for c in outside if c["verdict"] == v] for v in VERDICTS}
+    capped = [f for f in fits if f["stop"] == "max_iter"]
+    return {
+        "settings": to_plain(settings),
+        "interval": (f"{settings.confidence:.0%} t-interval on the per-seed log ratio "
+                     "ln MAE(lambda=0) - ln MAE(lambda), paired by seed (same training run and "
+                     "network initialization); p-values two-sided, Holm-adjusted over the "
+                     "extrapolation cells"),
+        "cells": cells, "region": region, "drift": drift, "fits": fits,
+        "fit_stops": {s: sum(f["stop"] == s for f in fits) for s in sorted({f["stop"] for f in
+                                                                           fits})},
+        "capped_fits": len(capped), "failures": failures,
+        "mechanism": _mechanism(outside),
+    }
+
+
+def _label(c: dict) -> str:
+    return f"{c['direction']} ({c['reference']}) / {c['case']} / n_l={c['hidden']}"
+
+
+def _mean(values):
+    values = [v for v in values if v is not None]
+    return float(np.mean(values)) if values else None
+
+
+def _cell_stats(settings, case, hidden, direction, ref, rows) -> dict:
+    a = [r["lam0"]["mae"][ref] for r in rows]
+    b = [r["reg"]["mae"][ref] for r in rows]
+    stat = paired_log_ratio(a, b, settings.confidence)
+    part = {k: {q: _mean([r[k]["parts"][ref][q] for r in rows])
+                for q in ("network_peak_beyond_n", "network_peak_within_n", "error_beyond_rms_n")}
+            for k in ("lam0", "reg")}
+    capped = sum(r[k]["fit"]["stop"] == "max_iter" for r in rows for k in ("lam0", "reg"))
+    return {"case": case, "hidden": hidden, "direction": direction, "reference": ref,
+            "n_seeds": len(rows), "seeds": [r["seed"] for r in rows],
+            "mae_lam0": {"mean": float(np.mean(a)), "per_seed": a},
+            "mae_reg": {"mean": float(np.mean(b)), "per_seed": b},
+            "mae_lip": {"mean": float(np.mean([r["lip"]["mae"][ref] for r in rows]))},
+            "ratio": stat, "difference_m": paired_difference(a, b, settings.confidence),
+            "verdict": verdict(stat),
+            "network": part, "lip_error_beyond_rms_n":
+                _mean([r["lip"]["error_beyond_rms_n"][ref] for r in rows]),
+            "capped_fits": capped}
+
+
+def _drift(rows) -> dict:
+    """theta_phy - theta_LIP per parameter (SI units), mean and spread over seeds, and the force
+    it moves at the edge of the training range (N): the parameter times the largest |feature|
+    of the training reference (|a|, |v|, 1, |y|)."""
+    edge = rows[0]["ranges"]
+    scale = {"mass": edge["acceleration_m_s2"], "viscous": edge["velocity_m_s"],
+             "coulomb": 1.0, "stiffness": edge["position_m"]}
+    out = {"theta_lip": {k: float(np.mean([r["lip"]["theta"][k] for r in rows]))
+                         for k in THETA_NAMES}}
+    for key in ("lam0", "reg"):
+        d = {k: [r[key]["theta"][k] - r["lip"]["theta"][k] for r in rows] for k in THETA_NAMES}
+        out[key] = {k: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1)),
+                        "edge_force_n": float(np.mean(np.abs(v)) * scale[k])}
+                    for k, v in d.items()}
+    return out
+
+
+def _mechanism(outside: list[dict]) -> dict:
+    """How the MAE ratio follows the model's force error beyond the range: Spearman's rank
+    correlation over the extrapolation cells of ln(MAE ratio) with
+    ln(error_beyond(lambda = 0) / error_beyond(lambda))."""
+    from scipy import stats
+
+    xs, ys = [], []
+    for c in outside:
+        e0, e1 = c["network"]["lam0"]["error_beyond_rms_n"], c["network"]["reg"][
+            "error_beyond_rms_n"]
+        if e0 and e1:
+            xs.append(math.log(e0 / e1))
+            ys.append(c["ratio"]["log_mean"])
+    if len(xs) < 3:
+        return {"n_cells": len(xs), "spearman": None}
+    rho = stats.spearmanr(xs, ys)
+    return {"n_cells": len(xs), "spearman": float(rho.statistic)}
+
+
+# ----------------------------------------------------------------------------- running
+
+def cells(config: ExperimentConfig, settings: FailureMapSettings) -> list[Cell]:
+    """Every task, in a fixed order (case, n_l, seed); seeds are 1..seeds offset by the config's
+    seed so that two configs can draw disjoint seeds."""
+    return [Cell(config, settings, case, hidden, config.seed + s)
+            for case in settings.cases for hidden in settings.hidden
+            for s in range(settings.seeds)]
+
+
+def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: int = 1,
+            progress=None) -> list[dict]:
+    """Run every cell (in ``workers`` processes when > 1) and return the results in task order.
+    The results do not depend on ``workers``: each cell is deterministic and single-threaded."""
+    from experiments.backends import run_local
+
+    progress = progress or (lambda message: None)
+    tasks = cells(config, settings)
+    results: list[dict | None] = [None] * len(tasks)
+    it = ((i, run_cell(t)) for i, t in enumerate(tasks)) if workers <= 1 else \
+        run_local(run_cell, tasks, min(workers, len(tasks)))
+    for done, (i, result) in enumerate(it, 1):
+        results[i] = result
+        t = tasks[i]
+        status = "ok" if result["status"] == "ok" else f"FAILED {result['error']}"
+        progress(f"cell {done}/{len(tasks)}: {t.case}, n_l={t.hidden}, seed {t.seed}: {status}")
+    return results
+
+
+def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out, *,
+                    workers: int | None = None, quiet: bool = False) -> dict:
+    """Run the study and write it into ``out`` (replaced atomically). Returns the summary."""
+    progress = Progress(quiet)
+    out = Path(out)
+    workers = workers or os.cpu_count() or 1
+    with atomic_folder(out, marker="failure_map.json", what="a clm-sim failure map") as tmp:
+        (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
+            {**resolved(config), "failure_map": to_plain(settings)}, sort_keys=False))
+        start = time.perf_counter()
+        results = compute(config, settings, workers=workers, progress=progress)
+        summary = summarize(settings, results)
+        summary["wall_time_s"] = time.perf_counter() - start
+        summary["workers"] = workers
+        (tmp / "failure_map.json").write_text(json.dumps(summary, indent=1))
+        draw(summary, tmp / "figures")
+        (tmp / "report.md").write_text(report(summary))
+    progress(f"report in {out}/report.md")
+    return summary
+
+
+def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
+    """``clm-sim study CONFIG`` for a config with a ``failure_map:`` section."""
+    from experiments.runner import preflight
+
+    config, settings = load_failure_map(config_path)
+    try:  # the checks clm-sim run makes before any computation
+        preflight(config)
+    except UserError as exc:
+        raise UserError(f"{config_path}: {exc}") from None
+    out = Path(out) if out else Path("results") / Path(config_path).stem
+    summary = run_failure_map(config, settings, out, workers=workers, quiet=quiet)
+    print((out / "report.md").read_text(), end="")
+    return 1 if summary["failures"] else 0
+
+
+# ----------------------------------------------------------------------------- report
+
+def _um(x: float) -> str:
+    return f"{x * 1e6:.3f}"
+
+
+def _ci(stat: dict) -> str:
+    return f"{stat['ratio']:.2f} [{stat['low']:.2f}, {stat['high']:.2f}]"
+
+
+def _why(s: dict, c: dict) -> str:
+    """One generated sentence on the mechanism of a cell: the drift, the network beyond the
+    range and the model's force error there."""
+    d = s["drift"][f"{c['case']}/{c['hidden']}"]
+    top = sorted(THETA_NAMES, key=lambda k: -d["lam0"][k]["edge_force_n"])[:2]
+    drift = ", ".join(f"{k} {d['lam0'][k]['mean']:+.3g} {UNITS[k]} (±"
+                      f"{d['lam0'][k]['std']:.2g}; {d['lam0'][k]['edge_force_n']:.2f} N at the "
+                      f"edge of the range)" for k in top)
+    n0, n1 = c["network"]["lam0"], c["network"]["reg"]
+    text = f"λ = 0 drifts {drift}"
+    if n0["network_peak_beyond_n"] is not None:
+        text += (f"; beyond the range its network outputs up to {n0['network_peak_beyond_n']:.2f}"
+                 f" N against {n1['network_peak_beyond_n']:.2f} N, and the model misses the true"
+                 f" force there by {n0['error_beyond_rms_n']:.2f} N rms against "
+                 f"{n1['error_beyond_rms_n']:.2f} N (LIP {c['lip_error_beyond_rms_n']:.2f} N)")
+    return text
+
+
+def report(s: dict) -> str:
+    """``report.md``: every sentence and number generated from the summary."""
+    st = s["settings"]
+    lam = st["lambda"]
+    outside = [c for c in s["cells"] if c["direction"] != "inside"]
+    inside = [c for c in s["cells"] if c["direction"] == "inside"]
+    lines = [f"# Where does λ = 0 fail? MAE(λ = 0) / MAE(λ = {lam:g}) outside the training range",
+             "",
+             f"Cases (parasitic force of the plant): {', '.join(st['cases'])}; directions: "
+             + ", ".join(f"{d} ({r})" for d, r in st["outside"].items())
+             + f"; training reference {st['inside']}; n_l ∈ {{{', '.join(map(str, st['hidden']))}}}"
+             f"; {st['seeds']} seeds per cell. Interval: {s['interval']}. "
+             f"Wall time {s['wall_time_s']:.0f} s on {s['workers']} workers.", ""]
+    n_fits = len(s["fits"])
+    stops = ", ".join(f"{n} {k}" for k, n in s["fit_stops"].items())
+    lines += [f"**Fits:** {n_fits} ({stops}). "
+              + (f"**{s['capped_fits']} fits stopped at the iteration cap** (max_iter "
+                 f"{st['pgnn']['max_iter']}); the cells that contain them are marked † below."
+                 if s["capped_fits"] else "No fit stopped at the iteration cap.")]
+    if s["failures"]:
+        lines += ["", f"**{len(s['failures'])} cells failed** and are left out: "
+                  + "; ".join(f"{f['case']} n_l={f['hidden']} seed {f['seed']}: {f['error']}"
+                              for f in s["failures"])]
+    lines += ["", "## Where finding (iii) holds (generated from this run)", ""]
+    lines += [_region_sentence(s, outside)]
+    holds = [c for c in outside if c["verdict"] == "holds"]
+    for c in holds:
+        lines.append(f"- **{_label(c)}**: ratio {_ci(c['ratio'])} (λ = 0 {_um(c['mae_lam0']['mean'])}"
+                     f" µm, λ = {lam:g} {_um(c['mae_reg']['mean'])} µm, LIP "
+                     f"{_um(c['mae_lip']['mean'])} µm; Holm p = {c['ratio']['p_holm']:.2g}). "
+                     f"{_why(s, c)}.")
+    rev = [c for c in outside if c["verdict"] == "reversed"]
+    for c in rev:
+        lines.append(f"- reversed, **{_label(c)}**: ratio {_ci(c['ratio'])}. {_why(s, c)}.")
+    m = s["mechanism"]
+    if m["spearman"] is not None:
+        lines += ["", (f"Across the {m['n_cells']} extrapolation cells the MAE ratio follows the "
+                  f"ratio of the model's force error beyond the training range (λ = 0 over "
+                  f"λ = {lam:g}): Spearman ρ = {m['spearman']:.2f}.")]
+    lines += ["", "## Extrapolation cells", "",
+              (f"MAE mean over seeds [µm]; ratio MAE(λ = 0)/MAE(λ = {lam:g}) with its interval; "
+              f"difference λ = 0 minus λ = {lam:g} [µm] with its interval; network peak beyond "
+              f"the range [N] (λ = 0 / λ = {lam:g})."), "",
+              "| direction | case | n_l | LIP | λ = 0 | λ = " + f"{lam:g}"
+              + " | ratio [CI] | difference [CI] | Holm p | verdict | network beyond [N] |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for c in outside:
+        d = c["difference_m"]
+        n0, n1 = (c["network"][k]["network_peak_beyond_n"] for k in ("lam0", "reg"))
+        dag = " †" if c["capped_fits"] else ""
+        lines.append(
+            f"| {c['direction']} ({c['reference']}) | {c['case']}{dag} | {c['hidden']} | "
+            f"{_um(c['mae_lip']['mean'])} | {_um(c['mae_lam0']['mean'])} | "
+            f"{_um(c['mae_reg']['mean'])} | {_ci(c['ratio'])} | {d['mean'] * 1e6:+.3f} "
+            f"[{d['low'] * 1e6:+.3f}, {d['high'] * 1e6:+.3f}] | {c['ratio']['p_holm']:.2g} | "
+            f"{c['verdict']}{'' if c['holm_significant'] or c['verdict'] == 'undecided' else ' (not after Holm)'} | "
+            + (f"{n0:.2f} / {n1:.2f} |" if n0 is not None else "– |"))
+    lines += ["", f"## Inside the training range ({st['inside']}), for context", "",
+              "| case | n_l | LIP | λ = 0 | λ = " + f"{lam:g} | ratio [CI] |", "|---|---|---|---|---|---|"]
+    for c in inside:
+        lines.append(f"| {c['case']} | {c['hidden']} | {_um(c['mae_lip']['mean'])} | "
+                     f"{_um(c['mae_lam0']['mean'])} | {_um(c['mae_reg']['mean'])} | "
+                     f"{_ci(c['ratio'])} |")
+    lines += ["", "## Which parameters drift", "",
+              ("θ_phy − θ_LIP, mean ± std over seeds (the force it moves at the edge of the training"
+              " range in brackets, N)."), "",
+              "| case | n_l | λ | " + " | ".join(f"{k} [{UNITS[k]}]" for k in THETA_NAMES) + " |",
+              "|---|---|---|" + "---|" * len(THETA_NAMES)]
+    for key, d in s["drift"].items():
+        case, hidden = key.split("/")
+        for lk, lv in (("lam0", "0"), ("reg", f"{lam:g}")):
+            lines.append(f"| {case} | {hidden} | {lv} | " + " | ".join(
+                f"{d[lk][k]['mean']:+.3g} ± {d[lk][k]['std']:.2g} ({d[lk][k]['edge_force_n']:.2f})"
+                for k in THETA_NAMES) + " |")
+    lines += ["", "## Figures", "",
+              "The ratio with its interval per case and n_l, one panel per direction:", "",
+              "![ratio](figures/ratio.png)", "",
+              ("Mechanism: the MAE ratio against the ratio of the model's force error beyond the "
+              "training range:"), "", "![mechanism](figures/mechanism.png)", "",
+              "Parameter drift of λ = 0 as the force it moves at the edge of the training range:",
+              "", "![drift](figures/drift.png)", ""]
+    return "\n".join(lines)
+
+
+def _region_sentence(s: dict, outside: list[dict]) -> str:
+    lam = s["settings"]["lambda"]
+    n = len(outside)
+    holds = [c for c in outside if c["verdict"] == "holds"]
+    rev = [c for c in outside if c["verdict"] == "reversed"]
+    strict = [c for c in holds if c["holm_significant"]]
+    if not holds:
+        head = (f"**Finding (iii) holds in none of the {n} extrapolation cells**: no interval of "
+                f"MAE(λ = 0)/MAE(λ = {lam:g}) lies above 1.")
+    else:
+        head = (f"**Finding (iii) holds in {len(holds)} of {n} extrapolation cells** (interval "
+                f"above 1; {len(strict)} of them also after Holm's correction): "
+                + "; ".join(f"{_label(c)} {_ci(c['ratio'])}" for c in holds) + ".")
+    per_dir = []
+    for direction in s["settings"]["outside"]:
+        cs = [c for c in outside if c["direction"] == direction]
+        k = sum(c["verdict"] == "holds" for c in cs)
+        ratios = [c["ratio"]["ratio"] for c in cs]
+        if not cs:
+            per_dir.append(f"{direction}: no cell computed")
+            continue
+        per_dir.append(f"{direction}: {k} of {len(cs)} cells, ratios "
+                       f"{min(ratios):.2f}–{max(ratios):.2f}")
+    tail = f" By direction: {'; '.join(per_dir)}."
+    if rev:
+        tail += (f" Reversed (λ = 0 better, interval below 1) in {len(rev)}: "
+                 + "; ".join(_label(c) for c in rev) + ".")
+    return head + tail
+
+
+# ----------------------------------------------------------------------------- figures
+
+def draw(summary: dict, folder: Path) -> None:
+    """The report's figures (``experiments.plots.failure_map_figures``) as PNG files."""
+    from experiments import plots
+
+    for stem, fig in plots.failure_map_figures(summary).items():
+        plots.save(fig, Path(folder) / f"{stem}.png")
