@@ -170,6 +170,10 @@ def _lip_model(path, data: dict):
 
 
 def _cmd_study(args) -> int:
+    from clm_sim.schema import load_yaml
+    if "failure_map" in load_yaml(args.config):  # where lambda = 0 fails: its own study
+        from experiments.failure_map import main
+        return main(args.config, args.out, workers=args.workers, quiet=args.quiet)
     from experiments.study import load_study, run_study
 
     config, study = load_study(args.config)  # checked as clm-sim run checks, before any work
@@ -259,6 +263,8 @@ def parser() -> argparse.ArgumentParser:
     study.add_argument("config", help="study YAML file (an experiment config plus 'study:')")
     study.add_argument("--out", help="output folder (default results/<config name>)")
     study.add_argument("--quiet", action="store_true", help="no progress lines")
+    study.add_argument("--workers", type=_workers, help="parallel cells of a failure_map: study "
+                       "(default: all cores)")
     study.set_defaults(func=_cmd_study)
     return p
 
