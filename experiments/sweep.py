@@ -178,7 +178,7 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
     swept = list(sweep.grid)
     text = json.dumps({"rows": rows, "failures": failures, "swept": swept}, indent=1)
     atomic_write(out / "table.json", text)
-    atomic_write(out / "table.md", _markdown(rows, swept, failures))
+    atomic_write(out / "table.md", markdown(rows, swept, failures))
     atomic_write(out / "table.csv", table.to_csv(rows, swept))
     if rows:
         from experiments import plots
@@ -188,7 +188,7 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
                 plots.save(fig, out / "figures" / f"mae_vs_{_slug(key)}.png")
 
 
-def _markdown(rows: list[dict], swept: list[str], failures: list[dict]) -> str:
+def markdown(rows: list[dict], swept: list[str], failures: list[dict]) -> str:
     """``table.md`` of a sweep: with ``seed`` swept, the mean ± std over the seeds first, then
     the rows of every task (and the failures)."""
     every = table.to_markdown(rows, swept, failures)

@@ -20,9 +20,11 @@ import pytest
 
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write
-from experiments.store import ResultStore, code_version, task_key
+from experiments import table
 from experiments.grid import MAX_TASKS, load_sweep, parse_path, set_path
+from experiments.store import ResultStore, code_version, task_key
 from experiments.sweep import execute, run_sweep
+from experiments.sweep import markdown as sweep_markdown
 from experiments.table import series
 
 BASE = """\
@@ -312,3 +314,40 @@ def test_output_folder_of_something_else_is_refused(tmp_path):
     with pytest.raises(UserError, match="does not hold clm-sim sweep results"):
         run_sweep(sweep, tmp_path, workers=1, quiet=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def _seed_rows():
+    rows = []
+    for lam in (0.0, 0.1):
+        for seed, mae in ((1, 1e-7), (2, 2e-7), (3, 6e-7)):
+            rows.append({"row": 0, "kind": "pgnn", "training": "simultaneous", "lambda": lam,
+                         "hidden": 8, "label": f"PGNN {lam}", "n_seeds": 1,
+                         "mae": {"r1": {"mean": mae + lam * 1e-6, "std": 0.0}},
+                         "theta_phy": {"mass": 18.0 + seed, "viscous": 1.0, "coulomb": 1.0,
+                                       "stiffness": 1.0},
+                         "feedforwards[0].lambda": lam, "seed": seed, "task": f"t{seed}"})
+    return rows
+
+
+def test_rows_over_seeds_are_mean_and_sample_std():
+    swept = ["feedforwards[0].lambda", "seed"]
+    merged = table.over_seeds(_seed_rows(), swept)
+    assert [m["feedforwards[0].lambda"] for m in merged] == [0.0, 0.1]
+    for m, lam in zip(merged, (0.0, 0.1)):
+        assert m["n_seeds"] == 3 and "seed" not in m
+        assert m["mae"]["r1"]["mean"] == pytest.approx(3e-7 + lam * 1e-6, rel=1e-12)
+        assert m["mae"]["r1"]["std"] == pytest.approx(np.std([1e-7, 2e-7, 6e-7], ddof=1),
+                                                      rel=1e-12)
+        assert m["theta_phy"]["mass"] == pytest.approx(20.0)
+
+
+def test_sweep_table_gives_mean_and_std_beside_the_per_seed_rows():
+    swept = ["feedforwards[0].lambda", "seed"]
+    text = sweep_markdown(_seed_rows(), swept, [])
+    summary, every = text.split("## Every task")
+    assert "Mean ± std over the 3 swept seeds" in summary
+    assert "| 0 | PGNN 0.0 | 3 | 0.300 ± 0.265 |" in summary  # std of 0.1, 0.2, 0.6 µm
+    assert "| 0.1 | PGNN 0.1 | 3 | 0.400 ± 0.265 |" in summary
+    assert sum(line.startswith("| 0") for line in every.splitlines()) == 6  # every task's row
+    # Without a swept seed there is nothing to average: only the per-task table.
+    assert "Mean" not in sweep_markdown(_seed_rows()[:1], ["feedforwards[0].lambda"], [])

@@ -1,0 +1,108 @@
+"""The figures: what each panel shows, its units, its colours, and where the legend goes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from clm_sim.record import Run
+from experiments import plots
+
+
+def test_importing_plots_chooses_no_backend():
+    """A notebook's inline backend must survive ``import experiments.plots``."""
+    code = ("import sys, experiments.plots; "
+            "print('matplotlib.pyplot' in sys.modules, 'MPLBACKEND' in __import__('os').environ)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={"PATH": ""}).stdout.split()
+    assert out == ["False", "False"]
+
+
+def _run(e_um: np.ndarray, u_ff: np.ndarray) -> Run:
+    t = np.arange(len(e_um)) * 1e-4
+    r = 0.01 * np.sin(2 * np.pi * t)
+    return Run(t=t, r=r, y=r - e_um * 1e-6, u=u_ff, u_ff=u_ff)
+
+
+@pytest.fixture
+def replays():
+    """Feedback only with ±200 µm spikes, LIP and two PGNNs below 1 µm, on one reference."""
+    n = 2000
+    s = np.sin(np.linspace(0, 6, n))
+    return {"feedback only": {"r1": _run(200 * s, np.zeros(n))},
+            "LIP": {"r1": _run(0.7 * s, 10 * s)},
+            "PGNN a": {"r1": _run(0.2 * s, 10 * s + 0.5)},
+            "PGNN b": {"r1": _run(-0.4 * s, 10 * s - 0.3 * s)}}
+
+
+def _line_colors(fig) -> list:
+    return [ln.get_color() for ax in fig.axes for ln in ax.lines if ax.get_ylabel() != "r [mm]"]
+
+
+def test_tracking_figure_gives_feedback_its_own_panel_and_feedforwards_one_scale(replays):
+    fig = plots.tracking_figure(replays, "r1")
+    ref, fb, *ff = fig.axes
+    assert ref.get_ylabel() == "r [mm]" and fb.get_title(loc="left").startswith("feedback only")
+    assert [ax.get_title(loc="left").split(":")[0] for ax in ff] == ["LIP", "PGNN a", "PGNN b"]
+    limits = {ax.get_ylim() for ax in ff}
+    assert len(limits) == 1  # one scale for every feedforward
+    lo, hi = limits.pop()
+    assert hi < 5 and lo > -5  # set by the feedforwards (< 1 µm), not by the ±200 µm spikes
+    for ax in ff:  # and no curve is clipped
+        y = ax.lines[0].get_ydata()
+        assert lo <= y.min() and y.max() <= hi
+    assert fb.get_ylim()[1] > 150
+    colors = _line_colors(fig)
+    assert len(set(colors)) == len(colors) == 4  # one distinct colour per feedforward
+    assert all("[" in ax.get_ylabel() for ax in fig.axes)
+    assert fig.axes[-1].get_xlabel() == "t [s]"
+
+
+def test_feedforward_figure_shows_differences_from_the_lip(replays):
+    fig = plots.feedforward_figure(replays, "r1")
+    base, *diffs = fig.axes
+    assert base.get_ylabel() == "u_ff [N]" and len(diffs) == 2
+    assert all(ax.get_ylabel() == "Δu_ff [N]" for ax in diffs)
+    lip = replays["LIP"]["r1"].u_ff
+    np.testing.assert_allclose(diffs[0].lines[0].get_ydata(), 0.5, atol=1e-12)
+    np.testing.assert_allclose(diffs[1].lines[0].get_ydata(),
+                               replays["PGNN b"]["r1"].u_ff - lip, atol=1e-12)
+
+
+def _sweep_rows():
+    rows = []
+    for res in (1e-8, 1e-7, 1e-6):
+        for seed, noise in ((1, 0.9), (2, 1.1)):
+            for pos, (kind, label, mae) in enumerate((("lip", "LIP", 4e-7),
+                                                      ("none", "feedback only", 3e-6))):
+                rows.append({"row": pos, "kind": kind, "training": None, "lambda": None,
+                             "hidden": None, "label": label, "n_seeds": 1,
+                             "mae": {"r1": {"mean": mae * noise * res / 1e-7, "std": 0.0},
+                                     "r2": {"mean": mae * noise, "std": 0.0}},
+                             "theta_phy": None, "plant.encoder_resolution": res, "seed": seed})
+    return rows
+
+
+def test_sweep_axes_have_readable_labels_units_and_the_legend_below():
+    key = "plant.encoder_resolution"
+    fig = plots.mae_vs_key_figure(_sweep_rows(), [key, "seed"], key)
+    assert [ax.get_xlabel() for ax in fig.axes] == ["encoder resolution [µm]"] * 2
+    assert [ax.get_ylabel() for ax in fig.axes] == ["MAE on r1 [µm]", "MAE on r2 [µm]"]
+    np.testing.assert_allclose(fig.axes[0].lines[0].get_xdata(), [0.01, 0.1, 1.0])
+    assert all(ax.get_legend() is None for ax in fig.axes) and len(fig.legends) == 1
+    fig.canvas.draw()  # the legend lies below every panel, on none of the data
+    legend = fig.legends[0].get_window_extent()
+    assert all(legend.y1 <= ax.get_window_extent().y0 for ax in fig.axes)
+
+
+@pytest.mark.parametrize("key, label, factor", [
+    ("feedforwards[3].lambda", "regularization weight λ [–]", 1.0),
+    ("controller.crossover_hz", "PID crossover frequency [Hz]", 1.0),
+    ("plant.encoder_resolution", "encoder resolution [µm]", 1e6),
+    ("plant.effects[0].amplitude", "plant.effects[0].amplitude [SI]", 1.0),  # unknown: as is
+])
+def test_key_labels(key, label, factor):
+    assert plots.key_label(key) == (label, factor)
