@@ -13,8 +13,9 @@ import numpy as np
 
 from experiments.diagnosis.model import Controller
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
-from experiments.diagnosis.search import Step, fit_cv
-from clm_sim.effects import Effect
+from experiments.diagnosis.search import (SmoothTerm, Step, coefficient_std, fit_cv,
+                                          reportable)
+from clm_sim.effects import Effect, Presliding
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force
 from clm_sim.loop import simulate
@@ -22,11 +23,11 @@ from clm_sim.plant import THETA_NAMES, Plant
 from clm_sim.record import Run
 from controllers.lip import LIPFeedforward
 
-# A corrected parameter is reported when it is this many standard errors from the model's value
-# and its column explains this fraction of the residual RMS (a practical, not only statistical,
-# difference).
-MISMATCH_T = 5.0
-MISMATCH_RMS_FRACTION = 0.05
+
+def _plain(value):
+    if isinstance(value, (tuple, list)):
+        return [float(v) for v in value]
+    return float(value)
 
 
 def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple[Effect, ...]]:
@@ -47,11 +48,7 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
     cv = [fit_cv(np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps[:j]]),
                  res.z, res.fold, st.folds).cv_mse for j in range(len(steps) + 1)]
     base = cv[0]
-    e = res.z - x @ full.coef
-    sigma2 = float(e @ e) / max(res.n_eff - x.shape[1], 1.0)
-    # Standard errors from the decimated samples, inflated to the effective sample count.
-    cov = np.linalg.pinv(x.T @ x) * sigma2 * len(res.z) / res.n_eff
-    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    std = coefficient_std(res, x, full.coef)
     findings, correction, effects = [], {}, []
     start = 0
     for i, step in enumerate(steps):
@@ -65,14 +62,12 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
         stats = {"explained_fraction": float(explained), "unique_fraction": float(unique),
                  "selection_gain": step.gain,
                  "folds_improved": step.folds_improved, "p_value": step.p_value}
-        if step.term.template is None:
+        if step.term.effect == "parameter_mismatch":
             params = {}
             for j, name in enumerate(THETA_NAMES):
                 delta = float(coef[name])
-                correction[name] = delta
-                contrib = abs(delta) * float(np.sqrt(np.mean(step.cols[:, j] ** 2)))
-                if abs(delta) > MISMATCH_T * sd[name] and \
-                        contrib > MISMATCH_RMS_FRACTION * res.rms():
+                correction[name] = correction.get(name, 0.0) + delta
+                if reportable(res, delta, sd[name], step.cols[:, j]):
                     model = float(getattr(res.plant, name))
                     params[name] = {"model": model, "data": model + delta,
                                     "std": float(sd[name])}
@@ -80,7 +75,17 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
         else:
             effect = step.term.effect_from(coef)
             effects.append((explained, effect))
-            params = {k: float(v) for k, v in effect.parameters().items()}
+            params = {k: _plain(v) for k, v in effect.parameters().items()}
+            if isinstance(effect, Presliding):
+                params["length"] = float(effect.length)
+            if step.term.replaces_coulomb:  # this much of the Coulomb friction is pre-sliding
+                shift = sum(float(v) for v in coef.values())
+                correction["coulomb"] = correction.get("coulomb", 0.0) - shift
+                params["coulomb_in_model"] = float(res.plant.coulomb)
+            if isinstance(step.term, SmoothTerm):
+                params["order"] = step.term.order
+                f = effect.force(res.y[res.idx], 0.0, 0.0)
+                params["force_range"] = [float(np.min(f)), float(np.max(f))]
             findings.append({"effect": step.term.effect, "parameters": params,
                              "std": {k: float(v) for k, v in sd.items()}, **stats})
         start += k

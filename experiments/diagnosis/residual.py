@@ -6,11 +6,17 @@ sign: a positive residual is force the motor supplied that the model did not exp
 Every fit in the diagnosis is a linear least-squares fit of this residual on regressor columns,
 with columns and residual passed through one zero-phase low-pass (the parallel filter of
 :class:`clm_sim.features.FeatureMap`, consistent under encoder quantization), then decimated to
-the filter's bandwidth. Samples near standstill are left out: below about one encoder count per
-sample the differenced velocity, and with it ``sign(v)``, is not known (with dither it flips at
-random) and a stuck stage holds any force inside its breakaway band, which would otherwise be read
-as a low-speed friction effect. The speed floor is set from the encoder step found in the data
-(``|v| >= quantum / ts``: at least two counts over the central difference). Those samples are
+the filter's bandwidth.
+
+Low speed: the model's Coulomb friction acts in the direction of motion *within* the sample
+interval ``[t_k-1, t_k+1]`` that the central differences and ``edge_force`` describe. Near a
+reversal, at standstill and at a few counts per sample the sampled velocity's sign does not tell
+that direction (with dither it flips at random), and a stuck stage holds any force inside its
+breakaway band. A sample is therefore kept only where the measured position path tells the
+direction: monotone over ``y[k-2..k+2]`` (every one of the four steps at least one count
+the same way). This keeps slow monotone motion (down to one count per sample, half the speed the
+diagnosis used to need) and the samples soon after a reversal, where pre-sliding
+friction lives, and drops the turning samples, standstill and dither jitter. Dropped samples are
 zeroed in the residual *and* in every column before the filter, which keeps the parallel-filter
 relation exact (``0 = sum theta_i * 0``); fits then use the samples whose filter window is mostly
 (>= 90 %) made of kept samples.
@@ -64,6 +70,25 @@ def encoder_quantum(y: np.ndarray) -> float:
     return float(np.min(d)) if d.size else 0.0
 
 
+def known_direction(y: np.ndarray, quantum: float) -> np.ndarray:
+    """Samples where the position path tells the direction of motion over ``[t_k-2, t_k+2]``:
+    every one of those four steps moves the same way (at least one count each: a stage that
+    sticks for part of a sample, at a few counts per sample, shows as a zero step)."""
+    y = np.asarray(y, dtype=float)
+    n = len(y)
+    out = np.zeros(n, dtype=bool)
+    if n < 5:
+        return out
+    d = np.diff(y)
+    up = d > 0
+    down = d < 0
+    # Steps k-2..k+1 are d[k-2], d[k-1], d[k], d[k+1]; sample k = 2..n-3.
+    mono_up = up[:-3] & up[1:-2] & up[2:-1] & up[3:]
+    mono_down = down[:-3] & down[1:-2] & down[2:-1] & down[3:]
+    out[2:-2] = mono_up | mono_down
+    return out
+
+
 def source_of(run: Run) -> str:
     return str(run.meta.get("source", "record"))
 
@@ -91,8 +116,8 @@ class Residual:
         self.quantum = encoder_quantum(run.y)
         self.v_filtered = self.features.regression_filter(self.v, ts)
         self.v_peak = float(np.quantile(np.abs(self.v_filtered), 0.99))
-        self.v_floor = max(1.99 * self.quantum / ts, 1e-3 * self.v_peak)
-        keep = np.abs(self.v) >= self.v_floor
+        self.v_floor = max(0.5 * self.quantum / ts, 1e-4 * self.v_peak)
+        keep = known_direction(run.y, self.quantum) & (np.abs(self.v) >= self.v_floor)
         edge = max(int(np.ceil(4.0 / (self.cutoff * ts))), 10)
         keep[:edge] = False
         keep[-edge:] = False

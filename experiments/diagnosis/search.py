@@ -43,9 +43,10 @@ import numpy as np
 import scipy.optimize
 import scipy.stats
 
-from experiments.diagnosis.residual import Residual
-from clm_sim.effects import Cogging, Effect, ForceOffset, ForceRipple, FrictionAsymmetry, Stribeck
+from clm_sim.effects import (CableSlab, Cogging, Effect, ForceOffset, ForceRipple,
+                             FrictionAsymmetry, Presliding, Stribeck)
 from clm_sim.plant import THETA_NAMES
+from experiments.diagnosis.residual import Residual
 
 PERIODIC = ("cogging", "force_ripple")
 
@@ -53,11 +54,16 @@ PERIODIC = ("cogging", "force_ripple")
 @dataclass(frozen=True)
 class Term:
     """One candidate cause: finding name, effect template (None: parameter mismatch), the
-    regressor keys it uses from the template."""
+    regressor keys it uses from the template.
+
+    ``replaces_coulomb``: the columns are the template's minus ``sign(v)``, i.e. the candidate
+    says that this much of the model's Coulomb friction is really the template's effect (the
+    coefficient moves from ``coulomb`` to the effect; pre-sliding friction)."""
 
     effect: str
     template: Effect | None
     keys: tuple[str, ...]
+    replaces_coulomb: bool = False
 
     def regressors(self, y, v, a, u) -> dict[str, np.ndarray]:
         """Full-rate regressor columns (N per unit coefficient)."""
@@ -65,6 +71,8 @@ class Term:
             cols = {"mass": a, "viscous": v, "coulomb": np.sign(v), "stiffness": y}
         else:
             cols = self.template.regressors(y, v, u)
+        if self.replaces_coulomb:
+            cols = {k: c - np.sign(v) for k, c in cols.items()}
         return {k: cols[k] for k in self.keys}
 
     def columns(self, res: Residual) -> np.ndarray:
@@ -79,8 +87,9 @@ FIXED = {
     "force_offset": Term("force_offset", ForceOffset(), ("offset",)),
     "friction_asymmetry": Term("friction_asymmetry", FrictionAsymmetry(), ("asym_viscous",)),
 }
-FAMILIES = ("parameter_mismatch", "cogging", "force_ripple", "stribeck", "friction_asymmetry",
-            "force_offset")
+FAMILIES = ("parameter_mismatch", "presliding", "cable_slab", "cogging", "force_ripple", "stribeck",
+            "friction_asymmetry", "force_offset")
+MAX_SMOOTH_ORDER = 9
 
 
 def periodic_term(kind: str, period: float) -> Term:
@@ -91,6 +100,40 @@ def periodic_term(kind: str, period: float) -> Term:
 
 def stribeck_term(velocity: float) -> Term:
     return Term("stribeck", Stribeck(peak=0.0, velocity=velocity, exponent=2.0), ("stribeck",))
+
+
+def presliding_term(length: float) -> Term:
+    """Dahl friction of pre-sliding length ``length`` (m) in place of Coulomb friction."""
+    return Term("presliding", Presliding.with_length(0.0, length), ("presliding",),
+                replaces_coulomb=True)
+
+
+@dataclass(frozen=True)
+class SmoothTerm(Term):
+    """``cable_slab``: a smooth force in position, Legendre polynomials ``P_1..P_order`` of
+    ``(y - center)/half`` (m); returned as a :class:`CableSlab` power series about ``center``."""
+
+    center: float = 0.0
+    half: float = 1.0
+    order: int = 2
+
+    def regressors(self, y, v, a, u):
+        xi = (np.asarray(y, dtype=float) - self.center) / self.half
+        eye = np.eye(self.order + 1)
+        return {k: np.polynomial.legendre.legval(xi, eye[i + 1]) for i, k in enumerate(self.keys)}
+
+    def effect_from(self, coef):
+        leg = np.concatenate([[0.0], [coef[k] for k in self.keys]])
+        power = np.polynomial.legendre.leg2poly(leg)
+        scaled = [float(c) / self.half**i for i, c in enumerate(power)]
+        return CableSlab(coefficients=tuple(scaled), center=self.center)
+
+
+def smooth_term(res: Residual, order: int) -> SmoothTerm:
+    y = res.y[res.idx]
+    lo, hi = float(np.min(y)), float(np.max(y))
+    return SmoothTerm("cable_slab", None, tuple(f"cable_P{i}" for i in range(1, order + 1)),
+                      center=0.5 * (lo + hi), half=max(0.5 * (hi - lo), 1e-12), order=order)
 
 
 # ---------------------------------------------------------------- least squares and validation
@@ -247,6 +290,41 @@ def search_stribeck(res: Residual, base: np.ndarray, exact: bool) -> float:
     return math.exp(float(r.x))
 
 
+def search_presliding(res: Residual, base: np.ndarray) -> float:
+    """Pre-sliding length (m): log grid from half an encoder count to 1/50 of the stroke (at most
+    2 mm), then bounded least squares on ``log(length)``; exact (filtered) columns."""
+    q = max(res.quantum, 1e-9)
+    span = float(np.ptp(res.y[res.idx]))
+    lo, hi = math.log(0.5 * q), math.log(max(min(span / 50, 2e-3), 4 * q))
+    proj = Projector(base, res.z)
+
+    def cost(loglen):
+        return proj.sse(presliding_term(math.exp(loglen)).columns(res))
+
+    grid = np.linspace(lo, hi, 14)
+    costs = [cost(g) for g in grid]
+    j = int(np.argmin(costs))
+    a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+    r = scipy.optimize.minimize_scalar(cost, bounds=(a, b), method="bounded",
+                                       options={"xatol": 5e-3, "maxiter": 20})
+    return math.exp(float(r.x))
+
+
+def search_smooth(res: Residual, base: np.ndarray, max_order: int = MAX_SMOOTH_ORDER
+                  ) -> tuple[SmoothTerm, np.ndarray, float]:
+    """The ``cable_slab`` polynomial order chosen on held-out data (blocked CV of ``base`` plus
+    ``P_1..P_order``, order 2..``max_order``); returns the term, its columns and its CV MSE."""
+    st = res.settings
+    full = smooth_term(res, max_order)
+    cols = full.columns(res)
+    best = None
+    for order in range(2, max_order + 1):
+        cv = fit_cv(np.column_stack([base, cols[:, :order]]), res.z, res.fold, st.folds).cv_mse
+        if best is None or cv < best[2]:
+            best = (smooth_term(res, order), cols[:, :order], cv)
+    return best
+
+
 # ---------------------------------------------------------------- forward selection
 @dataclass
 class Step:
@@ -305,6 +383,13 @@ def forward_select(res: Residual) -> list[Step]:
                 if period is not None:
                     approx = _approx_periodic(res, name, 2 * math.pi / period)
                     ranked.append((periodic_term(name, period), approx, None))
+            elif name == "cable_slab":
+                term, cols, _ = search_smooth(res, x_s)
+                ranked.append((term, cols, cols))
+            elif name == "presliding":
+                term = presliding_term(search_presliding(res, x_s))
+                cols = term.columns(res)
+                ranked.append((term, cols, cols))
             else:
                 vel = search_stribeck(res, x_s, exact=False)
                 approx = stribeck_term(vel).columns(res)
@@ -322,7 +407,9 @@ def forward_select(res: Residual) -> list[Step]:
                 term = stribeck_term(search_stribeck(res, x_s, exact=True))
             cols = exact if exact is not None else term.columns(res)
             gain, explained, improved, p = _test(res, x_s, fit_s, cols, base)
-            if not _physical(term, np.column_stack([x_s, cols]), res.z):
+            if not _physical(res, term, x_s, cols):
+                continue
+            if term.effect in PERIODIC and not _beats_smooth(res, steps, x_s, cols):
                 continue
             if gain >= st.min_gain and explained >= st.min_explained and \
                     improved >= st.min_folds and p < st.p_value:
@@ -334,12 +421,56 @@ def forward_select(res: Residual) -> list[Step]:
     return prune(res, steps)
 
 
-def _physical(term: Term, x: np.ndarray, z: np.ndarray) -> bool:
-    """A Stribeck term must be a friction *peak* (peak > 0) to carry that name."""
-    if term.effect != "stribeck":
+def _beats_smooth(res: Residual, steps: list[Step], x_s: np.ndarray, cols: np.ndarray) -> bool:
+    """A periodic term is named only if it lowers the held-out MSE more than a smooth position
+    force does in its place: the accepted terms with any ``cable_slab`` among them replaced by
+    the polynomial of the best held-out order (up to two orders above the accepted one)."""
+    st = res.settings
+    periodic = fit_cv(np.column_stack([x_s, cols]), res.z, res.fold, st.folds).cv_mse
+    rest = [s.cols for s in steps if s.term.effect != "cable_slab"]
+    x_rest = np.column_stack([np.zeros((len(res.z), 0))] + rest)
+    have = max([s.term.order for s in steps if s.term.effect == "cable_slab"], default=0)
+    _, _, smooth = search_smooth(res, x_rest, max(MAX_SMOOTH_ORDER, have + 2))
+    return periodic < smooth
+
+
+def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray) -> bool:
+    """A Stribeck term must be a friction *peak* (peak > 0) and pre-sliding friction a positive
+    force to carry their names; a parameter mismatch must correct at least one parameter by
+    the rule of :func:`reportable` (a joint fit whose every part is within its uncertainty
+    names nothing)."""
+    if term.effect not in ("stribeck", "presliding", "parameter_mismatch"):
         return True
-    coef = _solve(x.T @ x, x.T @ z)
-    return bool(coef[-1] > 0)
+    x = np.column_stack([x_s, cols])
+    coef = _solve(x.T @ x, x.T @ res.z)
+    if term.effect != "parameter_mismatch":
+        return bool(coef[-1] > 0)
+    std = coefficient_std(res, x, coef)
+    k = cols.shape[1]
+    return any(reportable(res, coef[x_s.shape[1] + j], std[x_s.shape[1] + j], cols[:, j])
+               for j in range(k))
+
+
+# A corrected parameter is reported when it is this many standard errors from the model's value
+# and its column explains this fraction of the residual RMS (a practical, not only statistical,
+# difference).
+MISMATCH_T = 5.0
+MISMATCH_RMS_FRACTION = 0.05
+
+
+def coefficient_std(res: Residual, x: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """Standard errors of least-squares coefficients from the decimated samples, inflated to the
+    effective sample count."""
+    e = res.z - x @ coef
+    sigma2 = float(e @ e) / max(res.n_eff - x.shape[1], 1.0)
+    cov = np.linalg.pinv(x.T @ x) * sigma2 * len(res.z) / res.n_eff
+    return np.sqrt(np.clip(np.diag(cov), 0, None))
+
+
+def reportable(res: Residual, delta: float, std: float, col: np.ndarray) -> bool:
+    """Whether a parameter correction ``delta`` is both significant and practically relevant."""
+    contrib = abs(delta) * float(np.sqrt(np.mean(col**2)))
+    return abs(delta) > MISMATCH_T * std and contrib > MISMATCH_RMS_FRACTION * res.rms()
 
 
 def prune(res: Residual, steps: list[Step]) -> list[Step]:

@@ -1,0 +1,226 @@
+"""An independent closed-loop simulator, written differently from clm-sim's, for foreign records.
+
+Nothing here imports ``clm_sim``'s kernel, plant, controllers or references: the diagnosis must
+hold on records that clm-sim's own integrator did not make.
+
+* Plant: ``m*dv/dt = u - fv*v - F_c - F_lugre - F_pos(x)``, integrated per sample by
+  ``scipy.integrate.solve_ivp`` (RK45, tight tolerances) with the input held. Coulomb friction
+  is handled *event-driven*: a sliding phase runs with a fixed direction until the velocity
+  crosses zero (a terminal event); there the stage sticks for the rest of the sample if the net
+  force is inside the breakaway band (``coulomb``), else slides on in the force's direction.
+* LuGre friction (Canudas de Wit et al. 1995) without a Stribeck peak:
+  ``dz/dt = v - sigma0*|v|*z/level``, ``F = sigma0*z + sigma1*dz/dt`` (bristle state ``z`` in m).
+* Position forces: a saturating cable-carrier force ``cable*tanh((x - cable_center)/cable_width)``,
+  cogging ``amplitude*sin(2 pi x/period + phase)``, a constant ``offset`` (N).
+* Encoders that *truncate* (``res*floor(x/res)``), not round.
+* Controllers: a PID by pole placement (all three closed-loop poles at ``-omega``) with a
+  backward-Euler integrator and filtered derivative, and a P-P cascade without integrator like
+  EMPS's (``u = kv*(kp*(r - y) - (y[k] - y[k-2])/(2 ts))``); both expose the equivalent linear law
+  ``b, a, reference_b`` for the diagnosis's re-simulation.
+* Reference: trapezoidal-velocity moves at several speeds with a dwell between them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.integrate
+
+
+@dataclass(frozen=True)
+class Stage:
+    """The foreign stage (SI units: kg, N*s/m, N, N/m, m)."""
+
+    mass: float = 18.8
+    viscous: float = 172.0
+    coulomb: float = 7.21
+    lugre_level: float = 0.0      # N, LuGre sliding friction (0: none)
+    lugre_sigma0: float = 2.0e6   # N/m, bristle stiffness
+    lugre_sigma1: float = 0.0     # N*s/m, bristle damping
+    cable: float = 0.0            # N, saturation level of the cable-carrier force
+    cable_width: float = 0.05     # m
+    cable_center: float = 0.0     # m
+    cogging: float = 0.0          # N
+    cogging_period: float = 0.016  # m
+    cogging_phase: float = 0.0    # rad
+    offset: float = 0.0           # N
+
+    def position_force(self, x: float) -> float:
+        f = self.offset
+        if self.cable:
+            f += self.cable * math.tanh((x - self.cable_center) / self.cable_width)
+        if self.cogging:
+            f += self.cogging * math.sin(2 * math.pi * x / self.cogging_period + self.cogging_phase)
+        return f
+
+
+class PlantState:
+    """Continuous state ``x, v, z`` (m, m/s, m) and the Coulomb direction while sliding."""
+
+    def __init__(self, x0: float):
+        self.x, self.v, self.z = x0, 0.0, 0.0
+
+
+def _lugre(stage: Stage, v: float, z: float) -> tuple[float, float]:
+    """(friction force N, dz/dt m/s) of the LuGre bristles."""
+    if not stage.lugre_level:
+        return 0.0, 0.0
+    dz = v - stage.lugre_sigma0 * abs(v) * z / stage.lugre_level
+    return stage.lugre_sigma0 * z + stage.lugre_sigma1 * dz, dz
+
+
+def advance(stage: Stage, st: PlantState, u: float, ts: float) -> None:
+    """Advance ``st`` over one sample with the input ``u`` (N) held."""
+    t = 0.0
+    guard = 0
+    while t < ts and guard < 50:
+        guard += 1
+        if st.v == 0.0 and stage.coulomb > 0:
+            f_lugre = stage.lugre_sigma0 * st.z if stage.lugre_level else 0.0
+            net = u - stage.position_force(st.x) - f_lugre
+            if abs(net) <= stage.coulomb:
+                return  # sticks: nothing moves until the input changes
+            s = math.copysign(1.0, net)
+        else:
+            s = math.copysign(1.0, st.v) if st.v != 0.0 else 0.0
+
+        def rhs(_, y, s=s):
+            x, v, z = y
+            f, dz = _lugre(stage, v, z)
+            fc = stage.coulomb * s
+            return [v, (u - stage.viscous * v - fc - f - stage.position_force(x)) / stage.mass,
+                    dz]
+
+        def crossing(_, y, s=s):
+            return y[1] * s + 1e-300 if s else 1.0  # >0 while moving in direction s
+        crossing.terminal = True
+        crossing.direction = -1
+        events = crossing if stage.coulomb > 0 and s != 0.0 else None
+        sol = scipy.integrate.solve_ivp(rhs, (t, ts), [st.x, st.v, st.z], method="RK45",
+                                        rtol=1e-9, atol=1e-13, events=events)
+        st.x, st.v, st.z = (float(q) for q in sol.y[:, -1])
+        if sol.status == 1:  # stopped at the velocity zero crossing
+            t = float(sol.t_events[0][0])
+            st.v = 0.0
+        else:
+            t = ts
+
+
+@dataclass(frozen=True)
+class PID:
+    """PID with all closed-loop poles of ``m s^3 + (fv + kd) s^2 + kp s + ki`` at ``-omega``
+    (rad/s), derivative filtered with time constant ``1/(10 omega)``, backward Euler."""
+
+    mass: float
+    viscous: float
+    omega: float
+    ts: float
+
+    @property
+    def gains(self):
+        w = self.omega
+        return 3 * self.mass * w * w, self.mass * w**3, max(3 * self.mass * w - self.viscous, 0.0)
+
+    def law(self):
+        """``(b, a, reference_b)``: the same controller as a transfer function on ``e``."""
+        kp, ki, kd = self.gains
+        tau, ts = 1.0 / (10 * self.omega), self.ts
+        den_d = np.array([tau + ts, -tau])
+        a = np.convolve([1.0, -1.0], den_d)
+        b = kp * a + ki * ts * np.concatenate([den_d, [0.0]]) + kd * np.array([1.0, -2.0, 1.0])
+        return b / a[0], a / a[0], np.zeros(0)
+
+    def run(self):
+        kp, ki, kd = self.gains
+        tau, ts = 1.0 / (10 * self.omega), self.ts
+        integ = deriv = 0.0
+        e_prev = None
+        while True:
+            r, y = yield
+            e = r - y
+            integ += ts * e
+            deriv = (tau * deriv + (e - (e if e_prev is None else e_prev))) / (tau + ts)
+            if e_prev is None:
+                deriv = 0.0
+            e_prev = e
+            yield kp * e + ki * integ + kd * deriv
+
+
+@dataclass(frozen=True)
+class Cascade:
+    """P position loop cascaded with a P velocity loop (no integrator): ``kp`` 1/s, ``kv``
+    N*s/m; velocity from the two-sample central difference of the measured position."""
+
+    kp: float
+    kv: float
+    ts: float
+
+    def law(self):
+        k, h = self.kv, 0.5 / self.ts
+        return (np.array([k * (self.kp + h), 0.0, -k * h]), np.array([1.0]),
+                np.array([-k * h, 0.0, k * h]))
+
+    def run(self):
+        hist = []
+        while True:
+            r, y = yield
+            hist.append(y)
+            y2 = hist[-3] if len(hist) >= 3 else hist[0]
+            if len(hist) > 3:
+                hist.pop(0)
+            yield self.kv * (self.kp * (r - y) - (y - y2) / (2 * self.ts))
+
+
+def trapezoid_reference(ts: float, *, moves, accel: float = 1.0, dwell: float = 0.2,
+                        start: float = 0.0) -> np.ndarray:
+    """Positions (m) of trapezoidal-velocity moves ``[(target m, speed m/s), ...]`` with ``accel``
+    (m/s^2) and ``dwell`` (s) at rest before each move and at the end."""
+    pieces = []
+    x = start
+    for target, speed in moves:
+        pieces.append(np.full(int(round(dwell / ts)), x))
+        d = target - x
+        dist = abs(d)
+        vpk = min(speed, math.sqrt(dist * accel))
+        ta = vpk / accel
+        tc = dist / vpk - ta
+        total = 2 * ta + tc
+        t = np.arange(1, int(math.ceil(total / ts)) + 1) * ts
+        t = np.minimum(t, total)
+        s = np.where(t < ta, 0.5 * accel * t**2,
+                     np.where(t < ta + tc, 0.5 * accel * ta**2 + vpk * (t - ta),
+                              dist - 0.5 * accel * (total - t) ** 2))
+        pieces.append(x + math.copysign(1.0, d) * s)
+        x = target
+    pieces.append(np.full(int(round(dwell / ts)), x))
+    return np.concatenate(pieces)
+
+
+@dataclass(frozen=True)
+class Record:
+    t: np.ndarray
+    r: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    x: np.ndarray
+
+
+def run_loop(stage: Stage, controller, r: np.ndarray, ts: float, *, resolution: float,
+             dither_std: float = 0.0, seed: int = 0) -> Record:
+    """Closed loop over ``r`` (m): encoder (truncating, ``resolution`` m), controller, held
+    input plus white Gaussian dither (``dither_std`` N), plant advanced by :func:`advance`."""
+    rng = np.random.default_rng(seed)
+    dither = rng.normal(0.0, dither_std, len(r)) if dither_std else np.zeros(len(r))
+    st = PlantState(float(r[0]))
+    ctrl = controller.run()
+    n = len(r)
+    y, u, x = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        yk = resolution * math.floor(st.x / resolution) if resolution else st.x
+        next(ctrl)
+        uk = ctrl.send((float(r[k]), yk)) + dither[k]
+        y[k], u[k], x[k] = yk, uk, st.x
+        advance(stage, st, uk, ts)
+    return Record(np.arange(n) * ts, np.asarray(r, float), y, u, x)
