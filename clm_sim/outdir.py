@@ -21,13 +21,15 @@ def atomic_write(path, data: bytes | str | Callable[[Path], object]) -> Path:
     """Write ``data`` to ``path`` so that no reader ever sees a partial file.
 
     ``data`` is the content (bytes, or text written as UTF-8) or a function that writes the
-    file it is given (``lambda tmp: fig.savefig(tmp)``; the temporary name keeps the target's
-    suffix). The temporary file ``.<name>.tmp<pid><suffix>`` is flushed to disk, renamed over
-    ``path`` and the rename made durable; on any error it is removed. Returns ``path``.
+    file it is given (``lambda tmp: np.savetxt(tmp, ...)``; its name does not end in the
+    target's suffix, so a writer that infers the format must be told it). The temporary file
+    ``.<name>.tmp<pid>`` (never matched by ``*.json``-style globs of results) is flushed to disk,
+    renamed over ``path`` and the rename made durable; on any error it is removed. Returns
+    ``path``.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{path.suffix}")
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     try:
         if callable(data):
             data(tmp)

@@ -1,7 +1,9 @@
-"""The ``clm-sim`` command: ``run`` an experiment config, ``identify`` a LIP from a record.
+"""The ``clm-sim`` command: ``run`` an experiment config, ``study`` or ``sweep`` one, ``identify``
+a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run.
 
 User mistakes (``UserError``) print one line on stderr and exit with code 2, never a traceback.
 ``sweep`` exits with 1 when some tasks failed (the table is still written and lists them).
+Ctrl-C (exit 130) and SIGTERM (exit 143) stop a command the same way: nothing half-written stays.
 """
 
 from __future__ import annotations
@@ -35,8 +37,9 @@ def _cmd_run(args) -> int:
     return 0
 
 
-def _record_options(p: argparse.ArgumentParser) -> None:
-    """``--columns`` and ``--scale``: how a measured file's columns map onto a record."""
+def _record_arguments(p: argparse.ArgumentParser) -> None:
+    """The record ``data`` and how its columns map onto a record (``--columns``, ``--scale``)."""
+    p.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
     p.add_argument("--columns", help="signal=column names in the files, e.g. y=qm,r=qg,u=vir")
     p.add_argument("--scale", help="signal=factor or signal=scalar-variable of the file, "
                    "e.g. u=gtau or y=0.001")
@@ -216,18 +219,22 @@ def _workers(text: str) -> int:
     return value
 
 
+def _config_arguments(p: argparse.ArgumentParser, config: str, out: str = "") -> None:
+    """The config file, ``--out`` (default ``results/<config name>``) and ``--quiet``."""
+    p.add_argument("config", help=config)
+    p.add_argument("--out", help=f"output folder (default results/<config name>){out}")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="clm-sim", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run an experiment config and write table and figures")
-    run.add_argument("config", help="experiment YAML file")
-    run.add_argument("--out", help="output folder (default results/<config name>)")
-    run.add_argument("--quiet", action="store_true", help="no progress lines")
+    _config_arguments(run, "experiment YAML file")
     run.set_defaults(func=_cmd_run)
     ident = sub.add_parser("identify", help="identify the LIP feedforward from a record")
-    ident.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
+    _record_arguments(ident)
     ident.add_argument("--out", help="folder for lip.json (default results/identify/<data name>)")
-    _record_options(ident)
     ident.add_argument("--lowpass-hz", type=float, default=250.0,
                        help="zero-phase parallel filter of the regression, Hz (0 = none)")
     ident.set_defaults(func=_cmd_identify)
@@ -238,31 +245,26 @@ def parser() -> argparse.ArgumentParser:
     export.set_defaults(func=_cmd_export)
     sweep = sub.add_parser("sweep", help="run a grid of experiments (a config with a 'sweep:' "
                            "section) in parallel, resumably")
-    sweep.add_argument("config", help="experiment YAML file with a sweep: grid")
-    sweep.add_argument("--out", help="output folder (default results/<config name>); "
-                       "re-running into it resumes")
+    _config_arguments(sweep, "experiment YAML file with a sweep: grid",
+                      "; re-running into it resumes")
     sweep.add_argument("--workers", type=_workers, help="parallel tasks (default: all cores)")
     sweep.add_argument("--backend", choices=("local", "dask"), default="local",
                        help="local processes, or Dask (pip install 'clm-sim[cluster]')")
     sweep.add_argument("--scheduler", help="Dask scheduler address (default: a LocalCluster)")
     sweep.add_argument("--retry-failed", action="store_true",
                        help="recompute tasks stored as failed")
-    sweep.add_argument("--quiet", action="store_true", help="no progress lines")
     sweep.set_defaults(func=_cmd_sweep)
     diag = sub.add_parser("diagnose", help="show what the simulation gets wrong on a measured "
                           "record, name the cause, extend the model, measure the gain")
-    diag.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
+    _record_arguments(diag)
     diag.add_argument("--model", help="model YAML (plant:, optional controller:), a lip.json "
                       "from identify or run, or an experiment config (default: the default CLM)")
     diag.add_argument("--validate", help="validation record (default: the final 25 %% of DATA)")
     diag.add_argument("--out", help="output folder (default results/diagnosis_<data name>)")
-    _record_options(diag)
     diag.set_defaults(func=_cmd_diagnose)
     study = sub.add_parser("study", help="the PGNN extrapolation study: lambda sweep, report.md "
                            "with figures")
-    study.add_argument("config", help="study YAML file (an experiment config plus 'study:')")
-    study.add_argument("--out", help="output folder (default results/<config name>)")
-    study.add_argument("--quiet", action="store_true", help="no progress lines")
+    _config_arguments(study, "study YAML file (an experiment config plus 'study:')")
     study.add_argument("--workers", type=_workers, help="parallel cells of a failure_map: study "
                        "(default: all cores)")
     study.set_defaults(func=_cmd_study)

@@ -139,6 +139,13 @@ class ExperimentConfig:
             raise UserError("feedforwards: expected at least one entry")
 
 
+def in_file(path, exc: Exception, where: str = "") -> UserError:
+    """The error ``exc`` raised while checking the config read from ``path``, as one line that
+    names the file (and ``where`` in it) once and the key path without its ``config`` root."""
+    message = str(exc).removeprefix("config.").removeprefix("config: ")
+    return UserError(f"{path}: {where + ': ' if where else ''}{message}")
+
+
 def load_config(path) -> ExperimentConfig:
     """Read and check an experiment config; errors name the file and the key."""
     path = Path(path)
@@ -146,8 +153,7 @@ def load_config(path) -> ExperimentConfig:
     try:
         return build(ExperimentConfig, data, "config")
     except UserError as exc:
-        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
-            from None
+        raise in_file(path, exc) from None
 
 
 def resolved(config: ExperimentConfig) -> dict:

@@ -27,7 +27,7 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.schema import build, load_yaml
-from experiments.config import ExperimentConfig, resolved
+from experiments.config import ExperimentConfig, in_file, resolved
 from experiments.runner import preflight
 from experiments.store import code_version, task_key
 
@@ -150,8 +150,7 @@ def _axis_size(values) -> int:
 
 def _point_error(path: Path, overrides: dict, exc: Exception) -> UserError:
     point = ", ".join(f"{k}={v!r}" for k, v in overrides.items())
-    msg = str(exc).removeprefix("config.").removeprefix("config: ")
-    return UserError(f"{path}: sweep point {point}: {msg}")
+    return in_file(path, exc, f"sweep point {point}")
 
 
 def _check(base: dict, overrides: dict, parts: dict) -> dict:
@@ -204,8 +203,7 @@ def load_sweep(path, *, max_tasks: int | None = None) -> Sweep:
         base_config = build(ExperimentConfig, data, "config")
         preflight(base_config)
     except UserError as exc:
-        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
-            from None
+        raise in_file(path, exc) from None
     base = resolved(base_config)
     # Each axis alone first, so that a bad key or value is named without the rest of the point.
     for key, values in grid.items():

@@ -84,7 +84,8 @@ def _legend_right(ax, **kwargs) -> None:
 
 def save(fig: Figure, path, dpi: int = 110) -> Path:
     """Write ``fig`` to ``path`` (format from the suffix) atomically."""
-    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi))
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi,
+                                                      format=Path(path).suffix.lstrip(".")))
 
 
 # ----------------------------------------------------------------------------- runs

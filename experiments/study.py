@@ -24,7 +24,7 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments import plots
-from experiments.config import ExperimentConfig, FeedforwardSpec, resolved
+from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.runner import preflight
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
@@ -72,8 +72,7 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
                             "runs with 'clm-sim run'")
         study = build(StudySettings, settings, "study")
     except UserError as exc:
-        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
-            from None
+        raise in_file(path, exc) from None
     for key in (study.inside, *study.outside):
         if key not in config.references:
             raise UserError(f"{path}: study: reference {key!r} is not defined under 'references'")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from small_config import SMALL_CONFIG
 
 from clm_sim.record import load_record, save_npz
 from experiments.cli import main
@@ -301,17 +302,7 @@ def test_a_lip_file_without_parameters_is_refused_as_model(tmp_path, capsys):
 # run and study on each other's configs; SIGTERM
 # --------------------------------------------------------------------------------------------
 
-SMALL = """\
-name: small
-seed: 1
-references:
-  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}
-  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}
-training: {repeats: 1}
-feedforwards:
-  - kind: none
-  - kind: lip
-"""
+SMALL = SMALL_CONFIG
 
 
 def test_study_refuses_a_config_without_study_section(tmp_path, capsys):

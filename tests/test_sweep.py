@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from small_config import SMALL_CONFIG
 
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write
@@ -27,17 +28,7 @@ from experiments.sweep import execute, run_sweep
 from experiments.sweep import markdown as sweep_markdown
 from experiments.table import series
 
-BASE = """\
-name: small
-seed: 1
-references:
-  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}
-  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}
-training: {repeats: 1}
-feedforwards:
-  - kind: none
-  - kind: lip
-"""
+BASE = SMALL_CONFIG
 
 # Four tasks: the 3 kHz crossover design is unstable (a task failure, recorded), 30 Hz is fine.
 FAILING_GRID = BASE + """\
