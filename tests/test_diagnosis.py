@@ -133,7 +133,11 @@ def test_extension_gains_out_of_sample(diagnosed, kind):
     assert g["residual_rms_after"] < 0.5 * g["residual_rms_before"]
     if d.effects:  # a LIP re-identifies parameters itself; it gains from effects only
         assert g["lip_residual_rms_after"] < g["lip_residual_rms_before"]
-    assert g["resim_mismatch_rms_after"] <= g["resim_mismatch_rms_before"]
+    # The re-simulated loop must not drift further from the measured one. Where the PID's
+    # integrator already rejects the hidden effect (a constant force), both mismatches sit at
+    # a tenth of an encoder count (~1e-8 m), where quantization decides their order: allow
+    # 5 % of a count (5e-9 m) on top.
+    assert g["resim_mismatch_rms_after"] <= g["resim_mismatch_rms_before"] + 0.05 * 1e-7
 
 
 def test_no_hidden_effect_no_finding(diagnosed):

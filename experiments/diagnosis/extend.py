@@ -24,12 +24,6 @@ from clm_sim.record import Run
 from controllers.lip import LIPFeedforward
 
 
-def _plain(value):
-    if isinstance(value, (tuple, list)):
-        return [float(v) for v in value]
-    return float(value)
-
-
 def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple[Effect, ...]]:
     """Fit all accepted terms together; returns ``(findings, theta_correction, effects)``, the
     effects ranked like the findings.
@@ -62,7 +56,14 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
         stats = {"explained_fraction": float(explained), "unique_fraction": float(unique),
                  "selection_gain": step.gain,
                  "folds_improved": step.folds_improved, "p_value": step.p_value}
-        if step.term.effect == "parameter_mismatch":
+        if step.term.effect == "not_supported":
+            support = 1.0 + float(coef["support"])
+            findings.append({"effect": "not_supported",
+                             "model_effect": step.term.template.as_config(),
+                             "parameters": {"support": support},
+                             "std": {"support": float(sd["support"])}, **stats})
+            correction.setdefault("drop", []).append(step.term.template)
+        elif step.term.effect == "parameter_mismatch":
             params = {}
             for j, name in enumerate(THETA_NAMES):
                 delta = float(coef[name])
@@ -75,7 +76,8 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
         else:
             effect = step.term.effect_from(coef)
             effects.append((explained, effect))
-            params = {k: _plain(v) for k, v in effect.parameters().items()}
+            params = {k: float(v) for k, v in effect.parameters().items()
+                      if isinstance(v, (int, float))}
             if isinstance(effect, Presliding):
                 params["length"] = float(effect.length)
             if step.term.replaces_coulomb:  # this much of the Coulomb friction is pre-sliding
@@ -83,10 +85,11 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
                 correction["coulomb"] = correction.get("coulomb", 0.0) - shift
                 params["coulomb_in_model"] = float(res.plant.coulomb)
             if isinstance(step.term, SmoothTerm):
-                params["order"] = step.term.order
+                params["order"] = float(step.term.order)
                 f = effect.force(res.y[res.idx], 0.0, 0.0)
-                params["force_range"] = [float(np.min(f)), float(np.max(f))]
+                params["force_min"], params["force_max"] = float(np.min(f)), float(np.max(f))
             findings.append({"effect": step.term.effect, "parameters": params,
+                             "effect_config": effect.as_config(),
                              "std": {k: float(v) for k, v in sd.items()}, **stats})
         start += k
     order = np.argsort([-f["explained_fraction"] for f in findings], kind="stable")
@@ -95,12 +98,15 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
 
 
 def extended_plant(plant: Plant, correction: dict, effects: tuple[Effect, ...]) -> Plant:
-    """The model with the corrections and the found effects (physical bounds kept)."""
+    """The model with the corrections and the found effects (physical bounds kept); model
+    effects the data does not support (``correction["drop"]``) are left out."""
     theta = {k: float(getattr(plant, k)) + correction.get(k, 0.0) for k in THETA_NAMES}
+    drop = correction.get("drop", [])
+    kept = tuple(e for e in plant.effects if not any(e is d for d in drop))
     theta["mass"] = max(theta["mass"], 1e-3 * plant.mass)
     theta["viscous"] = max(theta["viscous"], 0.0)
     theta["coulomb"] = max(theta["coulomb"], 0.0)
-    return dataclasses.replace(plant, **theta, effects=tuple(plant.effects) + tuple(effects))
+    return dataclasses.replace(plant, **theta, effects=kept + tuple(effects))
 
 
 def lip_effects(effects) -> tuple[Effect, ...]:

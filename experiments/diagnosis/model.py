@@ -1,11 +1,15 @@
 """The simulation's model of a machine: a plant and, where known, its feedback controller.
 
 A model file is YAML with a ``plant:`` mapping (``mass`` kg, ``viscous`` N*s/m, ``coulomb`` N,
-``stiffness`` N/m, optional ``effects`` in the simulator's vocabulary, ``encoder_resolution`` m) and
+``stiffness`` N/m, ``effects`` in the simulator's vocabulary, ``encoder_resolution`` m) and
 optionally a ``controller:``, either a PID design (the keys of ``controllers.pid.PIDDesign``,
 designed on the plant at the record's sample time) or a linear discrete law
 ``u = C(z) e + R(z) r`` given by ``b``, ``a`` (C on ``e = r - y``, N/m) and ``reference_b``
 (FIR R on ``r``, N/m) at sample time ``ts`` (s). An experiment config is read by the CLI, not here.
+
+A model has exactly the effects its file lists: no ``effects`` key means none (a model file that
+gives ``mass, viscous, coulomb, stiffness`` describes that rigid body, not the default CLM's
+parasitics). ``effects: default_clm`` asks for the default CLM's effects by name.
 """
 
 from __future__ import annotations
@@ -18,11 +22,12 @@ import numpy as np
 import scipy.signal
 
 from clm_sim.errors import UserError
-from clm_sim.plant import Plant
+from clm_sim.plant import Plant, default_effects
 from clm_sim.schema import build, load_yaml
 from controllers.pid import PIDDesign, design_pid
 
 MODEL_KEYS = {"name", "description", "plant", "controller"}
+DEFAULT_EFFECTS_NAME = "default_clm"
 
 
 @dataclass(frozen=True)
@@ -105,6 +110,15 @@ def load_model(path, ts: float) -> SimulationModel:
     """Read a model file; the controller (if any) is prepared for sample time ``ts``."""
     path = Path(path)
     data = load_yaml(path)
+    plant = data.get("plant") if isinstance(data, dict) else None
+    if isinstance(plant, dict):
+        effects = plant.get("effects", [])
+        if effects == DEFAULT_EFFECTS_NAME:
+            effects = [e.as_config() for e in default_effects()]
+        elif isinstance(effects, str):
+            raise UserError(f"{path}: plant.effects must be a list of effects or "
+                            f"{DEFAULT_EFFECTS_NAME!r}, got {effects!r}")
+        data = {**data, "plant": {**plant, "effects": effects}}
     try:
         spec = build(ModelFile, data, "model")
     except UserError as exc:

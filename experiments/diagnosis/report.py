@@ -75,16 +75,26 @@ def _fmt(value) -> str:
         return ", ".join(f"{k} {_fmt(v)}" for k, v in value.items())
     if isinstance(value, float):
         return f"{value:.4g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
     return str(value)
 
 
 def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
     g, rec = d.gain, d.info["record"]
+    p = d.model.plant
+    effects = "; ".join(f"{e.type} ({_fmt(e.parameters())})" for e in p.effects) or "none"
+    ctrl = "given (the loop is re-simulated)" if d.model.controller is not None else "not given"
     lines = [f"# Diagnosis of model '{d.model.name}' against {rec['source']}", "",
+             f"**Model used:** '{d.model.name}': mass {p.mass:.4g} kg, viscous {p.viscous:.4g} "
+             f"N·s/m, coulomb {p.coulomb:.4g} N, stiffness {p.stiffness:.4g} N/m; effects: "
+             f"{effects}; controller {ctrl}.",
+             "",
              f"{rec['samples']} samples at {1 / rec['sample_time_s']:g} Hz; encoder step "
-             f"{rec['encoder_quantum_m']:.3g} m; samples slower than {rec['speed_floor_m_s']:.3g} "
-             f"m/s left out; parallel low-pass {rec['lowpass_hz']:g} Hz. Residual RMS "
-             f"{rec['residual_rms_n']:.4g} N.", "", "## Findings", ""]
+             f"{rec['encoder_quantum_m']:.3g} m; fitted where the position path tells the "
+             f"direction of motion (four same-way steps around the sample, at least "
+             f"{rec['speed_floor_m_s']:.3g} m/s); parallel low-pass {rec['lowpass_hz']:g} Hz. "
+             f"Residual RMS {rec['residual_rms_n']:.4g} N.", "", "## Findings", ""]
     if not d.findings:
         lines.append("Nothing is wrong: no candidate effect passes the significance rule; the "
                      "model explains the record to within its noise.")

@@ -102,6 +102,19 @@ def stribeck_term(velocity: float) -> Term:
     return Term("stribeck", Stribeck(peak=0.0, velocity=velocity, exponent=2.0), ("stribeck",))
 
 
+@dataclass(frozen=True)
+class SupportTerm(Term):
+    """``not_supported``: a free scale ``c`` on the force of an effect the *model* holds. The
+    data supports ``1 + c`` of it; the finding is named when ``1 + c < 0.5`` (the model's effect
+    is mostly not there)."""
+
+    def regressors(self, y, v, a, u):
+        return {"support": self.template.force(y, v, u)}
+
+    def effect_from(self, coef):
+        return None
+
+
 def presliding_term(length: float) -> Term:
     """Dahl friction of pre-sliding length ``length`` (m) in place of Coulomb friction."""
     return Term("presliding", Presliding.with_length(0.0, length), ("presliding",),
@@ -110,8 +123,10 @@ def presliding_term(length: float) -> Term:
 
 @dataclass(frozen=True)
 class SmoothTerm(Term):
-    """``cable_slab``: a smooth force in position, Legendre polynomials ``P_1..P_order`` of
-    ``(y - center)/half`` (m); returned as a :class:`CableSlab` power series about ``center``."""
+    """``cable_slab``: a smooth force in position, Legendre polynomials ``P_0..P_order`` of
+    ``(y - center)/half`` (m); returned as a :class:`CableSlab` power series about ``center``.
+    To carry the name it must explain more than its constant and linear part (an offset and a
+    stiffness), by the significance rule (:func:`forward_select`)."""
 
     center: float = 0.0
     half: float = 1.0
@@ -120,10 +135,10 @@ class SmoothTerm(Term):
     def regressors(self, y, v, a, u):
         xi = (np.asarray(y, dtype=float) - self.center) / self.half
         eye = np.eye(self.order + 1)
-        return {k: np.polynomial.legendre.legval(xi, eye[i + 1]) for i, k in enumerate(self.keys)}
+        return {k: np.polynomial.legendre.legval(xi, eye[i]) for i, k in enumerate(self.keys)}
 
     def effect_from(self, coef):
-        leg = np.concatenate([[0.0], [coef[k] for k in self.keys]])
+        leg = np.array([coef[k] for k in self.keys])
         power = np.polynomial.legendre.leg2poly(leg)
         scaled = [float(c) / self.half**i for i, c in enumerate(power)]
         return CableSlab(coefficients=tuple(scaled), center=self.center)
@@ -132,7 +147,7 @@ class SmoothTerm(Term):
 def smooth_term(res: Residual, order: int) -> SmoothTerm:
     y = res.y[res.idx]
     lo, hi = float(np.min(y)), float(np.max(y))
-    return SmoothTerm("cable_slab", None, tuple(f"cable_P{i}" for i in range(1, order + 1)),
+    return SmoothTerm("cable_slab", None, tuple(f"cable_P{i}" for i in range(order + 1)),
                       center=0.5 * (lo + hi), half=max(0.5 * (hi - lo), 1e-12), order=order)
 
 
@@ -313,15 +328,16 @@ def search_presliding(res: Residual, base: np.ndarray) -> float:
 def search_smooth(res: Residual, base: np.ndarray, max_order: int = MAX_SMOOTH_ORDER
                   ) -> tuple[SmoothTerm, np.ndarray, float]:
     """The ``cable_slab`` polynomial order chosen on held-out data (blocked CV of ``base`` plus
-    ``P_1..P_order``, order 2..``max_order``); returns the term, its columns and its CV MSE."""
+    ``P_0..P_order``, order 2..``max_order``); returns the term, its columns and its CV MSE."""
     st = res.settings
     full = smooth_term(res, max_order)
     cols = full.columns(res)
     best = None
     for order in range(2, max_order + 1):
-        cv = fit_cv(np.column_stack([base, cols[:, :order]]), res.z, res.fold, st.folds).cv_mse
+        x = np.column_stack([base, cols[:, :order + 1]])
+        cv = fit_cv(x, res.z, res.fold, st.folds).cv_mse
         if best is None or cv < best[2]:
-            best = (smooth_term(res, order), cols[:, :order], cv)
+            best = (smooth_term(res, order), cols[:, :order + 1], cv)
     return best
 
 
@@ -372,6 +388,12 @@ def forward_select(res: Residual) -> list[Step]:
         fit_s = fit_cv(x_s, res.z, res.fold, st.folds)
         e = res.z - x_s @ fit_s.coef
         ranked = []
+        for effect in res.plant.effects:
+            if not any(t.template is effect for t in used if t.effect == "not_supported"):
+                term = SupportTerm("not_supported", effect, ("support",))
+                cols = term.columns(res)
+                if np.any(cols):
+                    ranked.append((term, cols, cols))
         for name in FAMILIES:
             if name not in PERIODIC and any(t.effect == name for t in used):
                 continue
@@ -411,6 +433,13 @@ def forward_select(res: Residual) -> list[Step]:
                 continue
             if term.effect in PERIODIC and not _beats_smooth(res, steps, x_s, cols):
                 continue
+            if term.effect == "cable_slab":  # more than an offset and a stiffness
+                x_lin = np.column_stack([x_s, cols[:, :2]])
+                g2, e2, i2, p2 = _test(res, x_lin, fit_cv(x_lin, res.z, res.fold, st.folds),
+                                       cols[:, 2:], base)
+                if not (g2 >= st.min_gain and e2 >= st.min_explained and i2 >= st.min_folds
+                        and p2 < st.p_value):
+                    continue
             if gain >= st.min_gain and explained >= st.min_explained and \
                     improved >= st.min_folds and p < st.p_value:
                 accepted = Step(term, cols, gain, improved, p)
@@ -422,27 +451,34 @@ def forward_select(res: Residual) -> list[Step]:
 
 
 def _beats_smooth(res: Residual, steps: list[Step], x_s: np.ndarray, cols: np.ndarray) -> bool:
-    """A periodic term is named only if it lowers the held-out MSE more than a smooth position
-    force does in its place: the accepted terms with any ``cable_slab`` among them replaced by
-    the polynomial of the best held-out order (up to two orders above the accepted one)."""
+    """A periodic term is named only if it explains more than a smooth position force in its
+    place. Without an accepted ``cable_slab``: a lower held-out MSE than the polynomial of the
+    best held-out order. With one: a lower in-sample SSE than raising its order by two (the same
+    number of columns; held-out folds would favour the sinusoid, which does not blow up where a
+    fold's positions lie outside the others')."""
     st = res.settings
-    periodic = fit_cv(np.column_stack([x_s, cols]), res.z, res.fold, st.folds).cv_mse
+    fit_p = fit_cv(np.column_stack([x_s, cols]), res.z, res.fold, st.folds)
     rest = [s.cols for s in steps if s.term.effect != "cable_slab"]
     x_rest = np.column_stack([np.zeros((len(res.z), 0))] + rest)
-    have = max([s.term.order for s in steps if s.term.effect == "cable_slab"], default=0)
-    _, _, smooth = search_smooth(res, x_rest, max(MAX_SMOOTH_ORDER, have + 2))
-    return periodic < smooth
+    have = [s.term.order for s in steps if s.term.effect == "cable_slab"]
+    if not have:
+        return fit_p.cv_mse < search_smooth(res, x_rest)[2]
+    smooth = smooth_term(res, max(have) + 2).columns(res)
+    return fit_p.sse < fit_cv(np.column_stack([x_rest, smooth]), res.z, res.fold, st.folds).sse
 
 
 def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray) -> bool:
     """A Stribeck term must be a friction *peak* (peak > 0) and pre-sliding friction a positive
-    force to carry their names; a parameter mismatch must correct at least one parameter by
+    force to carry their names; a model effect is ``not_supported`` when the data holds less than
+    half of it; a parameter mismatch must correct at least one parameter by
     the rule of :func:`reportable` (a joint fit whose every part is within its uncertainty
     names nothing)."""
-    if term.effect not in ("stribeck", "presliding", "parameter_mismatch"):
+    if term.effect not in ("stribeck", "presliding", "parameter_mismatch", "not_supported"):
         return True
     x = np.column_stack([x_s, cols])
     coef = _solve(x.T @ x, x.T @ res.z)
+    if term.effect == "not_supported":
+        return bool(coef[-1] < -0.5)
     if term.effect != "parameter_mismatch":
         return bool(coef[-1] > 0)
     std = coefficient_std(res, x, coef)
