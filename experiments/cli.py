@@ -26,10 +26,10 @@ def _cmd_run(args) -> int:
     from experiments.table import to_markdown
 
     data = load_yaml(args.config)
-    for section in ("sweep", "study"):
+    for section, command in (("sweep", "sweep"), ("study", "study"), ("failure_map", "study")):
         if section in data:
             raise UserError(f"{args.config}: has a '{section}:' section; run it with "
-                            f"'clm-sim {section} {args.config}'")
+                            f"'clm-sim {command} {args.config}'")
     config = load_config(args.config)
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
