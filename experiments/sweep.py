@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +26,7 @@ from clm_sim.schema import build
 from experiments import table
 from experiments.config import ExperimentConfig
 from experiments.grid import Sweep
+from experiments.runner import run_task, slug
 from experiments.store import ResultStore
 from experiments.testbed import Progress
 
@@ -52,8 +52,6 @@ class Outcome:
 def execute(config_plain: dict) -> dict:
     """Run one task in a worker: ``{"status": "ok", "rows"}`` or ``{"status": "failed",
     "error"}``. Never raises for the task's own failure, so one bad point cannot stop a sweep."""
-    from experiments.runner import run_task
-
     start = time.perf_counter()
     try:
         config = build(ExperimentConfig, config_plain, "config")
@@ -185,7 +183,7 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
         for key in swept:
             if key != "seed":
                 fig = plots.mae_vs_key_figure(rows, swept, key)
-                plots.save(fig, out / "figures" / f"mae_vs_{_slug(key)}.png")
+                plots.save(fig, out / "figures" / f"mae_vs_{slug(key)}.png")
 
 
 def markdown(rows: list[dict], swept: list[str], failures: list[dict]) -> str:
@@ -201,6 +199,3 @@ def markdown(rows: list[dict], swept: list[str], failures: list[dict]) -> str:
             + "\n## Every task (one seed each; ± is over a row's own training seeds)\n\n"
             + every)
 
-
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_")
