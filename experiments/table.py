@@ -20,13 +20,6 @@ from clm_sim.plant import THETA_NAMES
 THETA_UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
 
-def tracking_metrics(e: np.ndarray) -> dict[str, float]:
-    """MAE, RMS and max of a tracking error (m)."""
-    e = np.asarray(e, dtype=float)
-    return {"mae": float(np.mean(np.abs(e))), "rms": float(np.sqrt(np.mean(e**2))),
-            "max": float(np.max(np.abs(e)))}
-
-
 def make_row(spec, metrics_per_seed: list[dict[str, dict[str, float]]],
              thetas: list[dict[str, float]] | None) -> dict:
     """One table row from per-seed metrics ``[{ref: {"mae", "rms", "max"}}]`` and thetas."""
