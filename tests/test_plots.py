@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -16,8 +17,9 @@ def test_importing_plots_chooses_no_backend():
     """A notebook's inline backend must survive ``import experiments.plots``."""
     code = ("import sys, experiments.plots; "
             "print('matplotlib.pyplot' in sys.modules, 'MPLBACKEND' in __import__('os').environ)")
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, env={"PATH": ""}).stdout.split()
+                         check=True, env=env).stdout.split()
     assert out == ["False", "False"]
 
 
