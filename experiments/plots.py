@@ -130,12 +130,10 @@ def plot_feedforward(run, ax=None, *, base=None, label: str | None = None,
 
 
 def _panels(n: int, heights: list[float], width: float = 10.0):
+    """A figure of ``n`` panels stacked on one time axis, ``heights`` relative."""
     fig = _figure(width, 0.45 + 1.25 * sum(heights))
     axes = fig.subplots(n, 1, sharex=True, gridspec_kw={"height_ratios": heights})
-    axes = np.atleast_1d(axes)
-    for ax in axes[:-1]:
-        ax.set_xlabel("")
-    return fig, axes
+    return fig, np.atleast_1d(axes)
 
 
 def tracking_figure(replays: dict, ref: str) -> Figure:
