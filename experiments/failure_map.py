@@ -140,13 +140,15 @@ class Cell:
 
 
 def fit_record(model, max_iter: int) -> dict:
-    """How a fit stopped: the model's own record (``fit_info_``) where it gives one, else the
-    iteration count against the cap (``stop: max_iter`` at the cap, ``unknown`` below it, as an
-    optimizer without a convergence test cannot say more)."""
-    info = getattr(model, "fit_info_", None)
+    """How a fit stopped: the model's own record (``fit_``: ``stop`` is ``converged`` or
+    ``max_iter``) where it keeps one, else the iteration count against the cap (``max_iter`` at
+    the cap, ``unknown`` below it: an optimizer without a convergence test cannot say more)."""
+    info = getattr(model, "fit_", None)
     if isinstance(info, dict) and "stop" in info:
         keys = ("stop", "iterations", "data_cost", "reg_cost", "grad_norm")
-        return {k: _plain(info.get(k)) for k in keys}
+        out = {k: _plain(info.get(k)) for k in keys}
+        out["restarts"] = len(info.get("starts") or [None])
+        return out
     history = getattr(model, "history_", None) or []
     iterations = max(len(history) - 1, 0)
     cost = getattr(model, "cost_", {}) or {}

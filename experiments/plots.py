@@ -397,6 +397,28 @@ def mae_vs_key_figure(rows: list[dict], swept: list[str], x: str) -> Figure:
 
 # ----------------------------------------------------------------------------- failure map
 
+# Palette indices for the cases (black first: the plant without parasitic force) and for n_l,
+# chosen so that no two neighbours are the two blues or the two oranges.
+_CASE_COLORS = (0, 1, 3, 6, 5, 2, 4, 8, 9, 7)
+_SIZE_COLORS = (5, 4, 3, 6, 1)
+
+
+def _ratio_axis(ax, which: str) -> None:
+    """A log axis of ratios labelled in plain numbers (0.5, 0.7, 1, 1.5, ...; never 10^-1), with
+    finer steps when the data span less than a decade. Call after the data are drawn."""
+    from matplotlib.ticker import FixedLocator, NullFormatter
+
+    ax.autoscale_view()
+    lo, hi = ax.get_xlim() if which == "x" else ax.get_ylim()
+    span = np.log10(hi / lo) if lo > 0 and hi > lo else 1.0
+    steps = ((1, 2, 5) if span > 1.5 else (1, 1.5, 2, 3, 5, 7) if span > 0.6 else
+             (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8))
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    axis.set_major_locator(FixedLocator([m * 10.0**e for e in range(-3, 4) for m in steps]))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
 def plot_failure_ratios(summary: dict, direction: str, ax=None):
     """MAE(λ = 0)/MAE(λ) on the reference that leaves the training range in ``direction``, per
     case (rows) and n_l (colours), with the paired interval (``experiments.failure_map``); log
@@ -414,10 +436,10 @@ def plot_failure_ratios(summary: dict, direction: str, ax=None):
             continue
         r = np.array([[p["ratio"], p["low"], p["high"]] for _, p in pts])
         ax.errorbar(r[:, 0], [y for y, _ in pts], xerr=[r[:, 0] - r[:, 1], r[:, 2] - r[:, 0]],
-                    fmt="o", color=color(j + 1), capsize=3, label=f"n_l = {h}")
+                    fmt="o", color=color(_SIZE_COLORS[j % 5]), capsize=3, label=f"n_l = {h}")
     ax.axvline(1.0, color="k", lw=0.8)
     ax.set_xscale("log")
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    _ratio_axis(ax, "x")
     ax.set_yticks(range(len(cases)), cases)
     ax.set_ylim(len(cases) - 0.5, -0.5)
     ref = st["outside"][direction]
@@ -446,19 +468,18 @@ def plot_failure_mechanism(summary: dict, ax=None):
         r = c["ratio"]
         ax.errorbar(e0 / e1, r["ratio"], yerr=[[r["ratio"] - r["low"]], [r["high"] - r["ratio"]]],
                     fmt=markers[directions.index(c["direction"]) % len(markers)],
-                    color=color(cases.index(c["case"]) + 1), capsize=2, alpha=0.85)
+                    color=color(_CASE_COLORS[cases.index(c["case"]) % 10]), capsize=2,
+                    alpha=0.85)
     ax.axhline(1.0, color="k", lw=0.8)
     ax.axvline(1.0, color="k", lw=0.8, ls=":")
     ax.set_xscale("log")
     ax.set_yscale("log")
-    for axis in (ax.xaxis, ax.yaxis):
-        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        axis.set_minor_formatter(FuncFormatter(
-            lambda v, _: f"{v:g}" if f"{v:.0e}"[0] in "25" else ""))
+    _ratio_axis(ax, "x")
+    _ratio_axis(ax, "y")
     ax.set_xlabel(f"force error beyond the training range, rms, λ = 0 / λ = {st['lambda']:g} [–]")
     ax.set_ylabel(f"MAE(λ = 0) / MAE(λ = {st['lambda']:g}) [–]")
     ax.grid(alpha=0.3, which="both")
-    handles = [Line2D([], [], color=color(i + 1), marker="o", ls="", label=case)
+    handles = [Line2D([], [], color=color(_CASE_COLORS[i % 10]), marker="o", ls="", label=case)
                for i, case in enumerate(cases)]
     handles += [Line2D([], [], color=PALETTE[7], marker=markers[i % len(markers)], ls="",
                        label=f"{d} ({st['outside'][d]})") for i, d in enumerate(directions)]
@@ -478,7 +499,8 @@ def plot_theta_drift(summary: dict, hidden: int, ax=None):
         vals = [summary["drift"].get(f"{case}/{hidden}", {}).get("lam0", {}).get(k, {})
                 .get("edge_force_n", np.nan) for case in cases]
         ax.bar(np.arange(len(cases)) + (j - (len(THETA_NAMES) - 1) / 2) * width, vals, width,
-               color=color(j + 1), label=f"{k} × max |{feature[k]}|")
+               color=color((5, 1, 3, 6)[j % 4]),
+               label=f"{k} × max |{feature[k]}|")
     ax.set_xticks(range(len(cases)), cases, rotation=20, fontsize=8)
     ax.set_ylabel("|θ_phy − θ_LIP| × max |feature| [N]")
     ax.set_title(f"drift of θ_phy with λ = 0, n_l = {hidden}", loc="left", fontsize=9)
