@@ -97,9 +97,15 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float) -> None:
             return y[1] * s + 1e-300 if s else 1.0  # >0 while moving in direction s
         crossing.terminal = True
         crossing.direction = -1
-        events = crossing if stage.coulomb > 0 and s != 0.0 else None
+        # The velocity cannot reach zero in the rest of the sample when every force together
+        # could not stop the stage (bounded deceleration): no event to watch for then.
+        bound = (abs(u) + stage.coulomb + stage.viscous * abs(st.v) + abs(stage.offset)
+                 + abs(stage.cable) + abs(stage.cogging) + 2 * stage.lugre_level
+                 + stage.lugre_sigma1 * 2 * abs(st.v)) / stage.mass
+        watch = stage.coulomb > 0 and s != 0.0 and abs(st.v) <= 2 * bound * (ts - t)
         sol = scipy.integrate.solve_ivp(rhs, (t, ts), [st.x, st.v, st.z], method="RK45",
-                                        rtol=1e-9, atol=1e-13, events=events)
+                                        rtol=1e-9, atol=1e-13, first_step=ts - t,
+                                        events=crossing if watch else None)
         st.x, st.v, st.z = (float(q) for q in sol.y[:, -1])
         if sol.status == 1:  # stopped at the velocity zero crossing
             t = float(sol.t_events[0][0])

@@ -65,6 +65,11 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
     res = Residual(est, model.plant, settings)
     steps = forward_select(res)
     findings, correction, effects = joint_fit(res, steps)
+    if any(f["effect"] == "parameter_mismatch" and not f["parameters"] for f in findings):
+        # Significant at its step, but in the final joint fit no parameter passes the reporting
+        # rule (later terms took its share): nothing to name, so it is not part of the model.
+        steps = [s for s in steps if s.term.effect != "parameter_mismatch"]
+        findings, correction, effects = joint_fit(res, steps)
     extended = extended_plant(model.plant, correction, effects)
     gain, signals = gains(est, val, settings, model.plant, extended, effects, model.controller,
                           val_offset=offset, full=record)

@@ -49,6 +49,7 @@ from clm_sim.plant import THETA_NAMES
 from experiments.diagnosis.residual import Residual
 
 PERIODIC = ("cogging", "force_ripple")
+REPEATABLE = (*PERIODIC, "presliding")
 
 
 @dataclass(frozen=True)
@@ -305,9 +306,11 @@ def search_stribeck(res: Residual, base: np.ndarray, exact: bool) -> float:
     return math.exp(float(r.x))
 
 
-def search_presliding(res: Residual, base: np.ndarray) -> float:
+def search_presliding(res: Residual, base: np.ndarray, avoid: list[float] = ()) -> float | None:
     """Pre-sliding length (m): log grid from half an encoder count to 1/50 of the stroke (at most
-    2 mm), then bounded least squares on ``log(length)``; exact (filtered) columns."""
+    2 mm), then bounded least squares on ``log(length)``; exact (filtered) columns. Lengths
+    within a factor of 2 of an accepted element (``avoid``) are not searched (a second element
+    makes a generalized Maxwell-slip model of two bristle scales)."""
     q = max(res.quantum, 1e-9)
     span = float(np.ptp(res.y[res.idx]))
     lo, hi = math.log(0.5 * q), math.log(max(min(span / 50, 2e-3), 4 * q))
@@ -317,6 +320,9 @@ def search_presliding(res: Residual, base: np.ndarray) -> float:
         return proj.sse(presliding_term(math.exp(loglen)).columns(res))
 
     grid = np.linspace(lo, hi, 14)
+    grid = [g for g in grid if all(abs(g - math.log(a)) > math.log(2.0) for a in avoid)]
+    if not grid:
+        return None
     costs = [cost(g) for g in grid]
     j = int(np.argmin(costs))
     a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
@@ -395,7 +401,7 @@ def forward_select(res: Residual) -> list[Step]:
                 if np.any(cols):
                     ranked.append((term, cols, cols))
         for name in FAMILIES:
-            if name not in PERIODIC and any(t.effect == name for t in used):
+            if name not in REPEATABLE and any(t.effect == name for t in used):
                 continue
             if name in FIXED:
                 ranked.append((FIXED[name], fixed_cols[name], fixed_cols[name]))
@@ -409,9 +415,12 @@ def forward_select(res: Residual) -> list[Step]:
                 term, cols, _ = search_smooth(res, x_s)
                 ranked.append((term, cols, cols))
             elif name == "presliding":
-                term = presliding_term(search_presliding(res, x_s))
-                cols = term.columns(res)
-                ranked.append((term, cols, cols))
+                avoid = [t.template.length for t in used if t.effect == name]
+                length = search_presliding(res, x_s, avoid)
+                if length is not None:
+                    term = presliding_term(length)
+                    cols = term.columns(res)
+                    ranked.append((term, cols, cols))
             else:
                 vel = search_stribeck(res, x_s, exact=False)
                 approx = stribeck_term(vel).columns(res)
@@ -429,7 +438,7 @@ def forward_select(res: Residual) -> list[Step]:
                 term = stribeck_term(search_stribeck(res, x_s, exact=True))
             cols = exact if exact is not None else term.columns(res)
             gain, explained, improved, p = _test(res, x_s, fit_s, cols, base)
-            if not _physical(res, term, x_s, cols):
+            if not _physical(res, term, x_s, cols, steps):
                 continue
             if term.effect in PERIODIC and not _beats_smooth(res, steps, x_s, cols):
                 continue
@@ -467,7 +476,8 @@ def _beats_smooth(res: Residual, steps: list[Step], x_s: np.ndarray, cols: np.nd
     return fit_p.sse < fit_cv(np.column_stack([x_rest, smooth]), res.z, res.fold, st.folds).sse
 
 
-def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray) -> bool:
+def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray,
+              steps: list[Step]) -> bool:
     """A Stribeck term must be a friction *peak* (peak > 0) and pre-sliding friction a positive
     force to carry their names; a model effect is ``not_supported`` when the data holds less than
     half of it; a parameter mismatch must correct at least one parameter by
@@ -479,6 +489,13 @@ def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray) -> b
     coef = _solve(x.T @ x, x.T @ res.z)
     if term.effect == "not_supported":
         return bool(coef[-1] < -0.5)
+    if term.effect == "presliding":
+        # It takes friction over from the model's Coulomb friction: at most all of it (5 %
+        # slack for its uncertainty), shared among the accepted elements.
+        mask = np.concatenate([np.zeros(0, bool)] + [np.full(s.cols.shape[1], s.term.effect ==
+                                                             "presliding") for s in steps])
+        moved = float(coef[x_s.shape[1]:].sum() + coef[:x_s.shape[1]][mask].sum())
+        return bool(coef[-1] > 0 and moved <= 1.05 * res.plant.coulomb)
     if term.effect != "parameter_mismatch":
         return bool(coef[-1] > 0)
     std = coefficient_std(res, x, coef)

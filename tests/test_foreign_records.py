@@ -1,0 +1,151 @@
+"""The diagnosis on records that clm-sim did not make (tests/reference_sim.py).
+
+The reference simulator has its own integrator (solve_ivp, event-driven stick/slip), LuGre
+friction, a saturating cable force, truncating encoders, its own PID (pole placement) and an
+EMPS-like P-P cascade, at 1 kHz and 10 kHz. The diagnosis gets the record and the *right* model
+(mass, viscous, Coulomb of the foreign stage, no effects, the controller's linear law); only the
+hidden effect, if any, is missing.
+
+Matrix of conditions (a covering design, not the full product, to keep the suite's time modest:
+every level of every factor appears, and the hard combinations the issue names are there):
+
+======  =======  ========  ==========  =======  ======  ======
+cell    rate     encoder   controller  dwell    dither  length
+======  =======  ========  ==========  =======  ======  ======
+pid10   10 kHz   0.1 um    PID 15 Hz   0.1 s    20 N    3 s
+soft10  10 kHz   1 nm      PID 5 Hz    0.1 s    20 N    3 s
+pp1     1 kHz    0.1 um    P-P         0.1 s    20 N    6 s
+dwell1  1 kHz    1 um      PID 15 Hz   2 s      20 N    27 s
+long1   1 kHz    1 nm      PID 15 Hz   0.1 s    off     17 s
+emps1   1 kHz    50 nm     P-P         0.1 s    off     17 s
+coarse1 1 kHz    1 um      PID 15 Hz   0.1 s    20 N    17 s
+======  =======  ========  ==========  =======  ======  ======
+
+Identifiability of the hidden effects, stated: pre-sliding friction (LuGre, sigma0 = 2e6 N/m,
+7.21 N, a 3.6 um pre-sliding length) shows only in samples moving at least one count per sample
+right after a reversal; with a 1 um encoder (``dwell1``, ``coarse1``) the quantized path holds
+about three counts of the whole transition, so those cells are not asked to name it (checked
+there: no *other* effect is named instead). The cable force is identifiable in every cell.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import reference_sim as ref
+from clm_sim.effects import CableSlab
+from clm_sim.plant import Plant
+from clm_sim.record import Run
+from experiments.diagnosis import diagnose
+from experiments.diagnosis.model import Controller, SimulationModel
+
+SHORT = [(0.01, 0.02), (0.03, 0.2), (0.03, 0.1), (0.03, 0.05), (0.01, 0.02)]
+LONG = SHORT * 2 + [(0.04, 0.15), (0.015, 0.03), (0.03, 0.08), (0.01, 0.01)]
+
+CELLS = {
+    "pid10": dict(ts=1e-4, res=1e-7, repeat=1),
+    "soft10": dict(ts=1e-4, res=1e-9, omega=2 * math.pi * 5, seed=3, repeat=1),
+    "pp1": dict(ts=1e-3, res=1e-7, ctrl="pp"),
+    "dwell1": dict(ts=1e-3, res=1e-6, dwell=2.0),
+    "long1": dict(ts=1e-3, res=1e-9, long=True, dither=0.0),
+    "emps1": dict(ts=1e-3, res=5e-8, ctrl="pp", dither=0.0, long=True),
+    "coarse1": dict(ts=1e-3, res=1e-6, seed=4, long=True),
+}
+SLOW_CELLS = {"pid10", "soft10", "dwell1"}  # > 10 s of reference simulation each
+
+STAGES = {
+    "none": ref.Stage(),
+    # The whole Coulomb friction is pre-sliding (LuGre), with a little bristle damping.
+    "lugre": ref.Stage(coulomb=0.0, lugre_level=7.21, lugre_sigma0=2.0e6, lugre_sigma1=100.0),
+    # A cable carrier pulling up to 4 N, saturating over about 1 cm.
+    "cable": ref.Stage(cable=4.0, cable_width=0.01, cable_center=0.01),
+}
+NOT_IDENTIFIABLE = {("lugre", "dwell1"), ("lugre", "coarse1")}
+
+
+def _record(stage: ref.Stage, *, ts, res, ctrl="pid", dwell=0.1, dither=20.0, long=False, seed=1,
+            omega=2 * math.pi * 15, repeat=2):
+    pairs = LONG if long else SHORT
+    moves = [m for d, v in pairs for m in ((d, v), (0.0, v))] * (1 if long else repeat)
+    r = ref.trapezoid_reference(ts, moves=moves, dwell=dwell)
+    law = ref.PID(stage.mass, stage.viscous, omega, ts) if ctrl == "pid" else \
+        ref.Cascade(60.0, 4700.0, ts)
+    rec = ref.run_loop(stage, law, r, ts, resolution=res, dither_std=dither, seed=seed)
+    b, a, rb = law.law()
+    n = max(len(b), len(a))
+    pad = lambda x: np.concatenate([np.asarray(x, float), np.zeros(n - len(x))])  # noqa: E731
+    run = Run(t=rec.t, r=rec.r, y=rec.y, u=rec.u, meta={"source": "reference_sim"})
+    model = Plant(mass=18.8, viscous=172.0, coulomb=7.21, effects=(), encoder_resolution=res)
+    return run, SimulationModel(model, Controller(pad(b), pad(a), rb), "right model")
+
+
+@pytest.fixture(scope="session")
+def foreign():
+    """(hidden, cell) -> (record, diagnosis), computed once per session."""
+    cache = {}
+
+    def get(hidden: str, cell: str):
+        if (hidden, cell) not in cache:
+            run, model = _record(STAGES[hidden], **CELLS[cell])
+            cache[hidden, cell] = run, diagnose(run, model)
+        return cache[hidden, cell]
+    return get
+
+
+def _cells(hidden: str, *, identifiable_only: bool = False):
+    out = []
+    for cell in CELLS:
+        if identifiable_only and (hidden, cell) in NOT_IDENTIFIABLE:
+            continue
+        marks = [pytest.mark.slow] if cell in SLOW_CELLS else []
+        out.append(pytest.param(cell, marks=marks, id=cell))
+    return out
+
+
+@pytest.mark.parametrize("cell", _cells("none"))
+def test_right_model_no_finding(foreign, cell):
+    _, d = foreign("none", cell)
+    assert [f["effect"] for f in d.findings] == []
+    assert d.gain["residual_rms_after"] == d.gain["residual_rms_before"]
+
+
+@pytest.mark.parametrize("cell", _cells("lugre", identifiable_only=True))
+def test_presliding_named_first_with_its_stiffness(foreign, cell):
+    _, d = foreign("lugre", cell)
+    assert d.findings and d.findings[0]["effect"] == "presliding"
+    p = d.findings[0]["parameters"]
+    # The issue's bar: the initial pre-sliding stiffness within a factor of 2 (LuGre's sigma0).
+    assert 0.5 < p["stiffness"] / STAGES["lugre"].lugre_sigma0 < 2.0
+    # Most of the Coulomb friction is recognised as pre-sliding (the model's is all of it).
+    assert p["sliding"] > 0.6 * STAGES["lugre"].lugre_level
+    assert not {f["effect"] for f in d.findings} & {"cogging", "force_ripple", "stribeck"}
+    # The issue's bar: at least 70 % out-of-sample gain on the held-out final quarter.
+    assert d.gain["residual_rms_reduction"] >= 0.70
+
+
+@pytest.mark.parametrize("cell", sorted(c for h, c in NOT_IDENTIFIABLE if h == "lugre"))
+@pytest.mark.slow
+def test_presliding_where_not_identifiable_names_nothing_else(foreign, cell):
+    _, d = foreign("lugre", cell)
+    assert not {f["effect"] for f in d.findings} & {"cogging", "force_ripple", "cable_slab"}
+
+
+@pytest.mark.parametrize("cell", _cells("cable"))
+def test_cable_force_named_cable_slab_never_periodic(foreign, cell):
+    run, d = foreign("cable", cell)
+    names = [f["effect"] for f in d.findings]
+    assert names and names[0] == "cable_slab"
+    assert not set(names) & {"cogging", "force_ripple"}
+    # The found polynomial against the true tanh over the positions the record visits, up to a
+    # constant (a constant force is a force offset either way): within 5 % of the 8 N range.
+    found = next(CableSlab(**{k: v for k, v in f["effect_config"].items() if k != "type"})
+                 for f in d.findings if f["effect"] == "cable_slab")
+    stage = STAGES["cable"]
+    y = np.linspace(np.quantile(run.y, 0.01), np.quantile(run.y, 0.99), 200)
+    true = stage.cable * np.tanh((y - stage.cable_center) / stage.cable_width)
+    err = found.force(y, 0.0, 0.0) - true
+    assert np.max(np.abs(err - err.mean())) < 0.05 * 2 * stage.cable
+    assert d.gain["residual_rms_reduction"] >= 0.70
