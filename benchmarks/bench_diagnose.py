@@ -2,8 +2,9 @@
 
 The record is measured on an emulated machine (nominal CLM plus cogging, a Stribeck peak and
 Dahl pre-sliding friction in place of part of the Coulomb friction) with the r1 reference
-repeated, dither 50 N, 10 kHz; every candidate (pre-sliding, cable_slab included) is searched. Prints the sample count, the wall time of the
-diagnosis alone (the simulation is not timed) and what it found.
+repeated, dither 50 N, 10 kHz; every candidate (pre-sliding, cable_slab included) is searched.
+Prints the sample count, the wall time of the diagnosis alone (the simulation is not timed) and
+what it found.
 
     .venv/bin/python benchmarks/bench_diagnose.py
 """
