@@ -137,6 +137,7 @@ class Residual:
                             f"({100 * moving_pos:.0f} % of it in +y); need motion in both "
                             f"directions for at least {200 / (2 * self.cutoff):.1f} s")
         self.z = self.filtered[self.idx]
+        self.cache: dict = {}  # columns the searches reuse between selection steps
         self.fold = np.minimum((np.arange(n) * settings.folds) // n, settings.folds - 1)
 
     def filter(self, x: np.ndarray) -> np.ndarray:

@@ -315,9 +315,12 @@ def search_presliding(res: Residual, base: np.ndarray, avoid: list[float] = ()) 
     span = float(np.ptp(res.y[res.idx]))
     lo, hi = math.log(0.5 * q), math.log(max(min(span / 50, 2e-3), 4 * q))
     proj = Projector(base, res.z)
+    cache = res.cache.setdefault("presliding", {})  # filtered columns do not depend on base
 
     def cost(loglen):
-        return proj.sse(presliding_term(math.exp(loglen)).columns(res))
+        if loglen not in cache:
+            cache[loglen] = presliding_term(math.exp(loglen)).columns(res)
+        return proj.sse(cache[loglen])
 
     grid = np.linspace(lo, hi, 14)
     grid = [g for g in grid if all(abs(g - math.log(a)) > math.log(2.0) for a in avoid)]
@@ -336,8 +339,10 @@ def search_smooth(res: Residual, base: np.ndarray, max_order: int = MAX_SMOOTH_O
     """The ``cable_slab`` polynomial order chosen on held-out data (blocked CV of ``base`` plus
     ``P_0..P_order``, order 2..``max_order``); returns the term, its columns and its CV MSE."""
     st = res.settings
-    full = smooth_term(res, max_order)
-    cols = full.columns(res)
+    cache = res.cache.setdefault("smooth", {})
+    if max_order not in cache:
+        cache[max_order] = smooth_term(res, max_order).columns(res)
+    cols = cache[max_order]
     best = None
     for order in range(2, max_order + 1):
         x = np.column_stack([base, cols[:, :order + 1]])
