@@ -8,6 +8,7 @@ and the PID the loop ran with. The truth is used only in the assertions.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -17,7 +18,8 @@ import pytest
 
 from experiments.diagnosis import diagnose, load_model
 from experiments.diagnosis.emulate import measure
-from clm_sim.effects import Cogging, ForceOffset, ForceRipple, FrictionAsymmetry, Stribeck
+from clm_sim.effects import (CableSlab, Cogging, ForceOffset, ForceRipple, FrictionAsymmetry,
+                             Stribeck)
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 from clm_sim.record import save_npz
@@ -156,6 +158,52 @@ def test_two_hidden_effects_are_both_found(diagnosed):
     # Ranked by explained fraction.
     fractions = [f["explained_fraction"] for f in d.findings]
     assert fractions == sorted(fractions, reverse=True)
+
+
+def test_default_plant_cable_carrier_is_cable_slab_not_cogging():
+    """The default CLM (1 % ripple over 24 mm, a cubic cable-carrier force, a 1 N Stribeck peak
+    at 1 mm/s) against the effect-free model: the carrier is named cable_slab first, the ripple
+    is found, and no cogging is named (the plant has none)."""
+    truth = Plant()
+    run, model = measure(truth, NOMINAL, 11)
+    d = diagnose(run, model)
+    names = [f["effect"] for f in d.findings]
+    assert names[0] == "cable_slab" and "cogging" not in names
+    ripple = next(f["parameters"] for f in d.findings if f["effect"] == "force_ripple")
+    assert ripple["period"] == pytest.approx(truth.effects[0].period, rel=0.02)  # the bar
+    # The polynomial against the true cubic over the middle 98 % of the visited positions,
+    # up to a constant: within 2 % of its range (the order is chosen on held-out data).
+    cable = next(f for f in d.findings if f["effect"] == "cable_slab")["effect_config"]
+    found = CableSlab(coefficients=cable["coefficients"], center=cable["center"])
+    y = np.linspace(np.quantile(run.y, 0.01), np.quantile(run.y, 0.99), 200)
+    err = found.force(y, 0, 0) - truth.effects[1].force(y, 0, 0)
+    true_range = np.ptp(truth.effects[1].force(y, 0, 0))
+    assert np.max(np.abs(err - err.mean())) < 0.02 * true_range
+
+
+def test_model_effect_the_data_lacks_is_not_supported(diagnosed):
+    """A model that holds a Stribeck peak the machine does not have: named not_supported (first),
+    and the extended model leaves it out."""
+    _, run, d0 = diagnosed("none")
+    wrong = dataclasses.replace(NOMINAL, effects=(Stribeck(peak=3.0, velocity=0.01),))
+    d = diagnose(run, dataclasses.replace(d0.model, plant=wrong))
+    assert d.findings[0]["effect"] == "not_supported"
+    assert d.findings[0]["parameters"]["support"] < 0.25  # the data holds (almost) none of it
+    assert d.findings[0]["model_effect"]["type"] == "stribeck"
+    assert not any(isinstance(e, Stribeck) for e in d.extended.effects)
+
+
+def test_model_file_without_effects_has_none(tmp_path):
+    """No ``effects`` key in a model file means no effects; ``default_clm`` names the default."""
+    from clm_sim.plant import default_effects
+    path = tmp_path / "m.yaml"
+    path.write_text("plant: {mass: 18.8, viscous: 172.0, coulomb: 7.21, stiffness: 0.0}\n")
+    assert load_model(path, 1e-4).plant.effects == ()
+    path.write_text("plant: {mass: 18.8, effects: default_clm}\n")
+    assert load_model(path, 1e-4).plant.effects == default_effects()
+    path.write_text("plant: {mass: 18.8, effects: defaults}\n")
+    with pytest.raises(UserError, match="plant.effects"):
+        load_model(path, 1e-4)
 
 
 def test_diagnosis_is_deterministic(diagnosed):
