@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
+from matplotlib.transforms import offset_copy
 
 from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
@@ -25,22 +26,23 @@ PALETTE = ("#000000", "#E69F00", "#56B4E9", "#009E73", "#D55E00", "#0072B2", "#C
            "#999999", "#882255", "#44AA99")
 UM, MM = 1e6, 1e3  # m -> µm, m -> mm
 
-# Swept key path (list indices written [*]) -> quantity, unit, factor from the SI value.
+# Swept key path (list indices written [*]) -> quantity, its symbol (None: the quantity names
+# itself), unit, factor from the SI value.
 KEY_LABELS = {
-    "plant.encoder_resolution": ("encoder resolution", "µm", 1e6),
-    "plant.mass": ("mass m", "kg", 1.0),
-    "plant.viscous": ("viscous friction fv", "N·s/m", 1.0),
-    "plant.coulomb": ("Coulomb friction fc", "N", 1.0),
-    "plant.stiffness": ("stiffness fk", "N/m", 1.0),
-    "plant.substeps": ("sub-steps per sample", "–", 1.0),
-    "controller.crossover_hz": ("PID crossover frequency", "Hz", 1.0),
-    "feedforwards[*].lambda": ("regularization weight λ", "–", 1.0),
-    "feedforwards[*].hidden": ("neurons n_l", "–", 1.0),
-    "training.dither.std_n": ("dither std", "N", 1.0),
-    "training.dither.hold_samples": ("dither hold", "samples", 1.0),
-    "training.repeats": ("training repeats", "–", 1.0),
-    "ts": ("sample time", "s", 1.0),
-    "seed": ("seed", "–", 1.0),
+    "plant.encoder_resolution": ("encoder resolution", "q", "µm", 1e6),
+    "plant.mass": ("mass", "m", "kg", 1.0),
+    "plant.viscous": ("viscous friction", "fv", "N·s/m", 1.0),
+    "plant.coulomb": ("Coulomb friction", "fc", "N", 1.0),
+    "plant.stiffness": ("stiffness", "fk", "N/m", 1.0),
+    "plant.substeps": ("sub-steps per sample", None, "–", 1.0),
+    "controller.crossover_hz": ("PID crossover frequency", "f_c", "Hz", 1.0),
+    "feedforwards[*].lambda": ("regularization weight", "λ", "–", 1.0),
+    "feedforwards[*].hidden": ("neurons", "n_l", "–", 1.0),
+    "training.dither.std_n": ("dither std", None, "N", 1.0),
+    "training.dither.hold_samples": ("dither hold", None, "samples", 1.0),
+    "training.repeats": ("training repeats", None, "–", 1.0),
+    "ts": ("sample time", "ts", "s", 1.0),
+    "seed": ("seed", None, "–", 1.0),
 }
 
 
@@ -49,20 +51,24 @@ def color(i: int) -> str:
     return PALETTE[i % len(PALETTE)]
 
 
+def _key(key: str) -> tuple[str, str | None, str, float]:
+    """Quantity, symbol, unit and factor of a swept key path; an unknown key names itself, in
+    the config's (SI) units."""
+    return KEY_LABELS.get(re.sub(r"\[\d+\]", "[*]", key), (key, None, "SI", 1.0))
+
+
 def key_label(key: str) -> tuple[str, float]:
-    """``(axis label with unit, factor from SI)`` of a swept key path; unknown keys are shown
-    as they are written, in the config's own (SI) units."""
-    quantity, unit, factor = KEY_LABELS.get(re.sub(r"\[\d+\]", "[*]", key), (key, "SI", 1.0))
-    return f"{quantity} [{unit}]", factor
+    """``(axis label with unit, factor from SI)`` of a swept key path."""
+    quantity, symbol, unit, factor = _key(key)
+    return f"{quantity}{' ' + symbol if symbol else ''} [{unit}]", factor
 
 
 def _describe(key: str, value) -> str:
-    """``encoder resolution 0.1 µm`` for a swept key and its value."""
-    label, factor = key_label(key)
-    quantity, unit = label[:-1].split(" [")
+    """``λ = 0.01``, ``q = 0.1 µm``: a swept key and its value, as a legend names a series."""
+    quantity, symbol, unit, factor = _key(key)
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = f"{value * factor:g}"
-    return f"{quantity} {value}" + ("" if unit in ("–", "SI") else f" {unit}")
+    return f"{symbol or quantity} = {value}" + ("" if unit in ("–", "SI") else f" {unit}")
 
 
 def _ax(ax):
@@ -339,7 +345,8 @@ def mae_vs_lambda_figure(summary: dict) -> Figure:
 
 def plot_mae_vs_key(rows: list[dict], swept: list[str], x: str, ref: str, ax=None):
     """MAE (µm) on ``ref`` against swept key ``x``: one line per series
-    (:func:`experiments.table.series`), mean ± spread over seeds as a band."""
+    (:func:`experiments.table.series`), the spread over seeds as a band, or with more than
+    three series as error bars set slightly apart (overlapping bands hide each other)."""
     ax = _ax(ax)
     data = {name: by_x for (name, r), by_x in series(rows, swept, x, _describe).items()
             if r == ref}
@@ -347,6 +354,18 @@ def plot_mae_vs_key(rows: list[dict], swept: list[str], x: str, ref: str, ax=Non
     xs = [row[x] for row in rows]
     numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in xs)
     cats = None if numeric else list(dict.fromkeys(map(str, xs)))
+    if numeric:
+        vals = np.array(sorted(set(xs)), float) * factor
+        positive = vals[vals > 0]
+        if len(positive) and positive.max() / positive.min() > 20:
+            ax.set_xscale("symlog" if (vals <= 0).any() else "log",
+                          **({"linthresh": positive.min()} if (vals <= 0).any() else {}))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        elif len(vals) <= 12:
+            ax.set_xticks(vals, [f"{v:g}" for v in vals])
+    else:
+        ax.set_xticks(range(len(cats)), cats)
+    bands = len(data) <= 3
     means = []
     for i, (name, by_x) in enumerate(data.items()):
         keys = sorted(by_x) if numeric else sorted(by_x, key=lambda v: cats.index(str(v)))
@@ -355,20 +374,19 @@ def plot_mae_vs_key(rows: list[dict], swept: list[str], x: str, ref: str, ax=Non
         mean = np.array([by_x[k][0] for k in keys]) * UM
         spread = np.array([by_x[k][1] for k in keys]) * UM
         means.extend(mean)
-        ax.plot(pos, mean, marker="o", ms=3, lw=1.2, color=color(i), label=name)
-        ax.fill_between(pos, np.maximum(mean - spread, 1e-6), mean + spread, color=color(i),
-                        alpha=0.2, lw=0)
-    if numeric:
-        vals = np.array(sorted(set(xs)), float) * factor
-        positive = vals[vals > 0]
-        if len(positive) and positive.max() / positive.min() > 20:
-            if (vals <= 0).any():
-                ax.set_xscale("symlog", linthresh=positive.min())
-            else:
-                ax.set_xscale("log")
-            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    else:
-        ax.set_xticks(range(len(cats)), cats)
+        if bands:
+            ax.plot(pos, mean, marker="o", ms=3, lw=1.2, color=color(i), label=name)
+            ax.fill_between(pos, np.maximum(mean - spread, 1e-6), mean + spread,
+                            color=color(i), alpha=0.2, lw=0)
+        else:  # 4 points apart per series, in display space (linear and log axes alike)
+            shift = offset_copy(ax.transData, fig=ax.figure, units="points",
+                                x=4.0 * (i - (len(data) - 1) / 2))
+            bars = ax.errorbar(pos, mean, yerr=spread, marker="o", ms=3, lw=1.0, capsize=2,
+                               color=color(i), label=name)
+            for artist in bars.get_children():  # drawn shifted, scaled on the data
+                artist.set_transform(shift)
+    if not bands:
+        ax.margins(x=0.08)  # room for the shifted bars at both ends
     if means and min(means) > 0 and max(means) / min(means) > 20:
         ax.set_yscale("log")
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))  # 0.2 not 2x10^-1
@@ -387,7 +405,7 @@ def mae_vs_key_figure(rows: list[dict], swept: list[str], x: str) -> Figure:
     axes = np.atleast_1d(fig.subplots(1, len(refs)))
     for ax, ref in zip(axes, refs):
         plot_mae_vs_key(rows, swept, x, ref, ax)
-    fig.suptitle(f"MAE against {key_label(x)[0].split(' [')[0]} (band: spread over seeds)",
+    fig.suptitle(f"MAE against {_key(x)[0]} (mean and spread over seeds)",
                  fontsize=10)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncol=min(3, len(labels)),

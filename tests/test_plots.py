@@ -91,7 +91,7 @@ def _sweep_rows():
 def test_sweep_axes_have_readable_labels_units_and_the_legend_below():
     key = "plant.encoder_resolution"
     fig = plots.mae_vs_key_figure(_sweep_rows(), [key, "seed"], key)
-    assert [ax.get_xlabel() for ax in fig.axes] == ["encoder resolution [µm]"] * 2
+    assert [ax.get_xlabel() for ax in fig.axes] == ["encoder resolution q [µm]"] * 2
     assert [ax.get_ylabel() for ax in fig.axes] == ["MAE on r1 [µm]", "MAE on r2 [µm]"]
     np.testing.assert_allclose(fig.axes[0].lines[0].get_xdata(), [0.01, 0.1, 1.0])
     assert all(ax.get_legend() is None for ax in fig.axes) and len(fig.legends) == 1
@@ -102,8 +102,9 @@ def test_sweep_axes_have_readable_labels_units_and_the_legend_below():
 
 @pytest.mark.parametrize("key, label, factor", [
     ("feedforwards[3].lambda", "regularization weight λ [–]", 1.0),
-    ("controller.crossover_hz", "PID crossover frequency [Hz]", 1.0),
-    ("plant.encoder_resolution", "encoder resolution [µm]", 1e6),
+    ("controller.crossover_hz", "PID crossover frequency f_c [Hz]", 1.0),
+    ("plant.encoder_resolution", "encoder resolution q [µm]", 1e6),
+    ("training.repeats", "training repeats [–]", 1.0),
     ("plant.effects[0].amplitude", "plant.effects[0].amplitude [SI]", 1.0),  # unknown: as is
 ])
 def test_key_labels(key, label, factor):
