@@ -299,6 +299,31 @@ def test_sweep_killed_by_sigkill_resumes_without_recomputing(tmp_path):
     assert (out / "table.json").read_bytes() == (reference / "table.json").read_bytes()
 
 
+def test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes(tmp_path):
+    """SIGTERM stops the workers like Ctrl-C: exit 143, no temporary file, no table; the next
+    run reuses what was stored."""
+    path = _write(tmp_path, RESUME_GRID)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "experiments.cli", "sweep", str(path),
+                             "--out", str(out), "--workers", "2", "--quiet"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        while proc.poll() is None and not list((out / "tasks").glob("*.json")):
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines()[-1] == "clm-sim: terminated"
+    stored = list((out / "tasks").glob("*.json"))
+    assert 1 <= len(stored) < 8 and not list((out / "tasks").glob(".*"))
+    assert not (out / "table.json").exists()
+    resumed = run_sweep(load_sweep(path), out, workers=2, quiet=True)
+    assert (resumed.reused, resumed.computed, resumed.exit_code) == (len(stored),
+                                                                     8 - len(stored), 0)
+
+
 def test_output_folder_of_something_else_is_refused(tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     sweep = load_sweep(_write(tmp_path / "..", BASE, f"{tmp_path.name}.yaml"))
