@@ -15,9 +15,9 @@ cell    rate     encoder   controller  dwell    dither  length
 pid10   10 kHz   0.1 um    PID 15 Hz   0.1 s    20 N    3 s
 soft10  10 kHz   1 nm      PID 5 Hz    0.1 s    20 N    3 s
 pp1     1 kHz    0.1 um    P-P         0.1 s    20 N    6 s
-dwell1  1 kHz    1 um      PID 15 Hz   2 s      20 N    27 s
+dwell1  1 kHz    1 um      PID 15 Hz   2 s      20 N    25 s
 long1   1 kHz    1 nm      PID 15 Hz   0.1 s    off     17 s
-emps1   1 kHz    50 nm     P-P         0.1 s    off     17 s
+emps1   1 kHz    50 nm     P-P         0 s      off     15 s
 coarse1 1 kHz    1 um      PID 15 Hz   0.1 s    20 N    17 s
 ======  =======  ========  ==========  =======  ======  ======
 
@@ -49,9 +49,9 @@ CELLS = {
     "pid10": dict(ts=1e-4, res=1e-7, repeat=1),
     "soft10": dict(ts=1e-4, res=1e-9, omega=2 * math.pi * 5, seed=3, repeat=1),
     "pp1": dict(ts=1e-3, res=1e-7, ctrl="pp"),
-    "dwell1": dict(ts=1e-3, res=1e-6, dwell=2.0),
+    "dwell1": dict(ts=1e-3, res=1e-6, dwell=2.0, repeat=1),
     "long1": dict(ts=1e-3, res=1e-9, long=True, dither=0.0),
-    "emps1": dict(ts=1e-3, res=5e-8, ctrl="pp", dither=0.0, long=True),
+    "emps1": dict(ts=1e-3, res=5e-8, ctrl="pp", dither=0.0, long=True, dwell=0.0),
     "coarse1": dict(ts=1e-3, res=1e-6, seed=4, long=True),
 }
 SLOW_CELLS = {"pid10", "soft10", "dwell1"}  # > 10 s of reference simulation each
