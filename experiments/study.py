@@ -92,11 +92,11 @@ def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,
 
 def _variants(study: StudySettings):
     """(key, label, spec) of every trained PGNN variant, sequential first."""
-    out = [("sequential", "sequential", FeedforwardSpec(
-        kind="pgnn", training="sequential", hidden=study.hidden, pgnn=study.pgnn))]
+    common = {"kind": "pgnn", "hidden": study.hidden, "seeds": study.seeds, "pgnn": study.pgnn}
+    out = [("sequential", "sequential", FeedforwardSpec(training="sequential", **common))]
     for lam in sorted(study.lambdas):
-        out.append((f"lambda={lam:g}", f"λ = {lam:g}", FeedforwardSpec(
-            kind="pgnn", training="simultaneous", lam=lam, hidden=study.hidden, pgnn=study.pgnn)))
+        out.append((f"lambda={lam:g}", f"λ = {lam:g}",
+                    FeedforwardSpec(training="simultaneous", lam=lam, **common)))
     return out
 
 

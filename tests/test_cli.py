@@ -314,6 +314,19 @@ def test_study_refuses_a_config_without_study_section(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.yaml"]
 
 
+def test_study_trains_every_seed_it_reports(tmp_path, capsys):
+    cfg = tmp_path / "study.yaml"
+    cfg.write_text(SMALL + "study:\n  lambdas: [0, 0.01]\n  hidden: 4\n  seeds: 2\n"
+                   "  outside: [r2]\n")
+    code, _, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 0, err
+    summary = json.loads((tmp_path / "out" / "study.json").read_text())
+    for key in ("sequential", "lambda=0", "lambda=0.01"):
+        variant = summary["variants"][key]
+        assert len(variant["theta_phy_per_seed"]) == 2, key
+        assert all(len(m["per_seed"]) == 2 for m in variant["mae"].values()), key
+
+
 def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys):
     cfg = tmp_path / "study.yaml"
     cfg.write_text(SMALL + "study:\n  seeds: 1\n")
