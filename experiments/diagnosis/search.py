@@ -2,8 +2,9 @@
 and forward selection on held-out data.
 
 Candidates (``FAMILIES``) are the effect vocabulary of :mod:`clm_sim.effects` plus
-``parameter_mismatch`` (corrections of mass, viscous, coulomb, stiffness: the LIP columns).
-Nonlinear parameters are searched, never assumed:
+``parameter_mismatch`` (corrections of mass, viscous, coulomb, stiffness: the LIP columns) and, for
+every effect the model holds, ``not_supported`` (a free scale on its force). Nonlinear parameters
+are searched, never assumed:
 
 * periods (``cogging``, ``force_ripple``): the current residual is binned on a uniform position
   grid (cogging: bin mean; ripple: per-bin least-squares gain on the motor force), its spatial
@@ -12,7 +13,12 @@ Nonlinear parameters are searched, never assumed:
   third of the stroke, and the best peak is refined by bounded least squares on the period;
 * the Stribeck velocity: a logarithmic grid from 1.5 times the speed floor to half the typical
   speed, then bounded least squares on ``log(velocity)`` around the best grid point (exponent
-  fixed at 2).
+  fixed at 2);
+* the pre-sliding length (``presliding``, Dahl): a logarithmic grid from half an encoder count to
+  1/50 of the stroke, refined the same way; the column is the Dahl state of the measured path
+  minus ``sign(v)`` (this much of the model's Coulomb friction is pre-sliding);
+* the ``cable_slab`` order: Legendre polynomials ``P_0..P_n`` of the position, ``n`` = 2..9 chosen
+  by the blocked cross-validation below.
 
 Significance rule (decided per step of a forward selection): with the accepted terms ``S``, a
 candidate ``c`` is accepted when, in a blocked ``folds``-fold cross-validation over contiguous
@@ -22,16 +28,20 @@ noise floor: once the large causes are removed, ``min_gain`` alone would name mo
 held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
 folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an F-test of ``S + c``
 against ``S`` on all fitted samples, with the effective sample count of the filtered data, has
-p < ``p_value``; a Stribeck term must also be a peak (peak > 0). Each step takes the candidate
-with the largest held-out gain that passes; the search stops when none does, so a model that
-already explains the data yields no finding. A backward pass then drops any term whose removal
-from the final model raises the held-out MSE by less than these thresholds (made redundant by
-later terms).
+p < ``p_value``; a Stribeck term must also be a peak (peak > 0), pre-sliding friction positive and
+at most the model's Coulomb friction, a ``not_supported`` scale below -0.5, a parameter mismatch
+reportable (:func:`reportable`), a ``cable_slab`` more than its constant and linear part, and a
+periodic term better than a smooth force in its place (:func:`_beats_smooth`). Each step takes
+the candidate with the largest held-out gain that passes; the search stops when none does, so a
+model that already explains the data yields no finding. A backward pass then drops any term
+whose removal from the final model raises the held-out MSE by less than these thresholds (made
+redundant by later terms).
 
 Identifiability: during motion an asymmetric Coulomb friction is a symmetric one plus a constant
-force ``(c_pos - c_neg)/2``, and the diagnosis leaves standstill out (the velocity sign is unknown
-there). A constant force is therefore reported as ``force_offset``; ``friction_asymmetry`` is the
-direction-odd viscous part (its ``|v|`` signature), with the Coulomb part reported as 0.
+force ``(c_pos - c_neg)/2``, and the diagnosis leaves standstill out (the direction of motion is
+unknown there). A constant force is therefore reported as ``force_offset`` (or as the constant of
+a ``cable_slab``); ``friction_asymmetry`` is the direction-odd viscous part (its ``|v|``
+signature), with the Coulomb part reported as 0.
 """
 
 from __future__ import annotations
