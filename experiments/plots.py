@@ -21,9 +21,10 @@ from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
 from experiments.table import THETA_UNITS, series
 
-# Okabe & Ito's colour-blind-safe set (yellow left out: unreadable on white), then grey.
+# Okabe & Ito's colour-blind-safe set (yellow left out: unreadable on white), then grey, and
+# Tol's wine and olive (apart from every colour before them).
 PALETTE = ("#000000", "#E69F00", "#56B4E9", "#009E73", "#D55E00", "#0072B2", "#CC79A7",
-           "#999999", "#882255", "#44AA99")
+           "#999999", "#882255", "#999933")
 UM, MM = 1e6, 1e3  # m -> µm, m -> mm
 
 # Swept key path (list indices written [*]) -> quantity, its symbol (None: the quantity names
@@ -142,13 +143,13 @@ def _panels(n: int, heights: list[float], width: float = 10.0):
     return fig, np.atleast_1d(axes)
 
 
-def tracking_figure(replays: dict, ref: str) -> Figure:
+def tracking_figure(replays: dict, ref: str, colors: dict | None = None) -> Figure:
     """``replays[label][ref]`` are Runs on reference ``ref`` in table order. Panels: the
     reference; feedback only (its own scale); then one panel per feedforward on one shared
     scale, so that LIP and PGNN errors compare at a glance. Feedback only is the run whose
-    feedforward is zero throughout."""
+    feedforward is zero throughout. ``colors``: per label (default: the palette in order)."""
     runs = {label: r[ref] for label, r in replays.items()}
-    colors = {label: color(i) for i, label in enumerate(runs)}
+    colors = colors or {label: color(i) for i, label in enumerate(runs)}
     fb = [label for label, run in runs.items() if not np.any(run.u_ff)]
     ff = [label for label in runs if label not in fb]
     fig, axes = _panels(1 + len(fb) + len(ff), [0.8] + [1.0] * (len(fb) + len(ff)))
@@ -189,7 +190,8 @@ def feedforward_figure(replays: dict, ref: str) -> Figure:
 
 # ----------------------------------------------------------------------------- the study
 
-def _variant_colors(summary) -> dict[str, str]:
+def variant_colors(summary) -> dict[str, str]:
+    """One colour per variant of the study, the same in every figure."""
     keys = ["feedback only", "LIP", "sequential"] + [f"lambda={x:g}" for x in summary["lambdas"]]
     return {k: color(i) for i, k in enumerate(keys)}
 
@@ -217,7 +219,7 @@ def plot_theta_history(models: dict, lip_theta: dict, name: str, keys: list[str]
 def theta_figure(summary: dict, models: dict) -> Figure:
     """θ_phy relative to θ_LIP over the iterations, one panel per parameter, one line per λ."""
     keys = [f"lambda={x:g}" for x in summary["lambdas"]]
-    colors = _variant_colors(summary)
+    colors = variant_colors(summary)
     fig = _figure(11, 6.5)
     axes = fig.subplots(2, 2, sharex=True)
     for ax, name in zip(axes.flat, THETA_NAMES):
@@ -232,7 +234,7 @@ def theta_figure(summary: dict, models: dict) -> Figure:
 
 def cost_figure(summary: dict, models: dict) -> Figure:
     """Data-fit term (N²) and deviation term (N²) over the iterations, per λ and sequential."""
-    colors = _variant_colors(summary)
+    colors = variant_colors(summary)
     fig = _figure(12, 4.2)
     ax_d, ax_p = fig.subplots(1, 2, sharex=True)
     for key in ["sequential"] + [f"lambda={x:g}" for x in summary["lambdas"]]:
@@ -264,7 +266,7 @@ def split_figure(summary: dict, models: dict, lip, r: np.ndarray, ts: float, ref
     for λ = 0, the paper's λ and sequential (seed 0); shaded: samples of ``beyond`` (outside
     the training range)."""
     keys = ["lambda=0", f"lambda={summary['paper_lambda']:g}", "sequential"]
-    colors = _variant_colors(summary)
+    colors = variant_colors(summary)
     limit = summary["ranges"][summary["inside"]]["position_m"]
     t = np.arange(len(r)) * ts
     lip_force = lip.predict(y=r, ts=ts)

@@ -152,9 +152,10 @@ def _figures(summary, config, lip, refs, models, runs, truth, folder: Path) -> N
                                       truth[ref]), folder / f"split_{ref}.png")
     shown = ["feedback only", "LIP", "sequential", "lambda=0",
              f"lambda={summary['paper_lambda']:g}"]
+    colors = {_label(k): c for k, c in plots.variant_colors(summary).items()}
     for ref in refs:
         replays = {_label(k): runs[k] for k in shown}
-        plots.save(plots.tracking_figure(replays, ref), folder / f"tracking_{ref}.png")
+        plots.save(plots.tracking_figure(replays, ref, colors), folder / f"tracking_{ref}.png")
     plots.save(plots.mae_vs_lambda_figure(summary), folder / "mae_vs_lambda.png")
 
 

@@ -109,3 +109,22 @@ def test_sweep_axes_have_readable_labels_units_and_the_legend_below():
 ])
 def test_key_labels(key, label, factor):
     assert plots.key_label(key) == (label, factor)
+
+
+def _lab(color: str) -> np.ndarray:
+    """CIELAB (D65) of an sRGB colour: distances there follow what the eye tells apart."""
+    from matplotlib.colors import to_rgb
+    rgb = np.array(to_rgb(color))
+    lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722],
+                    [0.0193, 0.1192, 0.9505]]) @ lin / np.array([0.9505, 1.0, 1.089])
+    f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def test_palette_colours_are_told_apart():
+    # Delta E 25 is far above "just noticeable" (about 2); the teal #44AA99 beside Okabe-Ito's
+    # bluish green was 18.6 and read as the same line in the study's theta figure.
+    lab = [_lab(c) for c in plots.PALETTE]
+    closest = min(np.linalg.norm(a - b) for i, a in enumerate(lab) for b in lab[i + 1:])
+    assert closest > 25
