@@ -70,21 +70,43 @@ def blas_threads(n: int = 1):
 
 @dataclass(frozen=True)
 class OptimResult:
-    """Best parameters found, their cost, accepted iterations and residual evaluations."""
+    """Best parameters found, their cost, accepted iterations, residual evaluations, why the
+    optimizer stopped (``converged``: the first-order test held; ``max_iter``: the cap;
+    ``stalled``: no step decreased the cost although the test did not hold; ``small_decrease``:
+    the relative decrease fell below ``rtol``), the first-order measure and ``||grad V||``."""
 
     p: np.ndarray
     cost: float
     iterations: int
     evaluations: int
+    stop: str = "max_iter"
+    first_order: float = float("nan")
+    grad_norm: float = float("nan")
+
+
+def first_order_measure(r: np.ndarray, J: np.ndarray) -> float:
+    """Relative decrease of ``V = ||r||**2`` that the Gauss-Newton model predicts for its full step,
+    ``r' J (J'J)^+ J' r / r'r`` (in [0, 1]; 0 at a stationary point). It is the squared cosine of
+    the angle between ``r`` and the range of ``J``, so it does not depend on how the parameters
+    are scaled; directions whose curvature is below 1e-12 of the largest (after Marquardt scaling)
+    count as flat and are left out."""
+    g = J.T @ r
+    d = np.sqrt(np.maximum(np.einsum("ij,ij->j", J, J), 1e-300))
+    w, V = np.linalg.eigh((J.T @ J) / np.outer(d, d))
+    keep = w > w[-1] * 1e-12
+    proj = V[:, keep].T @ (g / d)
+    return float(proj @ (proj / w[keep]) / max(float(r @ r), 1e-300))
 
 
 def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float = 1e-3,
-                        rtol: float = 1e-10, callback=None) -> OptimResult:
+                        rtol: float = 0.0, ftol: float | None = None,
+                        callback=None) -> OptimResult:
     """Minimize ``||r(p)||**2``; ``max_iter`` bounds the Jacobian evaluations.
 
-    Stops early when the relative cost decrease of an accepted step is below ``rtol`` or when the
-    damping grows so large that no step can decrease the cost (a local minimum to working
-    precision).
+    Converged when :func:`first_order_measure` is at most ``ftol`` (the Gauss-Newton model
+    predicts less than that relative decrease: a stationary point to that accuracy); ``rtol``
+    (off by default) also stops when an accepted step decreases the cost by less than that
+    relative amount, the rule of the earlier fits.
     """
     p = np.array(p0, dtype=np.float64)
     r, J = fun(p, True)
@@ -92,10 +114,19 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     if callback is not None:
         callback(0, p, cost)
     mu, nu, evals, it = mu0, 2.0, 1, 0
-    while it < max_iter:
+    stop = "max_iter"
+    d = np.zeros(len(p))
+    while True:
         A = J.T @ J
         g = J.T @ r
-        d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+        if ftol is not None and first_order_measure(r, J) <= ftol:
+            stop = "converged"
+            break
+        if it >= max_iter:
+            break
+        # Marquardt scaling by the largest column norm seen so far (as MINPACK): a column that
+        # shrinks (a saturating neuron) keeps its damping instead of inviting a huge step.
+        d = np.maximum(d, np.sqrt(np.maximum(np.diag(A), 1e-300)))
         As = A / np.outer(d, d)
         gs = g / d
         accepted = False
@@ -119,6 +150,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
             mu *= nu
             nu *= 2.0
         if not accepted:
+            stop = "stalled"
             break
         it += 1
         p = p + step
@@ -131,8 +163,11 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         if callback is not None:
             callback(it, p, cost)
         if decrease < rtol:
+            stop = "small_decrease"
             break
-    return OptimResult(p=p, cost=cost, iterations=it, evaluations=evals)
+    return OptimResult(p=p, cost=cost, iterations=it, evaluations=evals, stop=stop,
+                       first_order=first_order_measure(r, J),
+                       grad_norm=float(np.linalg.norm(2.0 * (J.T @ r))))
 
 
 def adam(fun, p0: np.ndarray, *, max_iter: int = 1000, lr: float = 1e-3, betas=(0.9, 0.999),

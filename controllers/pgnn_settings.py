@@ -8,38 +8,62 @@ from typing import Literal
 
 from clm_sim.errors import UserError
 
+TRAININGS = ("simultaneous", "sequential", "pinn")
+OPTIMIZERS = ("varpro", "lm", "adam")
+ACTIVATION_NAMES = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
+
 
 @dataclass(frozen=True)
 class PGNNSettings:
     """Network and optimizer settings of a PGNN feedforward (see controllers.pgnn).
 
-    init: optimized (the lemma's least squares) or random; max_iter: LM iterations (Jacobian
-    evaluations) or Adam steps; optimizer: lm or adam; adam_lr: Adam step size;
-    validation_fraction: last part of the data held out to pick the best iterate (0: none);
-    pinn_weight: weight of the PINN term (training pinn only); lambda_diag: per-parameter
-    regularization weights (mass, viscous, coulomb, stiffness; physical units) overriding lambda;
-    decimation: keep every n-th sample of the filtered training data.
+    activation: of the hidden layers; init: optimized (the lemma's least squares) or random
+    (lm/adam only); optimizer: varpro (output layer and theta_phy eliminated by least squares,
+    Levenberg-Marquardt on the hidden layers), lm (Levenberg-Marquardt on all parameters, the
+    earlier method) or adam; max_iter: LM iterations (Jacobian evaluations) or Adam steps;
+    ftol: converged when the Gauss-Newton model predicts at most this relative cost decrease;
+    restarts: draws of the hidden layers per fit, the lowest training cost kept; adam_lr: Adam
+    step size; validation_fraction: last part of the data held out to pick the best iterate
+    (0: none); pinn_weight: weight of the PINN term (training pinn only); orthogonal_weight:
+    lambda_perp of the orthogonal-projection penalty (Kon et al. 2022; dimensionless);
+    weight_decay: L2 weight of the network weights (N**2 per unit weight**2); lambda_diag:
+    per-parameter regularization weights (mass, viscous, coulomb, stiffness; physical units)
+    overriding lambda; decimation: keep every n-th sample of the filtered training data.
     """
 
+    activation: Literal["tanh", "sigmoid", "softplus", "silu", "gelu", "relu"] = "tanh"
     init: Literal["optimized", "random"] = "optimized"
-    max_iter: int = 100
-    optimizer: Literal["lm", "adam"] = "lm"
+    optimizer: Literal["varpro", "lm", "adam"] = "varpro"
+    max_iter: int = 200
+    ftol: float = 1e-4
+    restarts: int = 1
     adam_lr: float = 1e-3
     validation_fraction: float = 0.0
     pinn_weight: float = 1.0
+    orthogonal_weight: float = 0.0
+    weight_decay: float = 0.0
     lambda_diag: dict[str, float] | None = None
-    decimation: int = 20
+    decimation: int = 80
 
     def __post_init__(self):
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise UserError(f"pgnn.max_iter: expected an integer >= 1, got {self.max_iter!r}")
-        if not (isinstance(self.decimation, int) and self.decimation >= 1):
-            raise UserError(f"pgnn.decimation: expected an integer >= 1, got {self.decimation!r}")
+        for key in ("max_iter", "decimation", "restarts"):
+            value = getattr(self, key)
+            if not (isinstance(value, int) and value >= 1):
+                raise UserError(f"pgnn.{key}: expected an integer >= 1, got {value!r}")
         if not 0.0 <= self.validation_fraction < 0.5:
             raise UserError(f"pgnn.validation_fraction: expected a number in [0, 0.5), "
                             f"got {self.validation_fraction!r}")
-        if not self.pinn_weight >= 0 or not self.adam_lr > 0:
-            raise UserError("pgnn: pinn_weight must be >= 0 and adam_lr > 0")
+        if not 0.0 < self.ftol < 1.0:
+            raise UserError(f"pgnn.ftol: expected a number in (0, 1), got {self.ftol!r}")
+        for key in ("pinn_weight", "orthogonal_weight", "weight_decay"):
+            if not getattr(self, key) >= 0:
+                raise UserError(f"pgnn.{key}: expected a number >= 0, got "
+                                f"{getattr(self, key)!r}")
+        if not self.adam_lr > 0:
+            raise UserError(f"pgnn.adam_lr: expected a number > 0, got {self.adam_lr!r}")
+        if self.init == "random" and self.optimizer == "varpro":
+            raise UserError("pgnn.init: 'random' needs optimizer lm or adam (varpro solves the "
+                            "output layer by least squares at every step)")
         for k, v in (self.lambda_diag or {}).items():
             if k not in ("mass", "viscous", "coulomb", "stiffness") or not v >= 0:
                 raise UserError(f"pgnn.lambda_diag.{k}: expected one of mass, viscous, coulomb, "

@@ -169,11 +169,21 @@ class Testbed:
         return self._fit_pgnn(spec, run, lip or self.fit_lip(run), seed)
 
     def _fit_pgnn(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward, index: int):
-        from controllers.pgnn import PGNNFeedforward  # torch is imported only for a PGNN
+        return self._fit_seeds(spec, run, lip, [index])[0]
+
+    def _fit_seeds(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward,
+                   indices: list[int]) -> list:
+        """PGNN fits of ``spec`` for network seeds ``indices`` (on both cores when there are
+        several; every fit is single-threaded, so the pool never changes a result)."""
+        from controllers.pgnn import training_data  # torch is imported only for a PGNN
+        from experiments import parallel
+
         run_seed = run.meta.get("seed", self.config.seed)
-        model = PGNNFeedforward(**spec.pgnn_settings(), features=self.config.features)
-        return model.fit(y=run.y, u=run.u, ts=run.ts, theta_lip=lip.theta_,
-                         rng=np.random.default_rng(stream(run_seed, STREAM_NETWORK, index)))
+        settings = spec.pgnn_settings()
+        data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
+                             decimation=settings["decimation"])
+        return parallel.map_fits([(settings, self.config.features, data, dict(lip.theta_),
+                                   stream(run_seed, STREAM_NETWORK, s)) for s in indices])
 
     def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:
         """The fitted models of one table row: one per seed; ``[None]`` for feedback only."""
@@ -181,10 +191,12 @@ class Testbed:
             return [None]
         if spec.kind == "lip":
             return [lip]
-        models = []
-        for s in range(spec.seeds):
-            self.progress(f"  training {spec.label()} seed {s + 1}/{spec.seeds}")
-            models.append(self._fit_pgnn(spec, run, lip, s))
+        self.progress(f"  training {spec.label()}: {spec.seeds} seeds")
+        models = self._fit_seeds(spec, run, lip, list(range(spec.seeds)))
+        capped = sum(m.fit_["stop"] != "converged" for m in models)
+        if capped:
+            self.progress(f"  {spec.label()}: {capped} of {len(models)} fits not converged "
+                          f"(stopped at max_iter or stalled)")
         return models
 
     def replay(self, model, reference, *, meta: dict | None = None) -> Run:
@@ -200,9 +212,18 @@ class Testbed:
     def evaluate(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward,
                  references: tuple[str, ...] | None = None) -> RowResult:
         """Fit one row and replay every seed on ``references`` (default: the config's
-        ``replay``). Only the first seed's replays are kept (the others' metrics are)."""
+        ``replay``). Only the first seed's replays are kept (the others' metrics are).
+
+        Per seed, ``metrics`` holds per reference the tracking metrics (m) and, for a PGNN, the
+        peak network force (N) over the reference and over its samples beyond the training
+        range; under ``"fit"`` the fit record (seed, stop, iterations, costs, gradient norm,
+        largest relative drift of theta_phy from theta_LIP)."""
         refs = self.config.replay if references is None else references
         models = self.fit_row(spec, run, lip)
+        ts, features = self.ts, self.config.features
+        _, v_train, a_train = features.motion(self.reference(self.config.training.reference), ts)
+        y_train = self.reference(self.config.training.reference)
+        limits = [np.max(np.abs(x)) * 1.01 for x in (y_train, v_train, a_train)]
         metrics, first = [], {}
         for s, model in enumerate(models):
             per_ref = {}
@@ -210,8 +231,23 @@ class Testbed:
                 rep = self.replay(model, name, meta=self.meta(
                     run=f"replay {spec.label()} on {name}", seed=s))
                 per_ref[name] = rep.metrics()
+                if spec.kind == "pgnn":
+                    r = self.reference(name)
+                    _, net = model.predict_parts(y=r, ts=ts)
+                    _, v, a = features.motion(r, ts)
+                    beyond = ((np.abs(r) > limits[0]) | (np.abs(v) > limits[1])
+                              | (np.abs(a) > limits[2]))
+                    per_ref[name]["network_peak_n"] = float(np.max(np.abs(net)))
+                    per_ref[name]["network_peak_beyond_n"] = (
+                        float(np.max(np.abs(net[beyond]))) if beyond.any() else None)
                 if s == 0:
                     first[name] = rep
+            if spec.kind == "pgnn":
+                fit = {k: model.fit_[k] for k in ("stop", "iterations", "data_cost", "reg_cost",
+                                                  "grad_norm", "first_order")}
+                drift = {k: abs(model.theta_[k] - lip.theta_[k]) / abs(lip.theta_[k])
+                         for k in model.theta_ if lip.theta_[k]}
+                per_ref["fit"] = {"seed": s, **fit, "theta_drift": max(drift.values())}
             metrics.append(per_ref)
         row = RowResult(spec, models, metrics, first)
         self.progress(f"{spec.label()}: " + ", ".join(

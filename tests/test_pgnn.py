@@ -1,13 +1,18 @@
-"""PGNN feedforward: the lemma's inequality, regularization limits, recovery, determinism, storage."""
+"""PGNN feedforward: the lemma's inequality, regularization limits, recovery, derivatives,
+convergence records, the successors' regularizers, determinism, storage."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
+import torch
 
 from clm_sim.features import FeatureMap
 from clm_sim.plant import THETA_NAMES
 from clm_sim.reference import PointToPoint
+from controllers import optim
 from controllers.pgnn import PGNNFeedforward, TrainingData, lemma_condition
 
 THETA_TRUE = np.array([18.8, 172.0, 7.21, 20.0])
@@ -37,8 +42,9 @@ def as_dict(theta) -> dict[str, float]:
 
 
 def hidden_outputs(model, data, theta, seed):
-    mean, std, params = model.init_params(data, theta, np.random.default_rng(seed))
-    return np.tanh((data.phi - mean) / std @ params["W1"].T + params["b1"])
+    """The first start's hidden-layer outputs of a fit of ``model`` with rng seed ``seed``."""
+    net = model.new_network(data, np.random.default_rng(seed))
+    return net.hidden_outputs(net.get_nonlinear(), torch.from_numpy(data.phi))
 
 
 @pytest.fixture(scope="session")
@@ -108,7 +114,9 @@ def test_regularized_pgnn_learns_parasitic_force_and_keeps_theta(data):
     near the truth here, the sine being nearly orthogonal to the LIP columns) and fits it."""
     theta = lip_theta(data)
     lip_cost = float(np.mean((data.target - data.phi @ theta) ** 2))
-    model = PGNNFeedforward(hidden=16, lam=0.01, max_iter=100)
+    # Three draws, the lowest training cost kept: from one draw a fit can end in a local
+    # minimum that misses part of the sine (measured: 1 of 4 draws at 0.45 N**2).
+    model = PGNNFeedforward(hidden=16, lam=0.01, max_iter=100, restarts=3)
     model.fit_data(data=data, theta_lip=as_dict(theta), rng=np.random.default_rng(1))
     got = np.array([model.theta_[k] for k in THETA_NAMES])
     # 1 %: the penalty 0.01*dtheta**2 must stay below the data-term gain (a few N**2).
@@ -118,7 +126,7 @@ def test_regularized_pgnn_learns_parasitic_force_and_keeps_theta(data):
     # theta_LIP itself is close to the truth: the sine hides no bias in mass, viscous, coulomb.
     np.testing.assert_allclose(theta[:3], THETA_TRUE[:3], rtol=0.05)
     costs = [h["cost"] for h in model.history_]
-    assert all(b <= a for a, b in zip(costs, costs[1:]))  # LM accepts only decreases
+    assert all(b <= a for a, b in itertools.pairwise(costs))  # LM accepts only decreases
 
 
 @pytest.mark.parametrize("training", ["simultaneous", "sequential", "pinn"])
@@ -126,9 +134,10 @@ def test_same_seed_same_bits(data, training):
     theta = as_dict(lip_theta(data))
     fits = [PGNNFeedforward(hidden=5, training=training, max_iter=5).fit_data(
         data=data, theta_lip=theta, rng=np.random.default_rng(s)) for s in (7, 7, 8)]
-    for k in fits[0].params_:
-        np.testing.assert_array_equal(fits[0].params_[k], fits[1].params_[k])
-    assert not np.array_equal(fits[0].params_["W1"], fits[2].params_["W1"])
+    states = [f.network_.state_dict() for f in fits]
+    for k in states[0]:
+        assert torch.equal(states[0][k], states[1][k]), k
+    assert not torch.equal(states[0]["mlp.hidden.0.weight"], states[2]["mlp.hidden.0.weight"])
 
 
 def test_sequential_keeps_theta_lip(data):
@@ -138,28 +147,173 @@ def test_sequential_keeps_theta_lip(data):
     assert model.theta_ == theta
 
 
-def test_jacobian_matches_finite_differences(data):
+def _central_differences(fun, p, step=1e-6):
+    cols = []
+    for k in range(len(p)):
+        dp = np.zeros_like(p)
+        dp[k] = step * max(1.0, abs(p[k]))
+        cols.append((fun(p + dp) - fun(p - dp)) / (2 * dp[k]))
+    return np.column_stack(cols)
+
+
+@pytest.mark.parametrize("training,lam,extra,hidden", [
+    ("simultaneous", 0.3, {}, 4), ("pinn", 0.0, {}, 4), ("sequential", 0.0, {}, 4),
+    ("simultaneous", 0.0, {"orthogonal_weight": 2.0, "weight_decay": 1e-3}, 4),
+    ("simultaneous", 0.01, {"activation": "softplus"}, (3, 2))])
+def test_jacobian_matches_finite_differences(data, training, lam, extra, hidden):
+    """The torch.func Jacobian of the full problem, and the exact gradient of the reduced
+    (variable projection) cost, against central differences written independently."""
+    small = TrainingData(data.phi[:400], data.target[:400])
+    theta = lip_theta(small)
+    model = PGNNFeedforward(hidden=hidden, training=training, lam=lam, optimizer="lm", **extra)
+    net = model.new_network(small, np.random.default_rng(0))
+    cost = model.training_cost(small, theta, net)
+    p = model.initial_point(cost, theta, np.random.default_rng(1))
+    p = p + 0.05 * np.random.default_rng(2).standard_normal(len(p))  # off the LS solution
+    _, J = cost.full(p, True)
+    fd = _central_differences(lambda q: cost.full(q, False), p)
+    # Central differences: truncation ~ step**2 * third derivative, round-off ~ 1e-16/1e-6.
+    np.testing.assert_allclose(J, fd, atol=1e-6 * np.abs(J).max())
+    beta = p[cost.n_linear:]
+    r, Jr = cost(beta, True)
+    grad_fd = _central_differences(lambda b: np.atleast_1d(cost(b, False) @ cost(b, False)),
+                                   beta)[0]
+    # Kaufman's Jacobian is approximate, but J'r is the exact gradient of the reduced cost.
+    np.testing.assert_allclose(2 * Jr.T @ r, grad_fd, atol=1e-6 * np.abs(grad_fd).max())
+
+
+def test_reduced_cost_is_the_full_cost_at_its_linear_solution(data):
+    """Variable projection: the reduced cost at beta equals the full cost at (x*(beta), beta),
+    and there the full gradient with respect to the linear parameters vanishes."""
+    small = TrainingData(data.phi[:500], data.target[:500])
+    theta = lip_theta(small) * 1.02
+    model = PGNNFeedforward(hidden=5, lam=0.05, weight_decay=1e-3, orthogonal_weight=0.5)
+    net = model.new_network(small, np.random.default_rng(4))
+    cost = model.training_cost(small, theta, net)
+    beta = net.get_nonlinear()
+    th, w, b = cost.linear(beta)
+    p = np.concatenate([th, w, [b], beta])
+    r_full, J_full = cost.full(p, True)
+    r_red = cost(beta, False)
+    assert r_full @ r_full == pytest.approx(r_red @ r_red, rel=1e-12)  # same numbers
+    g_lin = 2 * J_full[:, :cost.n_linear].T @ r_full
+    # Normal equations hold to round-off (relative to the gradient's natural scale).
+    assert np.abs(g_lin).max() < 1e-9 * np.abs(J_full).max() * np.linalg.norm(r_full)
+
+
+@pytest.mark.parametrize("hidden,activation", [(16, "tanh"), ((12, 6), "tanh")])
+def test_fit_converges_and_records_how(data, hidden, activation):
+    """On a learnable parasitic force the fit ends by the first-order test, and its record says
+    so with the numbers that justify it."""
     theta = lip_theta(data)
-    for training, lam in (("simultaneous", 0.3), ("pinn", 0.0), ("sequential", 0.0)):
-        model = PGNNFeedforward(hidden=4, training=training, lam=lam)
-        mean, std, params = model.init_params(data, theta, np.random.default_rng(0))
-        problem = model._problem(data, theta, mean, std, params)
-        p = problem.layout.pack(params)
-        _, J = problem(p, True)
-        fd = np.empty_like(J)
-        for k in range(len(p)):
-            dp = np.zeros_like(p)
-            dp[k] = 1e-6 * max(1.0, abs(p[k]))
-            fd[:, k] = (problem(p + dp, False) - problem(p - dp, False)) / (2 * dp[k])
-        # Central differences: truncation ~ step**2 * third derivative, round-off ~ 1e-16/1e-6.
-        np.testing.assert_allclose(J, fd, atol=1e-7 * np.abs(J).max())
+    # Restarts: a single draw can converge to a local minimum that misses part of the sine.
+    model = PGNNFeedforward(hidden=hidden, activation=activation, lam=0.01, weight_decay=1e-5,
+                            max_iter=300, restarts=4).fit_data(data=data, theta_lip=as_dict(theta),
+                                                   rng=np.random.default_rng(0))
+    f = model.fit_
+    assert f["stop"] == "converged", f
+    assert f["first_order"] <= model.ftol and f["iterations"] <= model.max_iter
+    assert f["data_cost"] == pytest.approx(model.cost_["data"])
+    assert f["reg_cost"] == pytest.approx(model.cost_["deviation"] + model.cost_["weight_decay"])
+    lip_cost = float(np.mean((data.target - data.phi @ theta) ** 2))
+    assert f["data_cost"] < 0.1 * lip_cost  # the 3 N sine is learned (noise floor 0.04 N**2)
 
 
-def test_save_load_round_trip(tmp_path, data):
-    model = PGNNFeedforward(hidden=6, lam=0.01, max_iter=5, features=FeatureMap(edge_samples=50))
+def test_capped_fit_says_max_iter(data):
+    model = PGNNFeedforward(hidden=16, max_iter=2).fit_data(
+        data=data, theta_lip=as_dict(lip_theta(data)), rng=np.random.default_rng(0))
+    assert model.fit_["stop"] == "max_iter" and model.fit_["iterations"] == 2
+
+
+def test_restarts_keep_the_lowest_training_cost(data):
+    theta = as_dict(lip_theta(data))
+    model = PGNNFeedforward(hidden=3, max_iter=8, restarts=3).fit_data(
+        data=data, theta_lip=theta, rng=np.random.default_rng(5))
+    costs = [s["cost"] for s in model.fit_["starts"]]
+    assert len(costs) == 3 and len(set(costs)) == 3  # three different draws
+    assert sum(model.cost_.values()) == pytest.approx(min(costs), rel=1e-12)
+
+
+def test_orthogonal_projection_keeps_theta_lip(data):
+    """Kon et al.: with the network kept orthogonal to the physical regressors, theta_phy is the
+    least-squares LIP of the data, whatever the network learns (no theta_LIP in the cost)."""
+    theta = lip_theta(data)
+    model = PGNNFeedforward(hidden=16, lam=0.0, orthogonal_weight=10.0, max_iter=100).fit_data(
+        data=data, theta_lip=as_dict(theta * 1.3), rng=np.random.default_rng(1))
+    got = np.array([model.theta_[k] for k in THETA_NAMES])
+    # 2 %: the issue's bar; the penalty leaves only round-off and the unconverged remainder.
+    np.testing.assert_allclose(got, theta, rtol=0.02)
+    f = model.network(data.phi)
+    q = np.linalg.qr(data.phi)[0]
+    assert np.linalg.norm(q.T @ f) < 0.05 * np.linalg.norm(f)  # nearly orthogonal
+
+
+def test_weight_decay_shrinks_the_weights(data):
+    theta = as_dict(lip_theta(data))
+    norms = []
+    for alpha in (0.0, 1e-2):
+        m = PGNNFeedforward(hidden=8, weight_decay=alpha, max_iter=60).fit_data(
+            data=data, theta_lip=theta, rng=np.random.default_rng(3))
+        norms.append(sum(float((v**2).sum()) for k, v in m.network_.state_dict().items()
+                         if k.endswith("weight")))
+        assert (m.cost_["weight_decay"] > 0) == (alpha > 0)
+    assert norms[1] < 0.5 * norms[0]
+
+
+def test_result_does_not_depend_on_the_callers_thread_count(data):
+    """Fits pin torch and BLAS to one thread, so the caller's setting cannot change a bit."""
+    theta = as_dict(lip_theta(data))
+    before = torch.get_num_threads()
+    states = []
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            m = PGNNFeedforward(hidden=16, max_iter=20).fit_data(
+                data=data, theta_lip=theta, rng=np.random.default_rng(0))
+            states.append(m.network_.state_dict())
+    finally:
+        torch.set_num_threads(before)
+    for k in states[0]:
+        assert torch.equal(states[0][k], states[1][k]), k
+
+
+def test_worker_pool_gives_the_same_bits(data):
+    """Fits on the process pool equal fits in this process."""
+    from experiments import parallel
+
+    theta = as_dict(lip_theta(data))
+    small = TrainingData(data.phi[:600], data.target[:600])
+    payloads = [({"hidden": 4, "max_iter": 10}, FeatureMap(), small, theta,
+                 np.random.SeedSequence(11, spawn_key=(1, s))) for s in range(2)]
+    pooled = parallel.map_fits(payloads)
+    for p, m in zip(payloads, pooled):
+        here = parallel.fit_pgnn(p)
+        for k, v in here.network_.state_dict().items():
+            assert torch.equal(v, m.network_.state_dict()[k]), k
+
+
+def test_optimizer_first_order_measure_is_scale_invariant():
+    rng = np.random.default_rng(0)
+    J = rng.standard_normal((50, 4))
+    r = rng.standard_normal(50)
+    D = np.diag([1e-3, 1.0, 1e3, 7.0])
+    assert optim.first_order_measure(r, J) == pytest.approx(optim.first_order_measure(r, J @ D))
+    r_perp = r - J @ np.linalg.lstsq(J, r, rcond=None)[0]
+    assert optim.first_order_measure(r_perp, J) < 1e-20  # stationary: nothing to gain
+
+
+@pytest.mark.parametrize("hidden,activation", [(6, "tanh"), ((5, 3), "silu")])
+def test_save_load_round_trip(tmp_path, data, hidden, activation):
+    model = PGNNFeedforward(hidden=hidden, activation=activation, lam=0.01, max_iter=5,
+                            features=FeatureMap(edge_samples=50))
     model.fit_data(data=data, theta_lip=as_dict(lip_theta(data)), rng=np.random.default_rng(2))
     model.save(tmp_path / "model")
+    # The tensors alone are a plain state_dict: loadable with weights_only=True.
+    state = torch.load(tmp_path / "model.pt", weights_only=True)
+    assert all(v.dtype == torch.float64 for v in state.values())
+    assert {"mlp.input_mean", "mlp.input_std", "theta"} <= set(state)
     back = PGNNFeedforward.load(tmp_path / "model")
+    assert back.fit_ == model.fit_
     r = PointToPoint(points_m=(0.0, 0.05, 0.0), dwell_s=0.05).sample(1e-4).r
     np.testing.assert_array_equal(back.feedforward(r, 1e-4), model.feedforward(r, 1e-4))
     assert back.theta_ == model.theta_ and back.features == model.features
@@ -181,7 +335,7 @@ def test_paper_table_config_has_the_eight_rows():
     assert rows == [("none", None, None, None), ("lip", None, None, None)] + [
         ("pgnn", t, lam, n) for n in (16, 8)
         for t, lam in (("sequential", None), ("simultaneous", 0.0), ("simultaneous", 0.01))]
-    assert all(f.seeds >= 5 for f in config.feedforwards if f.kind == "pgnn")
+    assert all(f.seeds >= 10 for f in config.feedforwards if f.kind == "pgnn")
 
 
 def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
@@ -191,9 +345,10 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
     from experiments.study import load_study
 
     root = Path(__file__).resolve().parents[1]
-    config, study = load_study(root / "experiments/configs/extrapolation_study.yaml")
+    _, study = load_study(root / "experiments/configs/extrapolation_study.yaml")
     assert 0.0 in study.lambdas and study.paper_lambda in study.lambdas
     bad = tmp_path / "bad.yaml"
     bad.write_text("study:\n  lambdaz: [0]\n")
     with pytest.raises(UserError, match=r"bad.yaml: study.lambdaz: unknown key"):
         load_study(bad)
+
