@@ -140,7 +140,7 @@ _SHORT = {"mass": "m", "viscous": "fv", "coulomb": "fc", "stiffness": "fk"}
 
 
 def _fmt(value) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)
+    return "–" if value is None else f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def _um(stat: dict) -> str:
@@ -263,13 +263,19 @@ def over_seeds(rows: list[dict], swept: list[str]) -> list[dict]:
     """Rows of a sweep that differ only in the swept ``seed`` merged into one row each, in the
     order they first appear: MAE mean ± sample std over the seeds, theta_phy averaged,
     ``n_seeds`` the number of seeds merged. Rows are matched by feedforward position
-    (``row``) and every other swept key."""
+    (``row``) and every other swept key that can change them: a row no key of its own
+    changes (the LIP beside a PGNN whose lambda is swept) is one row, those keys ``None``."""
     others = [k for k in swept if k != "seed"]
     groups: dict[tuple, list[dict]] = {}
+    seen = set()
     for row in rows:
-        groups.setdefault((row["row"], *(row[k] for k in others)), []).append(row)
+        own = tuple(row[k] if _applies(k, row["row"]) else None for k in others)
+        if (row["row"], own, row.get("seed")) in seen:
+            continue  # the same row of the same seed, copied across another row's keys
+        seen.add((row["row"], own, row.get("seed")))
+        groups.setdefault((row["row"], own), []).append(row)
     out = []
-    for members in groups.values():
+    for (_, own), members in groups.items():
         first = members[0]
         thetas = [m["theta_phy"] for m in members if m["theta_phy"]]
         out.append({
@@ -279,7 +285,7 @@ def over_seeds(rows: list[dict], swept: list[str]) -> list[dict]:
                           if k != "n"} for ref in first["mae"]},
             "theta_phy": {k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES}
             if thetas else None,
-            "label": first["label"], **{k: first[k] for k in others}, "row": first["row"]})
+            "label": first["label"], **dict(zip(others, own)), "row": first["row"]})
     return out
 
 

@@ -357,6 +357,18 @@ def test_rows_over_seeds_are_mean_and_sample_std():
         assert m["theta_phy"]["mass"] == pytest.approx(20.0)
 
 
+def test_a_row_the_swept_keys_cannot_change_is_summarized_once():
+    swept = ["feedforwards[0].lambda", "seed"]
+    lip = [{**row, "row": 1, "kind": "lip", "label": "LIP", "lambda": None,
+            "mae": {"r1": {"mean": row["seed"] * 1e-7, "std": 0.0}}} for row in _seed_rows()]
+    merged = table.over_seeds(_seed_rows() + lip, swept)
+    lips = [m for m in merged if m["label"] == "LIP"]
+    assert len(lips) == 1 and lips[0]["feedforwards[0].lambda"] is None
+    # Seeds 1, 2, 3 once each, not once per lambda.
+    assert lips[0]["n_seeds"] == 3 and lips[0]["mae"]["r1"]["mean"] == pytest.approx(2e-7)
+    assert "| – | LIP | 3 | 0.200 ± 0.100 |" in table.to_markdown(merged, swept[:1])
+
+
 def test_sweep_table_gives_mean_and_std_beside_the_per_seed_rows():
     swept = ["feedforwards[0].lambda", "seed"]
     text = sweep_markdown(_seed_rows(), swept, [])
