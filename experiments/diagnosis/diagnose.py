@@ -84,5 +84,6 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
                 "cv": f"blocked {settings.folds}-fold cross-validation, contiguous blocks",
                 "min_gain": settings.min_gain, "min_explained": settings.min_explained,
                 "min_folds": settings.min_folds,
+                "min_force_fraction": settings.min_force_fraction,
                 "p_value": settings.p_value, "max_findings": settings.max_findings}}
     return Diagnosis(findings, gain, model, extended, effects, correction, res, signals, info)

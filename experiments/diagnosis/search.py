@@ -28,10 +28,12 @@ noise floor: once the large causes are removed, ``min_gain`` alone would name mo
 held-out MSE drops in at least ``min_folds`` of ``folds`` folds (counted among the
 folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an F-test of ``S + c``
 against ``S`` on all fitted samples, with the effective sample count of the filtered data, has
-p < ``p_value``; a Stribeck term must also be a peak (peak > 0), pre-sliding friction positive and
-at most the model's Coulomb friction, a ``not_supported`` scale below -0.5, a parameter mismatch
-reportable (:func:`reportable`), a ``cable_slab`` more than its constant and linear part, and a
-periodic term better than a smooth force in its place (:func:`_beats_smooth`). Each step takes
+p < ``p_value``, and (4) the force it explains (RMS of the held-out MSE drop) is at least
+``min_force_fraction`` of the measured force's RMS; a Stribeck term must also be a peak
+(peak > 0), pre-sliding friction positive and at most the model's Coulomb friction, a
+``not_supported`` scale below -0.5, a parameter mismatch reportable (:func:`reportable`), a
+``cable_slab`` more than its constant and linear part, and a periodic term better than a smooth
+force in its place (:func:`_beats_smooth`). Each step takes
 the candidate with the largest held-out gain that passes; the search stops when none does, so a
 model that already explains the data yields no finding. A backward pass then drops any term
 whose removal from the final model raises the held-out MSE by less than these thresholds (made
@@ -464,8 +466,10 @@ def forward_select(res: Residual) -> list[Step]:
                 if not (g2 >= st.min_gain and e2 >= st.min_explained and i2 >= st.min_folds
                         and p2 < st.p_value):
                     continue
+            force = math.sqrt(max(explained * base, 0.0) / len(res.z))
             if gain >= st.min_gain and explained >= st.min_explained and \
-                    improved >= st.min_folds and p < st.p_value:
+                    improved >= st.min_folds and p < st.p_value and \
+                    force >= st.min_force_fraction * res.force_rms:
                 accepted = Step(term, cols, gain, improved, p)
                 break
         if accepted is None:
