@@ -197,8 +197,12 @@ def fit_cv(x: np.ndarray, z: np.ndarray, fold: np.ndarray, folds: int) -> Fit:
     sse = float(z @ z - 2 * coef @ b + coef @ g @ coef)
     cv = np.empty(folds)
     for f in range(folds):
-        c = _solve(g - gs[f], b - bs[f])
-        cv[f] = zz[f] - 2 * c @ bs[f] + c @ gs[f] @ c
+        # A fold whose columns the others do not determine (a high polynomial order where the
+        # fold's positions lie outside the others') predicts nothing: its held-out SSE is inf.
+        with np.errstate(over="ignore", invalid="ignore"):
+            c = _solve(g - gs[f], b - bs[f])
+            cv[f] = zz[f] - 2 * c @ bs[f] + c @ gs[f] @ c
+    cv[~np.isfinite(cv)] = np.inf
     return Fit(coef, max(sse, 0.0), np.maximum(cv, 0.0))
 
 
