@@ -310,6 +310,7 @@ def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
         c["holm_significant"] = p < 1 - settings.confidence
     region = {v: [_label(c) for c in outside if c["verdict"] == v] for v in VERDICTS}
     capped = [f for f in fits if f["stop"] == "max_iter"]
+    unconverged = [f for f in fits if f["stop"] != "converged"]
     return {
         "settings": to_plain(settings),
         "interval": (f"{settings.confidence:.0%} t-interval on the per-seed log ratio "
@@ -319,7 +320,7 @@ def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
         "cells": cells, "region": region, "drift": drift, "fits": fits,
         "fit_stops": {s: sum(f["stop"] == s for f in fits) for s in sorted({f["stop"] for f in
                                                                            fits})},
-        "capped_fits": len(capped), "failures": failures,
+        "capped_fits": len(capped), "unconverged_fits": len(unconverged), "failures": failures,
         "mechanism": _mechanism(outside),
     }
 
@@ -340,7 +341,7 @@ def _cell_stats(settings, case, hidden, direction, ref, rows) -> dict:
     part = {k: {q: _mean([r[k]["parts"][ref][q] for r in rows])
                 for q in ("network_peak_beyond_n", "network_peak_within_n", "error_beyond_rms_n")}
             for k in ("lam0", "reg")}
-    capped = sum(r[k]["fit"]["stop"] == "max_iter" for r in rows for k in ("lam0", "reg"))
+    stops = [r[k]["fit"]["stop"] for r in rows for k in ("lam0", "reg")]
     return {"case": case, "hidden": hidden, "direction": direction, "reference": ref,
             "n_seeds": len(rows), "seeds": [r["seed"] for r in rows],
             "mae_lam0": {"mean": float(np.mean(a)), "per_seed": a},
@@ -350,7 +351,8 @@ def _cell_stats(settings, case, hidden, direction, ref, rows) -> dict:
             "verdict": verdict(stat),
             "network": part, "lip_error_beyond_rms_n":
                 _mean([r["lip"]["error_beyond_rms_n"][ref] for r in rows]),
-            "capped_fits": capped}
+            "capped_fits": stops.count("max_iter"),
+            "unconverged_fits": sum(x != "converged" for x in stops)}
 
 
 def _drift(rows) -> dict:
@@ -498,9 +500,11 @@ def report(s: dict) -> str:
     n_fits = len(s["fits"])
     stops = ", ".join(f"{n} {k}" for k, n in s["fit_stops"].items())
     lines += [f"**Fits:** {n_fits} ({stops}). "
-              + (f"**{s['capped_fits']} fits stopped at the iteration cap** (max_iter "
-                 f"{st['pgnn']['max_iter']}); the cells that contain them are marked † below."
-                 if s["capped_fits"] else "No fit stopped at the iteration cap.")]
+              + (f"**{s['unconverged_fits']} fits did not pass the convergence test**, "
+                 f"{s['capped_fits']} of them stopped at the iteration cap (max_iter "
+                 f"{st['pgnn']['max_iter']}); the cells that contain them are marked † below "
+                 f"(the count per cell is in failure_map.json)."
+                 if s["unconverged_fits"] else "Every fit passed the convergence test.")]
     if s["failures"]:
         lines += ["", f"**{len(s['failures'])} cells failed** and are left out: "
                   + "; ".join(f"{f['case']} n_l={f['hidden']} seed {f['seed']}: {f['error']}"
@@ -531,7 +535,7 @@ def report(s: dict) -> str:
     for c in outside:
         d = c["difference_m"]
         n0, n1 = (c["network"][k]["network_peak_beyond_n"] for k in ("lam0", "reg"))
-        dag = " †" if c["capped_fits"] else ""
+        dag = f" †{c['unconverged_fits']}" if c["unconverged_fits"] else ""
         lines.append(
             f"| {c['direction']} ({c['reference']}) | {c['case']}{dag} | {c['hidden']} | "
             f"{_um(c['mae_lip']['mean'])} | {_um(c['mae_lam0']['mean'])} | "

@@ -150,9 +150,12 @@ def test_tiny_fits_record_how_they_stopped(tiny):
     assert len(s["fits"]) == 2 * 2 * 3  # two lambdas per cell of 2 cases x 3 seeds
     assert {f["lambda"] for f in s["fits"]} == {0.0, 0.01}
     capped = sum(f["stop"] == "max_iter" for f in s["fits"])
-    assert s["capped_fits"] == capped
-    assert (f"{capped} fits stopped at the iteration cap" in text if capped else
-            "No fit stopped at the iteration cap" in text)
+    open_ = sum(f["stop"] != "converged" for f in s["fits"])
+    assert s["capped_fits"] == capped and s["unconverged_fits"] == open_
+    assert sum(c["unconverged_fits"] for c in s["cells"] if c["direction"] == "inside") == open_
+    assert (f"{open_} fits did not pass the convergence test" in text and
+            f"{capped} of them stopped at the iteration cap" in text if open_ else
+            "Every fit passed the convergence test" in text)
 
 
 @pytest.mark.slow
