@@ -3,10 +3,12 @@
 The record is measured on an emulated machine (nominal CLM plus cogging, a Stribeck peak and
 Dahl pre-sliding friction in place of part of the Coulomb friction) with the r1 reference
 repeated, dither 50 N, 10 kHz; every candidate (pre-sliding, cable_slab included) is searched.
-Prints the sample count, the wall time of the diagnosis alone (the simulation is not timed) and
-what it found.
+Prints the sample count, the wall and CPU time of the diagnosis alone (the simulation is not
+timed) and what it found. The fits are on tall, narrow matrices, where multi-threaded BLAS gains
+nothing and, on a machine whose cores are busy, oversubscribes them (measured 10-15 s wall
+instead of 2.6 s at a load of 6 on 2 cores); the figure to quote is with one BLAS thread:
 
-    .venv/bin/python benchmarks/bench_diagnose.py
+    OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_diagnose.py
 """
 
 from __future__ import annotations
@@ -30,10 +32,11 @@ def main() -> None:
     run, model = measure(truth, nominal, 2024, repeats=3)
     run = run.slice(0, N_SAMPLES)
     diagnose(run.slice(0, 120_000), model)  # compile and warm caches outside the timing
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     result = diagnose(run, model)
-    elapsed = time.perf_counter() - start
-    print(f"samples: {len(run)}  diagnose wall time: {elapsed:.2f} s  (target <= 5 s)")
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
+    print(f"samples: {len(run)}  diagnose wall time: {elapsed:.2f} s, CPU {cpu:.2f} s  "
+          f"(target <= 5 s)")
     for f in result.findings:
         print(f"  {f['effect']}: {f['parameters']}  explained {f['explained_fraction']:.3f}")
     g = result.gain
