@@ -352,3 +352,31 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
     with pytest.raises(UserError, match=r"bad.yaml: study.lambdaz: unknown key"):
         load_study(bad)
 
+
+
+def _first_table(text: str) -> list[str]:
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| feedforward"))
+    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
+    return lines[start:end]
+
+
+@pytest.mark.slow
+def test_readme_paper_table_is_what_a_fresh_run_prints(tmp_path):
+    """The README's paper table is the output of the command printed beside it, on this code:
+    every cell equal to the printed precision (fits are single-threaded and deterministic, so a
+    fresh run reproduces the bits on the same libraries). 155 s measured on the shared 2-core
+    machine."""
+    from pathlib import Path
+
+    from experiments.cli import main
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    section = readme.split("## The paper's table, regenerated", 1)[1].split("\n## ", 1)[0]
+    assert "clm-sim run experiments/configs/paper_table.yaml" in section
+    out = tmp_path / "paper_table"
+    assert main(["run", str(root / "experiments/configs/paper_table.yaml"), "--out", str(out),
+                 "--quiet"]) == 0
+    fresh = _first_table((out / "table.md").read_text(encoding="utf-8"))
+    assert _first_table(section) == fresh
