@@ -113,7 +113,7 @@ def test_hidden_effect_is_named_first_with_its_parameters(diagnosed, kind):
         assert _angle(p["phase"], true.phase) < 0.15  # rad; follows from a 2 % period
     elif kind == "stribeck":
         # Only ~1 % of the samples lie between the encoder speed floor and a few Stribeck
-        # velocities, and static and velocity trade off there: the friction curve above the
+        # velocities, and peak and velocity trade off there: the friction curve above the
         # floor is held to 15 % of the peak, the velocity to 25 %.
         found = Stribeck(peak=p["peak"], velocity=p["velocity"])
         v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.05, 200)
