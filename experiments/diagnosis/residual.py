@@ -18,8 +18,8 @@ the same way), and where the velocity cannot reach zero within the sample at the
 the held forces give through the model (a stage that stops for part of a sample, as under dither
 at a few counts per sample, holds less than its sliding friction there). This keeps slow
 monotone motion (down to one count per sample, half the speed the diagnosis used to need) and the
-samples soon after a reversal, where pre-sliding
-friction lives, and drops the turning samples, standstill and dither jitter. Dropped samples are
+samples soon after a reversal, where pre-sliding friction lives, and drops the turning samples,
+standstill, dither jitter and stick-slip. Dropped samples are
 zeroed in the residual *and* in every column before the filter, which keeps the parallel-filter
 relation exact (``0 = sum theta_i * 0``); fits then use the samples whose filter window is mostly
 (>= 90 %) made of kept samples.
