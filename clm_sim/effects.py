@@ -293,7 +293,7 @@ def dahl_path(y, length: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Presliding(Effect):
-    """Pre-sliding (Dahl) friction: ``sliding*z``, with the bristle state ``z`` of :func:`dahl_path`.
+    """Pre-sliding (Dahl) friction ``sliding*z``, with the bristle state ``z`` of :func:`dahl_path`.
 
     ``sliding`` (N): the friction it reaches in steady sliding (on top of the plant's ``coulomb``;
     a stage whose whole Coulomb friction is pre-sliding has ``coulomb = 0``). ``stiffness`` (N/m):
