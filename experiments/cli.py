@@ -126,50 +126,10 @@ def _pairs(text: str | None, option: str, number: bool) -> dict:
 
 
 def _diagnosis_model(path, ts: float):
-    """The simulation's model: a model file (``plant:``), a LIP parameter file (``kind: lip``,
-    as ``identify`` and ``run`` write it) or an experiment config."""
-    from clm_sim.schema import load_yaml
-    from experiments.diagnosis.model import (
-        SimulationModel,
-        controller_for,
-        is_model_file,
-        load_model,
-    )
+    """The simulation's model: the default CLM without a file, else ``load_model``'s reading."""
+    from experiments.diagnosis.model import SimulationModel, load_model
 
-    if path is None:
-        return SimulationModel()
-    data = load_yaml(path)
-    if is_model_file(data):
-        return load_model(path, ts)
-    if data.get("kind") == "lip":
-        return _lip_model(path, data)
-    from experiments.config import load_config
-    config = load_config(path)
-    try:
-        controller = controller_for(config.controller, config.plant, ts, str(path))
-    except UserError as exc:  # a design error must still name the file it came from
-        message = str(exc)
-        raise UserError(message if message.startswith(str(path)) else f"{path}: {message}") \
-            from None
-    return SimulationModel(config.plant, controller, config.name)
-
-
-def _lip_model(path, data: dict):
-    """An identified LIP as the model: a plant with its mass, friction and stiffness and only
-    the effects identified with it (no defaults), controller unknown."""
-    from clm_sim.plant import THETA_NAMES, Plant
-    from clm_sim.schema import build
-    from experiments.diagnosis.model import SimulationModel
-
-    missing = [k for k in THETA_NAMES if k not in data]
-    if missing:
-        raise UserError(f"{path}: a LIP parameter file (kind: lip) needs {', '.join(missing)}")
-    plant = {k: data[k] for k in THETA_NAMES}
-    try:
-        plant = build(Plant, {**plant, "effects": data.get("effects") or []}, "plant")
-    except UserError as exc:
-        raise UserError(f"{path}: {exc}") from None
-    return SimulationModel(plant, None, f"LIP from {data.get('source', path)}")
+    return SimulationModel() if path is None else load_model(path, ts)
 
 
 def _cmd_study(args) -> int:

@@ -546,3 +546,82 @@ def failure_map_figures(summary: dict) -> dict[str, Figure]:
         plot_theta_drift(summary, h, ax)
     _legend_right(axes[-1])
     return {"ratio": ratio, "mechanism": mechanism, "drift": drift}
+
+
+# ----------------------------------------------------------------------------- diagnosis
+
+def plot_residual_against(res, x: str, ax=None, *, color: str = PALETTE[5]):
+    """The filtered force residual (N) of a diagnosis ``Residual`` against ``x``: position,
+    velocity or acceleration, over the samples the diagnosis fits."""
+    ax = _ax(ax)
+    i = res.idx
+    values, label = {"position": (res.y[i] * MM, "position y [mm]"),
+                     "velocity": (res.v_filtered[i], "velocity v [m/s]"),
+                     "acceleration": (res.filter(res.a)[i], "acceleration a [m/s²]")}[x]
+    ax.plot(values, res.z, ".", ms=1.0, alpha=0.4, color=color, rasterized=True)
+    ax.set_xlabel(label)
+    ax.set_ylabel("force residual [N]")
+    return ax
+
+
+def plot_residual_time(before, after, ax=None):
+    """The filtered force residual (N) over time on one record, model against extended model."""
+    ax = _ax(ax)
+    ax.plot(before.t, before.filtered, lw=0.5, color=PALETTE[7], label="model")
+    ax.plot(after.t, after.filtered, lw=0.5, color=PALETTE[4], label="extended model")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("force residual [N]")
+    _legend_right(ax)
+    return ax
+
+
+def plot_residual_spectrum(before, after, ax=None):
+    """Amplitude spectral density (N/√Hz) of the force residual on one record, model against
+    extended model: what the extension removed, frequency by frequency."""
+    ax = _ax(ax)
+    for res, label, c in ((before, "model", PALETTE[7]), (after, "extended model", PALETTE[4])):
+        f, a = res.spectrum()
+        ax.loglog(f[1:], a[1:], lw=0.8, color=c, label=label)
+    ax.set_xlabel("frequency f [Hz]")
+    ax.set_ylabel("residual ASD [N/√Hz]")
+    _legend_right(ax)
+    return ax
+
+
+def diagnosis_figures(d) -> dict[str, tuple[Figure, str]]:
+    """The figures of a diagnosis report: ``{file name: (figure, caption)}``."""
+    before, after = d.signals["val_before"], d.signals["val_after"]
+    out = {}
+    fig = _figure(10, 7)
+    axes = fig.subplots(2, 2)
+    for ax, x in zip(axes.flat[:3], ("position", "velocity", "acceleration")):
+        plot_residual_against(d.estimation, x, ax)
+    plot_residual_time(before, after, axes.flat[3])
+    fig.suptitle("Force residual u − model inverse dynamics (filtered; samples whose friction "
+                 "direction is unknown left out)", fontsize=10)
+    out["residual.png"] = (fig, "Residual of the model against position, velocity and "
+                                "acceleration (estimation record), and over time on the "
+                                "validation record, model against extended model")
+    fig = _figure(8, 4)
+    plot_residual_spectrum(before, after, fig.subplots())
+    out["spectrum.png"] = (fig, "Residual spectrum on the validation record (Welch, "
+                                "unfiltered): model against extended model")
+    s = d.signals
+    if "e_measured" in s:
+        fig, (ax, ax2) = _panels(2, [1.0, 1.0])
+        ax.plot(s["t"], s["e_measured"] * UM, lw=0.6, color=PALETTE[0], label="measured")
+        ax.plot(s["t"], s["e_before"] * UM, lw=0.6, color=PALETTE[7],
+                label="re-simulated, model")
+        ax.plot(s["t"], s["e_after"] * UM, lw=0.6, ls="--", color=PALETTE[4],
+                label="re-simulated, extended")
+        ax.set_ylabel("tracking error e [µm]")
+        _legend_right(ax)
+        ax2.plot(s["t"], (s["e_before"] - s["e_measured"]) * UM, lw=0.6, color=PALETTE[7],
+                 label="model")
+        ax2.plot(s["t"], (s["e_after"] - s["e_measured"]) * UM, lw=0.6, color=PALETTE[4],
+                 label="extended model")
+        ax2.set_xlabel("time t [s]")
+        ax2.set_ylabel("re-simulated − measured [µm]")
+        _legend_right(ax2)
+        out["tracking.png"] = (fig, "Loop re-simulated on the measured reference (validation)")
+    return out

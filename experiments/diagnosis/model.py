@@ -5,11 +5,13 @@ A model file is YAML with a ``plant:`` mapping (``mass`` kg, ``viscous`` N*s/m, 
 optionally a ``controller:``, either a PID design (the keys of ``controllers.pid.PIDDesign``,
 designed on the plant at the record's sample time) or a linear discrete law
 ``u = C(z) e + R(z) r`` given by ``b``, ``a`` (C on ``e = r - y``, N/m) and ``reference_b``
-(FIR R on ``r``, N/m) at sample time ``ts`` (s). An experiment config is read by the CLI, not here.
+(FIR R on ``r``, N/m) at sample time ``ts`` (s). :func:`load_model` also reads a LIP parameter
+file and an experiment config.
 
-A model has exactly the effects its file lists: no ``effects`` key means none (a model file that
-gives ``mass, viscous, coulomb, stiffness`` describes that rigid body, not the default CLM's
-parasitics). ``effects: default_clm`` asks for the default CLM's effects by name.
+A model has exactly the effects its file lists, whatever the file's form: no ``effects`` key
+means none (a model file that gives ``mass, viscous, coulomb, stiffness`` describes that rigid
+body, not the default CLM's parasitics). ``effects: default_clm`` asks for the default CLM's
+effects by name.
 """
 
 from __future__ import annotations
@@ -22,9 +24,10 @@ import numpy as np
 import scipy.signal
 
 from clm_sim.errors import UserError
-from clm_sim.plant import Plant, default_effects
+from clm_sim.plant import THETA_NAMES, Plant, default_effects
 from clm_sim.schema import build, load_yaml
 from controllers.pid import PIDDesign, design_pid
+from experiments.config import ExperimentConfig, in_file
 
 MODEL_KEYS = {"name", "description", "plant", "controller"}
 DEFAULT_EFFECTS_NAME = "default_clm"
@@ -106,23 +109,55 @@ def is_model_file(data: dict) -> bool:
     return "plant" in data and set(data) <= MODEL_KEYS
 
 
+def _explicit_effects(data: dict, path) -> dict:
+    """``data`` with the model rule applied to its ``plant:``: no ``effects`` key means none,
+    ``effects: default_clm`` the default CLM's by name. A file without ``plant:`` (an experiment
+    config that names no plant) keeps the testbed's default plant, which the report shows."""
+    plant = data.get("plant")
+    if not isinstance(plant, dict):
+        return data
+    effects = plant.get("effects", [])
+    if effects == DEFAULT_EFFECTS_NAME:
+        effects = [e.as_config() for e in default_effects()]
+    elif isinstance(effects, str):
+        raise UserError(f"{path}: plant.effects must be a list of effects or "
+                        f"{DEFAULT_EFFECTS_NAME!r}, got {effects!r}")
+    return {**data, "plant": {**plant, "effects": effects}}
+
+
 def load_model(path, ts: float) -> SimulationModel:
-    """Read a model file; the controller (if any) is prepared for sample time ``ts``."""
+    """The simulation's model from a file, its controller (if any) prepared for sample time
+    ``ts``: a model file (``plant:``, optional ``controller:``), a LIP parameter file
+    (``kind: lip``, as ``clm-sim identify`` and ``clm-sim run`` write it; controller unknown)
+    or an experiment config (its plant and PID). Errors name the file and the key."""
     path = Path(path)
     data = load_yaml(path)
-    plant = data.get("plant") if isinstance(data, dict) else None
-    if isinstance(plant, dict):
-        effects = plant.get("effects", [])
-        if effects == DEFAULT_EFFECTS_NAME:
-            effects = [e.as_config() for e in default_effects()]
-        elif isinstance(effects, str):
-            raise UserError(f"{path}: plant.effects must be a list of effects or "
-                            f"{DEFAULT_EFFECTS_NAME!r}, got {effects!r}")
-        data = {**data, "plant": {**plant, "effects": effects}}
+    if data.get("kind") == "lip":
+        return _lip_model(path, data)
+    data = _explicit_effects(data, path)
+    schema, name = (ModelFile, "model") if is_model_file(data) else (ExperimentConfig, "config")
     try:
-        spec = build(ModelFile, data, "model")
+        spec = build(schema, data, name)
     except UserError as exc:
-        raise UserError(f"{path}: {str(exc).removeprefix('model.').removeprefix('model: ')}") \
+        raise in_file(path, exc) from None
+    try:
+        controller = controller_for(spec.controller, spec.plant, ts, str(path))
+    except UserError as exc:  # a design error must still name the file it came from
+        message = str(exc)
+        raise UserError(message if message.startswith(str(path)) else f"{path}: {message}") \
             from None
-    return SimulationModel(spec.plant, controller_for(spec.controller, spec.plant, ts, str(path)),
-                           spec.name)
+    return SimulationModel(spec.plant, controller, spec.name)
+
+
+def _lip_model(path, data: dict) -> SimulationModel:
+    """An identified LIP as the model: a plant with its mass, friction and stiffness and only
+    the effects identified with it, controller unknown."""
+    missing = [k for k in THETA_NAMES if k not in data]
+    if missing:
+        raise UserError(f"{path}: a LIP parameter file (kind: lip) needs {', '.join(missing)}")
+    plant = {k: data[k] for k in THETA_NAMES}
+    try:
+        plant = build(Plant, {**plant, "effects": data.get("effects") or []}, "plant")
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    return SimulationModel(plant, None, f"LIP from {data.get('source', path)}")

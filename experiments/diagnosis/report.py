@@ -10,63 +10,12 @@ from experiments.diagnosis.diagnose import Diagnosis
 
 
 def _figures(d: Diagnosis, folder: Path) -> list[tuple[str, str]]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from experiments import plots  # matplotlib is loaded only when a report is written
 
-    res = d.estimation
-    i = res.idx
-    after = d.signals["val_after"]
     shown = []
-    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
-    for ax, (x, label) in zip(axes.flat[:3], ((res.y[i] * 1e3, "position (mm)"),
-                                              (res.v_filtered[i], "velocity (m/s)"),
-                                              (res.filter(res.a)[i], "acceleration (m/s²)"))):
-        ax.plot(x, res.z, ",", alpha=0.5)
-        ax.set_xlabel(label)
-        ax.set_ylabel("residual (N)")
-    ax = axes.flat[3]
-    ax.plot(res.t, res.filtered, lw=0.5, label="estimation record")
-    ax.plot(after.t, after.filtered, lw=0.5, label="validation, extended model")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("residual (N)")
-    ax.legend(fontsize=7)
-    fig.suptitle("Force residual u - model inverse dynamics (filtered, standstill left out)")
-    fig.tight_layout()
-    fig.savefig(folder / "residual.png", dpi=110)
-    plt.close(fig)
-    shown.append(("residual.png", "Residual against position, velocity, acceleration and time"))
-
-    fig, ax = plt.subplots(figsize=(8, 4))
-    f, a = res.spectrum()
-    ax.loglog(f[1:], a[1:], lw=0.7, label="model")
-    fa, aa = d.signals["val_after"].spectrum()
-    ax.loglog(fa[1:], aa[1:], lw=0.7, label="extended model (validation)")
-    ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("residual ASD (N/√Hz)")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(folder / "spectrum.png", dpi=110)
-    plt.close(fig)
-    shown.append(("spectrum.png", "Residual spectrum (Welch, unfiltered)"))
-
-    if "e_measured" in d.signals:
-        s = d.signals
-        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-        ax.plot(s["t"], s["e_measured"] * 1e6, lw=0.6, label="measured")
-        ax.plot(s["t"], s["e_before"] * 1e6, lw=0.6, label="re-simulated, model")
-        ax.plot(s["t"], s["e_after"] * 1e6, lw=0.6, ls="--", label="re-simulated, extended")
-        ax.set_ylabel("tracking error (µm)")
-        ax.legend(fontsize=8)
-        ax2.plot(s["t"], (s["e_before"] - s["e_measured"]) * 1e6, lw=0.6, label="model")
-        ax2.plot(s["t"], (s["e_after"] - s["e_measured"]) * 1e6, lw=0.6, label="extended")
-        ax2.set_xlabel("time (s)")
-        ax2.set_ylabel("re-simulated - measured (µm)")
-        ax2.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(folder / "tracking.png", dpi=110)
-        plt.close(fig)
-        shown.append(("tracking.png", "Loop re-simulated on the measured reference (validation)"))
+    for name, (fig, caption) in plots.diagnosis_figures(d).items():
+        plots.save(fig, folder / name)
+        shown.append((name, caption))
     return shown
 
 
