@@ -206,6 +206,23 @@ def test_model_file_without_effects_has_none(tmp_path):
         load_model(path, 1e-4)
 
 
+def test_experiment_config_as_model_follows_the_same_effects_rule(tmp_path):
+    """An experiment config given as the model: its plant without ``effects`` has none too (the
+    run's default CLM would otherwise add ripple, cable and Stribeck the user never wrote); a
+    config that names no plant is the default testbed plant."""
+    from clm_sim.plant import default_effects
+    path = tmp_path / "exp.yaml"
+    path.write_text("name: rigid\nplant: {mass: 18.8, viscous: 172.0}\ntraining: {repeats: 1}\n")
+    model = load_model(path, 1e-4)
+    assert model.plant.effects == () and model.name == "rigid"
+    assert model.controller is not None  # its PID, designed at the record's sample time
+    path.write_text("name: default\ntraining: {repeats: 1}\n")
+    assert load_model(path, 1e-4).plant.effects == default_effects()
+    path.write_text("name: typo\nplant: {mas: 18.8}\n")
+    with pytest.raises(UserError, match=r"exp.yaml: plant.mas: unknown key"):
+        load_model(path, 1e-4)
+
+
 def test_diagnosis_is_deterministic(diagnosed):
     _, run, d = diagnosed("cogging")
     again = diagnose(run, d.model)

@@ -135,9 +135,9 @@ def load_model(path, ts: float) -> SimulationModel:
     if data.get("kind") == "lip":
         return _lip_model(path, data)
     data = _explicit_effects(data, path)
-    schema, name = (ModelFile, "model") if is_model_file(data) else (ExperimentConfig, "config")
+    schema = ModelFile if is_model_file(data) else ExperimentConfig
     try:
-        spec = build(schema, data, name)
+        spec = build(schema, data, "config")
     except UserError as exc:
         raise in_file(path, exc) from None
     try:
