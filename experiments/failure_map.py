@@ -45,6 +45,7 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
+from experiments.store import code_version
 from experiments.testbed import Progress, Testbed
 
 UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
@@ -434,6 +435,7 @@ def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out,
         summary = summarize(settings, results)
         summary["wall_time_s"] = time.perf_counter() - start
         summary["workers"] = workers
+        summary["code_version"] = code_version()  # the sources that computed the cells
         (tmp / "failure_map.json").write_text(json.dumps(summary, indent=1))
         draw(summary, tmp / "figures")
         (tmp / "report.md").write_text(report(summary))
@@ -496,7 +498,8 @@ def report(s: dict) -> str:
              + ", ".join(f"{d} ({r})" for d, r in st["outside"].items())
              + f"; training reference {st['inside']}; n_l ∈ {{{', '.join(map(str, st['hidden']))}}}"
              f"; {st['seeds']} seeds per cell. Interval: {s['interval']}. "
-             f"Wall time {s['wall_time_s']:.0f} s on {s['workers']} workers.", ""]
+             f"Wall time {s['wall_time_s']:.0f} s on {s['workers']} workers; code "
+             f"{s.get('code_version', '?')}.", ""]
     n_fits = len(s["fits"])
     stops = ", ".join(f"{n} {k}" for k, n in s["fit_stops"].items())
     lines += [f"**Fits:** {n_fits} ({stops}). "
