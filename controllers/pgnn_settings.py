@@ -22,7 +22,10 @@ class PGNNSettings:
     Levenberg-Marquardt on the hidden layers), lm (Levenberg-Marquardt on all parameters, the
     earlier method) or adam; max_iter: LM iterations (Jacobian evaluations) or Adam steps;
     ftol: converged when the Gauss-Newton model predicts at most this relative cost decrease;
-    restarts: draws of the hidden layers per fit, the lowest training cost kept; adam_lr: Adam
+    restarts: draws of the hidden layers per fit, the lowest training cost kept;
+    continuation_lambda: a fit without any pull toward theta_LIP (simultaneous, lambda = 0, no
+    projection penalty) also starts each draw from the solution regularized with this lambda
+    (homotopy; varpro only; 0: off), and keeps the lower training cost; adam_lr: Adam
     step size; validation_fraction: last part of the data held out to pick the best iterate
     (0: none); pinn_weight: weight of the PINN term (training pinn only); orthogonal_weight:
     lambda_perp of the orthogonal-projection penalty (Kon et al. 2022; dimensionless);
@@ -37,6 +40,7 @@ class PGNNSettings:
     max_iter: int = 200
     ftol: float = 1e-4
     restarts: int = 1
+    continuation_lambda: float = 0.01
     adam_lr: float = 1e-3
     validation_fraction: float = 0.0
     pinn_weight: float = 1.0
@@ -55,7 +59,7 @@ class PGNNSettings:
                             f"got {self.validation_fraction!r}")
         if not 0.0 < self.ftol < 1.0:
             raise UserError(f"pgnn.ftol: expected a number in (0, 1), got {self.ftol!r}")
-        for key in ("pinn_weight", "orthogonal_weight", "weight_decay"):
+        for key in ("pinn_weight", "orthogonal_weight", "weight_decay", "continuation_lambda"):
             if not getattr(self, key) >= 0:
                 raise UserError(f"pgnn.{key}: expected a number >= 0, got "
                                 f"{getattr(self, key)!r}")

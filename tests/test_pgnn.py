@@ -227,11 +227,28 @@ def test_capped_fit_says_max_iter(data):
 
 def test_restarts_keep_the_lowest_training_cost(data):
     theta = as_dict(lip_theta(data))
-    model = PGNNFeedforward(hidden=3, max_iter=8, restarts=3).fit_data(
+    model = PGNNFeedforward(hidden=3, max_iter=8, restarts=3, continuation_lambda=0.0).fit_data(
         data=data, theta_lip=theta, rng=np.random.default_rng(5))
     costs = [s["cost"] for s in model.fit_["starts"]]
     assert len(costs) == 3 and len(set(costs)) == 3  # three different draws
     assert sum(model.cost_.values()) == pytest.approx(min(costs), rel=1e-12)
+
+
+def test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw(data):
+    """Every lambda = 0.01 solution is feasible for lambda = 0, so the lambda = 0 fit (which also
+    starts from that solution: continuation) must end at a training cost no higher than the
+    lambda = 0.01 fit's data and weight-decay terms, for the same draw of the hidden layers."""
+    theta = as_dict(lip_theta(data))
+    kw = dict(hidden=8, weight_decay=1e-5, max_iter=60)
+    for seed in range(3):
+        free = PGNNFeedforward(lam=0.0, **kw).fit_data(data=data, theta_lip=theta,
+                                                       rng=np.random.default_rng(seed))
+        reg = PGNNFeedforward(lam=0.01, **kw).fit_data(data=data, theta_lip=theta,
+                                                       rng=np.random.default_rng(seed))
+        assert [s["start"] for s in free.fit_["starts"]] == ["draw", "continuation"]
+        assert [s["start"] for s in reg.fit_["starts"]] == ["draw"]  # theta is pulled: no need
+        bound = reg.cost_["data"] + reg.cost_["weight_decay"]
+        assert sum(free.cost_.values()) <= bound * (1 + 1e-9), (seed, free.fit_, reg.cost_)
 
 
 def test_orthogonal_projection_keeps_theta_lip(data):

@@ -156,6 +156,7 @@ class PGNNFeedforward:
     max_iter: int = _DEFAULTS.max_iter
     ftol: float = _DEFAULTS.ftol
     restarts: int = _DEFAULTS.restarts
+    continuation_lambda: float = _DEFAULTS.continuation_lambda
     adam_lr: float = _DEFAULTS.adam_lr
     validation_fraction: float = _DEFAULTS.validation_fraction
     decimation: int = _DEFAULTS.decimation
@@ -163,7 +164,8 @@ class PGNNFeedforward:
 
     SETTINGS = ("hidden", "training", "lam", "lambda_diag", "pinn_weight", "orthogonal_weight",
                 "weight_decay", "activation", "init", "optimizer", "max_iter", "ftol",
-                "restarts", "adam_lr", "validation_fraction", "decimation")
+                "restarts", "continuation_lambda", "adam_lr", "validation_fraction",
+                "decimation")
 
     def _settings(self) -> dict:
         out = {k: getattr(self, k) for k in self.SETTINGS}
@@ -205,22 +207,29 @@ class PGNNFeedforward:
             raise UserError(f"hidden: expected widths >= 1, got {self.hidden!r}")
 
     # -- the training problem ---------------------------------------------------------------
-    def _weights(self) -> Weights:
+    def _weights(self, lam_diag: np.ndarray | None = None) -> Weights:
         simultaneous = self.training != "sequential"
-        return Weights(lam_diag=self.lambda_matrix_diag() if simultaneous else np.zeros(4),
+        if lam_diag is None:
+            lam_diag = self.lambda_matrix_diag() if simultaneous else np.zeros(4)
+        return Weights(lam_diag=lam_diag,
                        pinn=self.pinn_weight if self.training == "pinn" else 0.0,
                        orthogonal=self.orthogonal_weight, weight_decay=self.weight_decay)
 
-    def new_network(self, data: TrainingData, rng: np.random.Generator) -> PGNNNetwork:
+    def new_network(self, data: TrainingData, rng: np.random.Generator | None,
+                    beta: np.ndarray | None = None) -> PGNNNetwork:
         """A network with the input scalings of ``data`` and randomly drawn hidden layers:
         weights of std ``1/sqrt(fan_in)`` and biases of std 1 keep the neurons spread over their
-        range rather than saturated or linear (inputs have unit variance)."""
+        range rather than saturated or linear (inputs have unit variance). ``beta``: the hidden
+        layers given instead of drawn."""
         net = PGNNNetwork(hidden=self.widths(), activation=self.activation)
         mean = data.phi.mean(axis=0)
         std = data.phi.std(axis=0)
         std[std == 0] = 1.0
         net.mlp.input_mean.copy_(torch.from_numpy(mean))
         net.mlp.input_std.copy_(torch.from_numpy(std))
+        if beta is not None:
+            net.set_nonlinear(beta)
+            return net
         draws = []
         for layer in net.mlp.hidden:
             n_out, n_in = layer.weight.shape
@@ -229,10 +238,20 @@ class PGNNFeedforward:
         net.set_nonlinear(np.concatenate([d.ravel() for d in draws]))
         return net
 
-    def training_cost(self, data: TrainingData, theta_lip, net: PGNNNetwork) -> SeparableCost:
+    def training_cost(self, data: TrainingData, theta_lip, net: PGNNNetwork,
+                      weights: Weights | None = None) -> SeparableCost:
         """The training cost of ``net`` on ``data`` (see :mod:`controllers.pgnn.cost`)."""
-        return SeparableCost(net, data.phi, data.target, _as_theta(theta_lip), self._weights(),
-                             fit_theta=self.training != "sequential")
+        return SeparableCost(net, data.phi, data.target, _as_theta(theta_lip),
+                             weights or self._weights(), fit_theta=self.training != "sequential")
+
+    def _continues(self) -> bool:
+        """Whether a draw also starts from its regularized solution: nothing in the cost pulls
+        theta_phy toward theta_LIP, so every regularized solution is feasible and the lambda = 0
+        optimum costs no more than it; a descent from there finds such a point, which a descent
+        from the draw alone need not (the cost is flat along the physics/network trade-off)."""
+        return (self.continuation_lambda > 0 and self.optimizer == "varpro"
+                and self.training == "simultaneous" and self.orthogonal_weight == 0
+                and not np.any(self.lambda_matrix_diag()))
 
     def initial_point(self, cost: SeparableCost, theta_lip, rng: np.random.Generator):
         """Starting parameters for ``self.optimizer``: ``beta`` (varpro) or ``(x, beta)``."""
@@ -265,11 +284,20 @@ class PGNNFeedforward:
         best, starts = None, []
         with one_thread():
             for _ in range(self.restarts):
-                got = self._one_start(fit, held_out, theta_lip_v, rng)
-                starts.append({"cost": got["result"].cost, "stop": got["result"].stop,
-                               "iterations": got["result"].iterations})
-                if best is None or got["result"].cost < best["result"].cost:
-                    best = got
+                beta0 = self.new_network(fit, rng).get_nonlinear()
+                tries = [("draw", self._one_start(fit, held_out, theta_lip_v, rng, beta0))]
+                if self._continues():
+                    lam_c = np.full(4, float(self.continuation_lambda))
+                    pre = self._one_start(fit, held_out, theta_lip_v, rng, beta0,
+                                          self._weights(lam_c))
+                    tries.append(("continuation", self._one_start(
+                        fit, held_out, theta_lip_v, rng, pre["net"].get_nonlinear())))
+                for start, got in tries:
+                    starts.append({"start": start, "cost": got["result"].cost,
+                                   "stop": got["result"].stop,
+                                   "iterations": got["result"].iterations})
+                    if best is None or got["result"].cost < best["result"].cost:
+                        best = dict(got, start=start)
         res = best["result"]
         self.network_ = best["net"]
         self.theta_ = dict(zip(THETA_NAMES, map(float, self.network_.theta.detach().numpy())))
@@ -282,13 +310,18 @@ class PGNNFeedforward:
                      "data_cost": self.cost_["data"],
                      "reg_cost": float(sum(v for k, v in self.cost_.items() if k != "data")),
                      "grad_norm": res.grad_norm, "first_order": res.first_order,
-                     "ftol": self.ftol, "max_iter": self.max_iter, "starts": starts}
+                     "ftol": self.ftol, "max_iter": self.max_iter, "start": best["start"],
+                     "starts": starts}
         return self
 
-    def _one_start(self, fit: TrainingData, held_out, theta_lip, rng) -> dict:
-        net = self.new_network(fit, rng)
-        cost = self.training_cost(fit, theta_lip, net)
-        check = None if held_out is None else self.training_cost(held_out, theta_lip, net)
+    def _one_start(self, fit: TrainingData, held_out, theta_lip, rng, beta0: np.ndarray,
+                   weights: Weights | None = None) -> dict:
+        """One optimization from hidden layers ``beta0`` (of the cost with ``weights``, default
+        the model's own)."""
+        net = self.new_network(fit, None, beta0)
+        cost = self.training_cost(fit, theta_lip, net, weights)
+        check = None if held_out is None else self.training_cost(held_out, theta_lip, net,
+                                                                 weights)
         varpro = self.optimizer == "varpro"
         p0 = self.initial_point(cost, theta_lip, rng)
         history, best = [], {"score": np.inf}
