@@ -90,8 +90,14 @@ def first_order_measure(r: np.ndarray, J: np.ndarray) -> float:
     the angle between ``r`` and the range of ``J``, so it does not depend on how the parameters
     are scaled; directions whose curvature is below 1e-12 of the largest (after Marquardt scaling)
     count as flat and are left out."""
+    d = np.sqrt(np.einsum("ij,ij->j", J, J))
+    # A column below 1e-12 of the largest is flat too; left in, its denormal-sized entries can
+    # make LAPACK's eigensolver fail to converge (seen with saturated neurons).
+    live = d > 1e-12 * d.max() if d.max() > 0 else np.zeros(d.shape, bool)
+    if not live.any():
+        return 0.0
+    J, d = J[:, live], d[live]
     g = J.T @ r
-    d = np.sqrt(np.maximum(np.einsum("ij,ij->j", J, J), 1e-300))
     w, V = np.linalg.eigh((J.T @ J) / np.outer(d, d))
     keep = w > w[-1] * 1e-12
     proj = V[:, keep].T @ (g / d)
