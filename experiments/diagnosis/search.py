@@ -313,13 +313,17 @@ def search_stribeck(res: Residual, base: np.ndarray, exact: bool) -> float:
     def cost(logv):
         return proj.sse(col(logv))
 
-    grid = np.linspace(lo, hi, 16)
-    costs = [cost(g) for g in grid]
-    j = int(np.argmin(costs))
+    return math.exp(_grid_then_refine(cost, np.linspace(lo, hi, 16), xatol=2e-3, maxiter=25))
+
+
+def _grid_then_refine(cost, grid, *, xatol: float, maxiter: int) -> float:
+    """The minimizer of a 1-D ``cost``: the best ``grid`` point, then a bounded scalar search
+    between its neighbours."""
+    j = int(np.argmin([cost(g) for g in grid]))
     a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
     r = scipy.optimize.minimize_scalar(cost, bounds=(a, b), method="bounded",
-                                       options={"xatol": 2e-3, "maxiter": 25})
-    return math.exp(float(r.x))
+                                       options={"xatol": xatol, "maxiter": maxiter})
+    return float(r.x)
 
 
 def search_presliding(res: Residual, base: np.ndarray, avoid: list[float] = ()) -> float | None:
@@ -342,13 +346,8 @@ def search_presliding(res: Residual, base: np.ndarray, avoid: list[float] = ()) 
     grid = [g for g in grid if all(abs(g - math.log(a)) > math.log(2.0) for a in avoid)]
     if not grid:
         return None
-    costs = [cost(g) for g in grid]
-    j = int(np.argmin(costs))
-    a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
     # 1 % in length is far below what the data tells (the test bar is a factor of 2).
-    r = scipy.optimize.minimize_scalar(cost, bounds=(a, b), method="bounded",
-                                       options={"xatol": 1e-2, "maxiter": 12})
-    return math.exp(float(r.x))
+    return math.exp(_grid_then_refine(cost, grid, xatol=1e-2, maxiter=12))
 
 
 def search_smooth(res: Residual, base: np.ndarray, max_order: int = MAX_SMOOTH_ORDER
