@@ -45,13 +45,14 @@ class FeedforwardSpec:
 
     kind: ``none`` (feedback only), ``lip`` or ``pgnn``; training (PGNN): ``simultaneous``,
     ``sequential`` or ``pinn``; lambda: regularization weight toward theta_LIP (physical units);
-    hidden: neurons n_l of the tanh layer; seeds: training seeds averaged in the table.
+    hidden: neurons n_l of the hidden layer, or a list of widths for several (``[32, 32]``);
+    seeds: training seeds averaged in the table.
     """
 
     kind: Literal["none", "lip", "pgnn"]
     training: Literal["simultaneous", "sequential", "pinn"] | None = None
     lam: float | None = None
-    hidden: int | None = None
+    hidden: int | tuple[int, ...] | None = None
     seeds: int = 1
     name: str | None = None
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
@@ -68,8 +69,9 @@ class FeedforwardSpec:
                                 "at theta_LIP)")
             if self.training == "pinn" and not self.pgnn.pinn_weight > 0:
                 raise UserError("a pinn pgnn needs pgnn.pinn_weight > 0")
-            if self.hidden < 1:
-                raise UserError(f"hidden must be >= 1, got {self.hidden}")
+            widths = (self.hidden,) if isinstance(self.hidden, int) else self.hidden
+            if not widths or min(widths) < 1:
+                raise UserError(f"hidden: expected widths >= 1, got {self.hidden!r}")
             if self.lam is not None and self.lam < 0:
                 raise UserError(f"lambda must be >= 0, got {self.lam}")
         elif self.training is not None or self.lam is not None or self.hidden is not None:
@@ -78,7 +80,8 @@ class FeedforwardSpec:
             raise UserError(f"seeds must be an integer >= 1, got {self.seeds!r}")
 
     @classmethod
-    def pgnn_row(cls, *, training: str, lam: float | None, hidden: int, seeds: int = 1,
+    def pgnn_row(cls, *, training: str, lam: float | None, hidden: int | tuple[int, ...],
+                 seeds: int = 1,
                  settings: dict | None = None) -> "FeedforwardSpec":
         """A PGNN row from keyword settings (see :class:`PGNNSettings`)."""
         return cls(kind="pgnn", training=training, hidden=hidden, seeds=seeds,
@@ -98,7 +101,8 @@ class FeedforwardSpec:
         if self.kind == "lip":
             return "LIP"
         lam = "" if self.training == "sequential" else f", lambda={self.lam:g}"
-        return f"PGNN {self.training}{lam}, n_l={self.hidden}"
+        widths = (self.hidden,) if isinstance(self.hidden, int) else self.hidden
+        return f"PGNN {self.training}{lam}, n_l={'x'.join(map(str, widths))}"
 
 
 def _default_feedforwards() -> tuple[FeedforwardSpec, ...]:

@@ -91,9 +91,10 @@ def comparisons(rows: list[dict]) -> list[dict]:
     def add(a, b, metric, ref, da, db):
         d = np.asarray(da, dtype=float) - np.asarray(db, dtype=float)
         mean, lo, hi = _t_interval(d)
+        ci = [lo, hi] if len(d) > 1 else None  # one seed: no interval (JSON has no infinity)
         out.append({"a": a["label"], "b": b["label"], "metric": metric, "reference": ref,
                     "n": len(d), "mean_a": float(np.mean(da)), "mean_b": float(np.mean(db)),
-                    "diff": mean, "ci95": [lo, hi], "excludes_zero": bool(lo > 0 or hi < 0)})
+                    "diff": mean, "ci95": ci, "excludes_zero": bool(ci and (lo > 0 or hi < 0))})
 
     def plain_lambda0(r):
         """A lambda = 0 row without further regularizers (beyond the smallest weight decay of
@@ -219,10 +220,11 @@ def fit_report(rows: list[dict]) -> str:
                    "draw; mean and 95 % t-interval; * where the interval excludes 0):"), ""]
     for c in comparisons(rows):
         where = f" on {c['reference']}" if c["reference"] else ""
+        ci = (f"[{_fmt_diff(c['metric'], c['ci95'][0])}, "
+              f"{_fmt_diff(c['metric'], c['ci95'][1])}] (n = {c['n']})" if c["ci95"]
+              else f"(n = {c['n']}: no interval)")
         lines.append(f"- {c['metric']}{where}: {c['a']} − {c['b']} = "
-                     f"{_fmt_diff(c['metric'], c['diff'])} "
-                     f"[{_fmt_diff(c['metric'], c['ci95'][0])}, "
-                     f"{_fmt_diff(c['metric'], c['ci95'][1])}] (n = {c['n']})"
+                     f"{_fmt_diff(c['metric'], c['diff'])} {ci}"
                      + (" *" if c["excludes_zero"] else ""))
     return "\n".join(lines) + "\n"
 

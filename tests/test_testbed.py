@@ -91,3 +91,16 @@ def test_with_config_changes_only_the_given_fields():
     tb = short_testbed()
     other = tb.with_config(seed=9)
     assert other.config.seed == 9 and other.config == replace(tb.config, seed=9)
+
+
+def test_a_config_row_can_ask_for_several_hidden_layers(tmp_path):
+    from experiments.config import load_config
+    path = tmp_path / "deep.yaml"
+    path.write_text("feedforwards:\n  - {kind: pgnn, training: simultaneous, lambda: 0.01, "
+                    "hidden: [32, 32], pgnn: {activation: silu}}\n")
+    spec = load_config(path).feedforwards[0]
+    assert spec.hidden == (32, 32) and spec.label().endswith("n_l=32x32")
+    assert spec.pgnn_settings()["hidden"] == (32, 32)
+    path.write_text("feedforwards:\n  - {kind: pgnn, training: sequential, hidden: [8, 0]}\n")
+    with pytest.raises(UserError, match="hidden: expected widths >= 1"):
+        load_config(path)
