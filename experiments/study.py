@@ -26,7 +26,7 @@ from controllers.pgnn_settings import PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.runner import preflight
-from experiments.table import THETA_UNITS
+from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
 
 
@@ -286,15 +286,16 @@ def _findings(s: dict) -> list[str]:
                      f"by {ez:.2f} N rms for λ = 0, {ep:.2f} N for λ = {s['paper_lambda']:g}, "
                      f"{eq:.2f} N sequential and {el:.2f} N for the LIP")
         ratio = mz[outside]["mean"] / mp[outside]["mean"]
-        diff = mz[outside]["mean"] - mp[outside]["mean"]
-        # Standard error of the difference of two means over independent seeds.
-        se = np.sqrt((mz[outside]["std"] ** 2 + mp[outside]["std"] ** 2) / s["seeds"])
+        # Paired over seeds: seed s of every variant shares the training run and the draw.
+        d = np.array(mz[outside]["per_seed"]) - np.array(mp[outside]["per_seed"])
+        diff, lo, hi = t_interval(d)
         verdict = ("λ = 0 loses more than the regularized PGNN" if ratio > 1.1 else
                    "λ = 0 does not lose more than the regularized PGNN" if ratio > 0.9 else
                    "λ = 0 even does better than the regularized PGNN")
-        verdict += (f" (difference {diff * 1e6:+.3f} µm, standard error {se * 1e6:.3f} µm over "
-                    f"{s['seeds']} seeds: " + ("beyond" if abs(diff) > 2 * se else "within")
-                    + " two standard errors)")
+        verdict += (f" (paired difference {diff * 1e6:+.3f} µm, 95 % t-interval "
+                    + (f"[{lo * 1e6:+.3f}, {hi * 1e6:+.3f}] µm" if len(d) > 1 else "none")
+                    + f" over {len(d)} seeds: the interval "
+                    + ("excludes" if len(d) > 1 and (lo > 0 or hi < 0) else "contains") + " 0)")
         text += (f". MAE: λ = 0 {_um(mz[outside]['mean'])} ± {_um(mz[outside]['std'])}, "
                  f"λ = {s['paper_lambda']:g} {_um(mp[outside]['mean'])} ± "
                  f"{_um(mp[outside]['std'])}, sequential {_um(ms[outside]['mean'])}, LIP "

@@ -71,8 +71,8 @@ def make_row(spec, metrics_per_seed: list[dict[str, dict]],
     return row
 
 
-def _t_interval(d: np.ndarray) -> tuple[float, float, float]:
-    """Mean and 95 % t-interval of paired differences ``d``."""
+def t_interval(d: np.ndarray) -> tuple[float, float, float]:
+    """Mean and 95 % t-interval of paired differences ``d`` (infinite for one difference)."""
     n = len(d)
     half = scipy.stats.t.ppf(0.975, n - 1) * d.std(ddof=1) / np.sqrt(n) if n > 1 else np.inf
     return float(d.mean()), float(d.mean() - half), float(d.mean() + half)
@@ -90,7 +90,7 @@ def comparisons(rows: list[dict]) -> list[dict]:
 
     def add(a, b, metric, ref, da, db):
         d = np.asarray(da, dtype=float) - np.asarray(db, dtype=float)
-        mean, lo, hi = _t_interval(d)
+        mean, lo, hi = t_interval(d)
         ci = [lo, hi] if len(d) > 1 else None  # one seed: no interval (JSON has no infinity)
         out.append({"a": a["label"], "b": b["label"], "metric": metric, "reference": ref,
                     "n": len(d), "mean_a": float(np.mean(da)), "mean_b": float(np.mean(db)),
