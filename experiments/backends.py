@@ -41,7 +41,7 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
-def _watch_parent(parent_pid: int) -> None:
+def watch_parent(parent_pid: int) -> None:
     """Worker initializer: exit when the sweep process dies (even by SIGKILL), leaving no orphan
     computing a result nobody will store."""
     def watch():
@@ -62,7 +62,7 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
     ctx = multiprocessing.get_context("spawn")
     with single_threaded_children():
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                                   initializer=_watch_parent, initargs=(os.getpid(),))
+                                   initializer=watch_parent, initargs=(os.getpid(),))
     try:
         with single_threaded_children():
             # Keep at most two tasks per worker queued: an interrupted sweep then has little

@@ -46,9 +46,9 @@ from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.store import code_version
+from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
 
-UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 VERDICTS = ("holds", "reversed", "undecided")
 
 
@@ -255,14 +255,9 @@ def paired_log_ratio(a, b, confidence: float = 0.95) -> dict:
 
 def paired_difference(a, b, confidence: float = 0.95) -> dict:
     """Mean of ``a - b`` over pairs with its t-interval (same units as the samples)."""
-    from scipy import stats
-
-    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    n = len(d)
-    se = float(np.std(d, ddof=1)) / math.sqrt(n)
-    q = float(stats.t.ppf(0.5 + confidence / 2, n - 1))
-    mean = float(np.mean(d))
-    return {"mean": mean, "low": mean - q * se, "high": mean + q * se}
+    mean, low, high = t_interval(np.asarray(a, dtype=float) - np.asarray(b, dtype=float),
+                                 confidence)
+    return {"mean": mean, "low": low, "high": high}
 
 
 def holm(pvalues: list[float]) -> list[float]:
@@ -473,7 +468,7 @@ def _why(s: dict, c: dict) -> str:
     range and the model's force error there."""
     d = s["drift"][f"{c['case']}/{c['hidden']}"]
     top = sorted(THETA_NAMES, key=lambda k: -d["lam0"][k]["edge_force_n"])[:2]
-    drift = ", ".join(f"{k} {d['lam0'][k]['mean']:+.3g} {UNITS[k]} (±"
+    drift = ", ".join(f"{k} {d['lam0'][k]['mean']:+.3g} {THETA_UNITS[k]} (±"
                       f"{d['lam0'][k]['std']:.2g}; {d['lam0'][k]['edge_force_n']:.2f} N at the "
                       f"edge of the range)" for k in top)
     n0, n1 = c["network"]["lam0"], c["network"]["reg"]
@@ -555,7 +550,7 @@ def report(s: dict) -> str:
     lines += ["", "## Which parameters drift", "",
               ("θ_phy − θ_LIP, mean ± std over seeds (the force it moves at the edge of the training"
               " range in brackets, N)."), "",
-              "| case | n_l | λ | " + " | ".join(f"{k} [{UNITS[k]}]" for k in THETA_NAMES) + " |",
+              "| case | n_l | λ | " + " | ".join(f"{k} [{THETA_UNITS[k]}]" for k in THETA_NAMES) + " |",
               "|---|---|---|" + "---|" * len(THETA_NAMES)]
     for key, d in s["drift"].items():
         case, hidden = key.split("/")

@@ -14,6 +14,8 @@ import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 
+from experiments.backends import single_threaded_children, watch_parent
+
 _POOL: ProcessPoolExecutor | None = None
 
 
@@ -25,18 +27,15 @@ def cores() -> int:
         return os.cpu_count() or 1
 
 
-def _single_threaded():
-    for key in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                "NUMBA_NUM_THREADS"):
-        os.environ[key] = "1"
-
-
 def _pool() -> ProcessPoolExecutor:
+    """The pool, started once per process (a spawned worker imports torch: seconds, paid once
+    rather than per row); workers start single-threaded and exit with their parent, as the
+    sweep's (:mod:`experiments.backends`)."""
     global _POOL
     if _POOL is None:
         _POOL = ProcessPoolExecutor(max_workers=cores(),
                                     mp_context=multiprocessing.get_context("spawn"),
-                                    initializer=_single_threaded)
+                                    initializer=watch_parent, initargs=(os.getpid(),))
         atexit.register(_POOL.shutdown)
     return _POOL
 
@@ -57,4 +56,5 @@ def map_fits(payloads: list) -> list:
     more than one core and this is not already a pool's worker."""
     if len(payloads) < 2 or cores() < 2 or multiprocessing.parent_process() is not None:
         return [fit_pgnn(p) for p in payloads]
-    return list(_pool().map(fit_pgnn, payloads))
+    with single_threaded_children():  # workers are spawned on submit and inherit this
+        return list(_pool().map(fit_pgnn, payloads))

@@ -71,10 +71,13 @@ def make_row(spec, metrics_per_seed: list[dict[str, dict]],
     return row
 
 
-def t_interval(d: np.ndarray) -> tuple[float, float, float]:
-    """Mean and 95 % t-interval of paired differences ``d`` (infinite for one difference)."""
+def t_interval(d, confidence: float = 0.95) -> tuple[float, float, float]:
+    """Mean of paired differences ``d`` and its t-interval at ``confidence`` (infinite for one
+    difference)."""
+    d = np.asarray(d, dtype=float)
     n = len(d)
-    half = scipy.stats.t.ppf(0.975, n - 1) * d.std(ddof=1) / np.sqrt(n) if n > 1 else np.inf
+    half = (scipy.stats.t.ppf(0.5 + confidence / 2, n - 1) * d.std(ddof=1) / np.sqrt(n)
+            if n > 1 else np.inf)
     return float(d.mean()), float(d.mean() - half), float(d.mean() + half)
 
 
