@@ -87,6 +87,15 @@ class Run:
     def signals(self) -> dict[str, np.ndarray]:
         return {name: getattr(self, name) for name in SIGNALS}
 
+    def moved_origin(self, offset: float) -> "Run":
+        """The run seen from an origin ``offset`` m lower: ``y``, ``r`` and ``y_true`` plus
+        ``offset``; ``e`` and the forces unchanged. Registers a record whose incremental
+        encoder was homed elsewhere to another record's frame."""
+        signals = self.signals()
+        for name in ("y", "r", "y_true"):
+            signals[name] = signals[name] + float(offset)
+        return Run(**signals, meta=self.meta)
+
     def slice(self, start: int, stop: int | None = None) -> "Run":
         """The samples ``start:stop`` as a new run (same meta)."""
         return Run(**{k: v[start:stop] for k, v in self.signals().items()}, meta=self.meta)

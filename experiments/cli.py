@@ -165,7 +165,16 @@ def _cmd_diagnose(args) -> int:
         print(f"{k}. {f['effect']}: {params} (explains {100 * f['explained_fraction']:.1f} %)")
     g = result.gain
     print(f"out-of-sample force residual RMS {g['residual_rms_before']:.4g} N -> "
-          f"{g['residual_rms_after']:.4g} N; report in {out}/report.md")
+          f"{g['residual_rms_after']:.4g} N ({-100 * g['residual_rms_reduction']:+.1f} %)")
+    if "origin" in g:
+        o = g["origin"]
+        print(f"with the validation record's encoder origin registered on the "
+              f"{o['registered_on']}: shift {o['shift_m'] * 1e3:+.4g} mm modulo "
+              f"{o['period_m'] * 1e3:.4g} mm; {o['residual_rms_before']:.4g} N -> "
+              f"{o['residual_rms_after']:.4g} N on the rest "
+              f"({-100 * o['residual_rms_reduction']:+.1f} %; fixed origin "
+              f"{o['residual_rms_after_fixed_origin']:.4g} N)")
+    print(f"report in {out}/report.md")
     return 0
 
 

@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 
 from experiments.diagnosis.model import Controller
+from experiments.diagnosis.origin import registered_gain
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.search import (SmoothTerm, Step, coefficient_std, fit_cv,
                                           reportable)
@@ -171,6 +172,16 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
     except UserError as exc:  # a LIP cannot always take every effect (collinear columns)
         gain["lip_error"] = str(exc)
     signals = {"val_before": res_b, "val_after": res_a}
+    if val_offset is None:  # another experiment: its encoder origin may differ
+        try:
+            origin = registered_gain(
+                val, before, after, settings,
+                None if controller is None else lambda p, r: resimulate(p, controller, r))
+        except UserError as exc:
+            gain["origin_error"] = str(exc)
+        else:
+            if origin is not None:
+                gain["origin"] = origin
     if controller is not None:
         run, cut = (full, val_offset) if val_offset is not None else (val, 0)
         try:

@@ -70,6 +70,26 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
                      f"{g['resim_mismatch_rms_before'] * 1e6:.4g} | "
                      f"{g['resim_mismatch_rms_after'] * 1e6:.4g} |")
         lines.append(f"\nMeasured tracking error RMS {g['tracking_rms_measured'] * 1e6:.4g} µm.")
+    if "origin" in g:
+        o = g["origin"]
+        lines += ["", "### Encoder origin of the validation record", "",
+                  "An incremental encoder is zeroed where the axis was homed, so a periodic force "
+                  "can sit at another measured position in another experiment. The validation "
+                  f"record's origin is registered on the {o['registered_on']}: shift "
+                  f"{o['shift_m'] * 1e3:+.4g} mm (modulo {o['period_m'] * 1e3:.4g} mm, the period "
+                  f"of the strongest periodic effect). On the remaining {o['samples']} samples:",
+                  "", "| quantity | before | after, fixed origin | after, registered |",
+                  "|---|---|---|---|",
+                  f"| force residual RMS (N) | {o['residual_rms_before']:.4g} | "
+                  f"{o['residual_rms_after_fixed_origin']:.4g} | {o['residual_rms_after']:.4g} |"]
+        if "resim_mismatch_rms_before" in o:
+            lines.append(f"| re-simulated minus measured tracking error, RMS (µm) | "
+                         f"{o['resim_mismatch_rms_before'] * 1e6:.4g} | "
+                         f"{o['resim_mismatch_rms_after_fixed_origin'] * 1e6:.4g} | "
+                         f"{o['resim_mismatch_rms_after'] * 1e6:.4g} |")
+    elif "origin_error" in g:
+        lines += ["", f"The validation record's encoder origin could not be registered: "
+                  f"{g['origin_error']}"]
     ff = d.info.get("feedforward_gain")
     if ff:
         lines += ["", "## LIP feedforward on the emulated machine", "",

@@ -56,7 +56,10 @@ class DiagnosisSettings:
     cause explains (RMS of the held-out MSE drop, N) must be at least this fraction of the RMS
     of the measured force: with a right model the residual is the noise and discretization floor
     (1.7 mN on a 1 nm, 10 kHz foreign record, where 20 % of it looked like pre-sliding), and a
-    cause below a thousandth of the force is not worth a name.
+    cause below a thousandth of the force is not worth a name. registration_fraction: first part
+    of a separate validation record on which its encoder origin is registered when the extended
+    model has a periodic effect (:mod:`experiments.diagnosis.origin`); that gain is measured on
+    the rest.
     """
 
     lowpass_hz: float = 100.0
@@ -68,6 +71,7 @@ class DiagnosisSettings:
     max_findings: int = 6
     holdout_fraction: float = 0.25
     min_force_fraction: float = 1e-3
+    registration_fraction: float = 0.25
 
 
 def encoder_quantum(y: np.ndarray) -> float:
