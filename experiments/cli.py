@@ -165,7 +165,8 @@ def _cmd_diagnose(args) -> int:
         print(f"{k}. {f['effect']}: {params} (explains {100 * f['explained_fraction']:.1f} %)")
     g = result.gain
     print(f"out-of-sample force residual RMS {g['residual_rms_before']:.4g} N -> "
-          f"{g['residual_rms_after']:.4g} N ({-100 * g['residual_rms_reduction']:+.1f} %)")
+          f"{g['residual_rms_after']:.4g} N ({-100 * g['residual_rms_reduction']:+.1f} %; the "
+          f"encoder's quantization floor is {g['quantization_floor_n']:.2g} N)")
     if "origin" in g:
         o = g["origin"]
         print(f"with the validation record's encoder origin registered on the "

@@ -286,6 +286,18 @@ def test_model_file_errors_name_the_key(tmp_path):
         load_model(bad, 1e-4)
 
 
+def test_encoder_quantum_is_the_grid_not_the_smallest_step():
+    from experiments.diagnosis.residual import encoder_quantum
+    q = 5e-8
+    rng = np.random.default_rng(0)
+    # A path that never moves by one count (2- and 3-count steps, no dither): the grid is q.
+    y = 0.01 + q * np.cumsum(rng.choice([2, 3, -2, -3], 500))
+    assert encoder_quantum(y) == pytest.approx(q, rel=1e-6)
+    # Positions on no grid (a processed record): the smallest step, the best that can be said.
+    y = np.cumsum(rng.uniform(1e-8, 1e-6, 500))
+    assert encoder_quantum(y) == pytest.approx(np.min(np.diff(y)))
+
+
 # ------------------------------------------------------------------ real data
 @pytest.mark.skipif(not (EMPS / "DATA_EMPS.mat").exists(), reason="EMPS data not present")
 def test_emps_out_of_sample_gain(tmp_path):

@@ -132,11 +132,21 @@ def test_presliding_named_first_with_its_stiffness(foreign, cell):
     # Most of the Coulomb friction is recognised as pre-sliding (the model's is all of it).
     assert p["sliding"] > 0.6 * STAGES["lugre"].lugre_level
     assert not {f["effect"] for f in d.findings} & {"cogging", "force_ripple", "stribeck"}
-    # The bar: at least 70 % out-of-sample gain on the held-out final quarter. In the
-    # 1 kHz P-P cell (dither 20 N, 0.1 um) most samples of the pre-sliding transition are ones
-    # in which a Coulomb stage could stop within the sample, which the diagnosis leaves out; the
-    # rest shows a residual only ~2.3x its noise floor (0.09 vs 0.04 N): measured 59 %.
-    assert d.gain["residual_rms_reduction"] >= (0.50 if cell == "pp1" else 0.70)
+    # The bar: at least 70 % out-of-sample gain on the held-out final quarter, wherever a
+    # model can reach it. In the 1 kHz P-P cell (0.1 um, 18.8 kg) the encoder's quantization
+    # through m*(second difference) and the 100 Hz band is a 0.039 N floor (the effect-free
+    # record of the same cell), and the residual the pre-sliding leaves is only 0.090 N: even the
+    # true LuGre friction leaves 0.0376 N there, a 58 % gain at most. There the extended model
+    # must reach the floor instead (measured 0.0374 N, gain 59 %).
+    g = d.gain
+    if cell == "pp1":
+        floor = foreign("none", cell)[1].gain["residual_rms_before"]
+        assert g["residual_rms_after"] <= 1.05 * floor
+        assert 1 - floor / g["residual_rms_before"] < 0.70  # the bar is out of any model's reach
+        # The predicted floor (white quantization error through the model and the band).
+        assert g["quantization_floor_n"] == pytest.approx(floor, rel=0.15)
+    else:
+        assert g["residual_rms_reduction"] >= 0.70
 
 
 @pytest.mark.parametrize("cell", sorted(c for h, c in NOT_IDENTIFIABLE if h == "lugre"))

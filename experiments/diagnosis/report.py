@@ -42,7 +42,9 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
              f"{rec['samples']} samples at {1 / rec['sample_time_s']:g} Hz; encoder step "
              f"{rec['encoder_quantum_m']:.3g} m; fitted where the position path tells the "
              f"direction of motion (four same-way steps around the sample, at least "
-             f"{rec['speed_floor_m_s']:.3g} m/s); parallel low-pass {rec['lowpass_hz']:g} Hz. "
+             f"{rec['speed_floor_m_s']:.3g} m/s); parallel low-pass {rec['lowpass_hz']:.4g} Hz "
+             f"(the encoder's quantization alone makes {rec['quantization_floor_n']:.3g} N "
+             f"there). "
              f"Residual RMS {rec['residual_rms_n']:.4g} N.", "", "## Findings", ""]
     if not d.findings:
         lines.append("Nothing is wrong: no candidate effect passes the significance rule; the "
@@ -61,7 +63,9 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
               "", "## Out-of-sample gain", "", f"Validation: {d.info['validation']}.", "",
               "| quantity | before | after |", "|---|---|---|",
               f"| force residual RMS (N) | {g['residual_rms_before']:.4g} | "
-              f"{g['residual_rms_after']:.4g} |"]
+              f"{g['residual_rms_after']:.4g} |",
+              f"| the encoder's quantization floor (N), no model goes below | "
+              f"{g['quantization_floor_n']:.3g} | |"]
     if "lip_residual_rms_before" in g:
         lines.append(f"| LIP re-identified, residual RMS (N) | {g['lip_residual_rms_before']:.4g} "
                      f"| {g['lip_residual_rms_after']:.4g} |")

@@ -75,11 +75,35 @@ class DiagnosisSettings:
 
 
 def encoder_quantum(y: np.ndarray) -> float:
-    """The encoder step (m): the smallest position change seen between samples (0 if none)."""
+    """The encoder step (m): the largest step of which every position change between samples is
+    a whole multiple, among the smallest change seen and its fractions 1/2 .. 1/12 (a record that
+    never moves by one count, e.g. no dither and no crawl, still has 2- and 3-count steps); the
+    smallest change when the positions are on no such grid (a processed record); 0 if none."""
     d = np.abs(np.diff(np.asarray(y, dtype=float)))
     scale = max(float(np.max(np.abs(y))), 1e-12)
-    d = d[d > 1e-9 * scale]
-    return float(np.min(d)) if d.size else 0.0
+    d = np.unique(d[d > 1e-9 * scale])
+    if not d.size:
+        return 0.0
+    for k in range(1, 13):
+        ratio = d * k / d[0]
+        if np.all(np.abs(ratio - np.round(ratio)) < 1e-3):
+            return float(d[0] / k)
+    return float(d[0])
+
+
+def quantization_floor(quantum: float, ts: float, cutoff: float, mass: float, viscous: float,
+                       order: int = 4) -> float:
+    """RMS (N) of the filtered residual that the encoder's quantization alone makes: a white
+    position error of variance ``quantum**2 / 12`` through the model's inertia and viscous terms
+    (second and central differences) and the zero-phase Butterworth of ``order`` at ``cutoff`` Hz
+    (applied twice). Checked on a truncating 0.1 um encoder at 1 kHz (P-P loop, 18.8 kg): 0.037 N
+    predicted, 0.039 N measured."""
+    w = np.linspace(1e-6, np.pi, 20001)
+    sos = scipy.signal.butter(order, cutoff, fs=1.0 / ts, output="sos")
+    _, h = scipy.signal.sosfreqz(sos, worN=w)
+    g = mass / ts**2 * (2.0 * np.cos(w) - 2.0) + 1j * viscous * np.sin(w) / ts
+    power = np.trapezoid(np.abs(g) ** 2 * np.abs(h) ** 4, w) / np.pi
+    return float(np.sqrt(quantum**2 / 12.0 * power))
 
 
 def known_direction(y: np.ndarray, quantum: float) -> np.ndarray:
