@@ -624,4 +624,23 @@ def diagnosis_figures(d) -> dict[str, tuple[Figure, str]]:
         ax2.set_ylabel("re-simulated − measured [µm]")
         _legend_right(ax2)
         out["tracking.png"] = (fig, "Loop re-simulated on the measured reference (validation)")
+    if "origin_scan" in s:
+        fig = _figure(7, 3.5)
+        plot_origin_scan(*s["origin_scan"], ax=fig.subplots())
+        out["origin.png"] = (fig, "Encoder origin of the validation record: residual RMS of the "
+                                  "extended model on the registration part against the origin "
+                                  "shift, over one period of its strongest periodic effect")
     return out
+
+
+def plot_origin_scan(delta: float, shifts: np.ndarray, rms: np.ndarray, ax=None):
+    """Residual RMS (N) against the origin shift (mm), the registered shift marked."""
+    ax = ax or _figure(7, 3.5).subplots()
+    ax.plot(shifts * 1e3, rms, color=PALETTE[0], marker=".", ms=3, lw=0.8)
+    ax.axvline(0.0, color=PALETTE[7], lw=0.8, ls=":", label="origin of the estimation record")
+    ax.axvline(delta * 1e3, color=PALETTE[4], lw=1.0, ls="--",
+               label=f"registered: {delta * 1e3:+.4g} mm")
+    ax.set_xlabel("origin shift δ [mm]")
+    ax.set_ylabel("residual RMS [N]")
+    _legend_right(ax)
+    return ax

@@ -331,6 +331,8 @@ def test_emps_out_of_sample_gain(tmp_path):
     assert o["residual_rms_after"] < o["residual_rms_after_fixed_origin"]
     assert o["resim_mismatch_rms_after"] < o["resim_mismatch_rms_after_fixed_origin"] \
         < o["resim_mismatch_rms_before"]
+    assert (out / "figures" / "origin.png").exists()
+    assert "Encoder origin of the validation record" in (out / "report.md").read_text()
 
 
 @pytest.mark.slow

@@ -128,3 +128,13 @@ def test_palette_colours_are_told_apart():
     lab = [_lab(c) for c in plots.PALETTE]
     closest = min(np.linalg.norm(a - b) for i, a in enumerate(lab) for b in lab[i + 1:])
     assert closest > 25
+
+
+def test_origin_scan_marks_the_registered_shift_in_mm():
+    shifts = np.linspace(-1.25e-3, 1.25e-3, 65)
+    rms = 2.5 - 0.2 * np.cos(2 * np.pi * (shifts + 0.672e-3) / 2.5e-3)
+    ax = plots.plot_origin_scan(-0.672e-3, shifts, rms)
+    assert ax.get_xlabel() == "origin shift δ [mm]" and ax.get_ylabel() == "residual RMS [N]"
+    marked = [ln.get_xdata()[0] for ln in ax.lines[1:]]
+    assert marked == pytest.approx([0.0, -0.672])
+    assert "-0.672 mm" in " ".join(t.get_text() for t in ax.get_legend().get_texts())

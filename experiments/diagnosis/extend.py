@@ -185,7 +185,7 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
             gain["origin_error"] = str(exc)
         else:
             if origin is not None:
-                gain["origin"] = origin
+                gain["origin"], signals["origin_scan"] = origin
     if controller is not None:
         run, cut = (full, val_offset) if val_offset is not None else (val, 0)
         try:

@@ -34,10 +34,11 @@ def dominant_period(plant: Plant, run: Run) -> float | None:
     return max(periodic, key=lambda e: float(np.std(e.force(y, 0.0, u)))).period
 
 
-def origin_shift(run: Run, plant: Plant, settings: DiagnosisSettings = DiagnosisSettings(),
-                 period: float | None = None) -> float:
-    """The origin shift ``delta`` (m, within half a period of 0) that minimizes the residual RMS
-    of ``plant`` on ``run.moved_origin(delta)``; ``period`` defaults to :func:`dominant_period`.
+def origin_scan(run: Run, plant: Plant, settings: DiagnosisSettings = DiagnosisSettings(),
+                period: float | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(delta, shifts, rms)``: the origin shift ``delta`` (m, within half a period of 0) that
+    minimizes the residual RMS (N) of ``plant`` on ``run.moved_origin(delta)``, and the scanned
+    grid; ``period`` defaults to :func:`dominant_period`.
 
     A grid of 64 steps over one period, then a bounded scalar search around the best point (to
     1e-4 of the period). Shifts by whole periods of the dominant effect are not told apart: the
@@ -45,33 +46,36 @@ def origin_shift(run: Run, plant: Plant, settings: DiagnosisSettings = Diagnosis
     """
     period = dominant_period(plant, run) if period is None else period
     if period is None:
-        return 0.0
+        return 0.0, np.zeros(0), np.zeros(0)
 
     def cost(delta: float) -> float:
         return Residual(run.moved_origin(delta), plant, settings).rms()
 
     grid = np.linspace(-0.5, 0.5, 65) * period
-    costs = [cost(d) for d in grid]
+    costs = np.array([cost(d) for d in grid])
     k = int(np.argmin(costs))
     step = float(grid[1] - grid[0])
     best = scipy.optimize.minimize_scalar(cost, bounds=(grid[k] - step, grid[k] + step),
                                           method="bounded", options={"xatol": 1e-4 * period})
-    return float(best.x) if best.fun <= costs[k] else float(grid[k])
+    delta = float(best.x) if best.fun <= costs[k] else float(grid[k])
+    return delta, grid, costs
 
 
 def registered_gain(val: Run, before: Plant, after: Plant, settings: DiagnosisSettings,
-                    resimulate=None) -> dict | None:
+                    resimulate=None) -> tuple[dict, tuple] | None:
     """The out-of-sample gain on a separate validation record with its origin registered:
     ``delta`` from the first ``settings.registration_fraction`` of ``val`` (the extended model
     ``after``), the residuals of both models on the rest. None when ``after`` has no periodic
     effect. ``resimulate(plant, run) -> e`` (m), if given, re-simulates the loop over the whole
-    moved record and the mismatch is taken on the rest."""
+    moved record and the mismatch is taken on the rest. Returns the numbers and the scan
+    ``(delta, shifts, rms)`` of :func:`origin_scan` for the report's figure."""
     period = dominant_period(after, val)
     if period is None:
         return None
     cut = int(round(settings.registration_fraction * len(val)))
     reg, rest = val.slice(0, cut), val.slice(cut)
-    delta = origin_shift(reg, after, settings, period)
+    scan = origin_scan(reg, after, settings, period)
+    delta = scan[0]
     moved = rest.moved_origin(delta)
     out = {"shift_m": delta, "period_m": period,
            "registered_on": f"first {100 * settings.registration_fraction:.0f} % of the "
@@ -89,4 +93,4 @@ def registered_gain(val: Run, before: Plant, after: Plant, settings: DiagnosisSe
                                 ("after_fixed_origin", after, val)):
             e = resimulate(plant, run)[cut:]
             out[f"resim_mismatch_rms_{key}"] = float(np.sqrt(np.mean((e - e_m) ** 2)))
-    return out
+    return out, scan
