@@ -240,11 +240,14 @@ class CableSlab(Effect):
 
 @dataclass(frozen=True)
 class Stribeck(Effect):
-    """Friction peak at low speed: ``sign(v)*peak*exp(-(|v|/velocity)**exponent)``.
+    """Low-speed friction curve: ``sign(v)*peak*exp(-(|v|/velocity)**exponent)`` on top of Coulomb.
 
     ``peak`` (N) is the rise *above* the Coulomb level, so the static (breakaway) friction is
     ``coulomb + peak``; ``velocity`` (m/s) is the Stribeck velocity; ``exponent`` is usually 2.
     (Called ``static`` before; renamed because the literature's static friction is the total.)
+    A negative ``peak`` is a *dip*: friction below the Coulomb level at low speed that rises to
+    it over ``velocity`` (velocity-strengthening friction, as a lubricant film or a preloaded
+    nut can give); the plant keeps ``coulomb + peak >= 0``.
     """
 
     peak: float = 2.0
@@ -256,8 +259,6 @@ class Stribeck(Effect):
     def __post_init__(self):
         _check_finite("stribeck", peak=self.peak)
         _check_positive("stribeck", velocity=self.velocity, exponent=self.exponent)
-        if self.peak < 0:
-            raise UserError(f"stribeck: peak must be >= 0 N, got {self.peak!r}")
 
     def _shape(self, v):
         v = np.asarray(v)
@@ -270,7 +271,7 @@ class Stribeck(Effect):
         return {"stribeck": self._shape(v)}
 
     def from_coefficients(self, coef):
-        return Stribeck(peak=max(coef["stribeck"], 0.0), velocity=self.velocity,
+        return Stribeck(peak=float(coef["stribeck"]), velocity=self.velocity,
                         exponent=self.exponent)
 
     def lower(self, terms):

@@ -81,6 +81,11 @@ class Plant:
                             f"(at most {MAX_ENCODER_RESOLUTION:g} m); is it in um or nm?")
         if not (isinstance(self.stiffness, (int, float)) and math.isfinite(self.stiffness)):
             raise UserError(f"plant: stiffness must be a finite number, got {self.stiffness!r}")
+        dips = sum(e.peak for e in self.effects if isinstance(e, Stribeck))
+        if self.coulomb + dips < 0:
+            raise UserError(f"plant: the stribeck peaks sum to {dips!r} N, below minus the "
+                            f"coulomb friction {self.coulomb!r} N: a friction dip cannot push "
+                            f"the stage at standstill")
         if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 1000):
             raise UserError(f"plant: substeps must be an integer in 1..1000, got {self.substeps!r}")
 

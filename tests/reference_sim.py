@@ -8,6 +8,9 @@ hold on records that clm-sim's own integrator did not make.
   is handled *event-driven*: a sliding phase runs with a fixed direction until the velocity
   crosses zero (a terminal event); there the stage sticks for the rest of the sample if the net
   force is inside the breakaway band (``coulomb``), else slides on in the force's direction.
+* A low-speed friction curve on top of Coulomb,
+  ``sign(v)*stribeck_peak*exp(-(v/stribeck_velocity)**2)``; a negative peak is a dip (friction
+  rising to Coulomb with speed); breakaway ``coulomb + peak``.
 * LuGre friction (Canudas de Wit et al. 1995) without a Stribeck peak:
   ``dz/dt = v - sigma0*|v|*z/level``, ``F = sigma0*z + sigma1*dz/dt`` (bristle state ``z`` in m).
 * Position forces: a saturating cable-carrier force ``cable*tanh((x - cable_center)/cable_width)``,
@@ -46,6 +49,13 @@ class Stage:
     cogging_period: float = 0.016  # m
     cogging_phase: float = 0.0    # rad
     offset: float = 0.0           # N
+    stribeck_peak: float = 0.0    # N, above Coulomb at standstill (< 0: a dip)
+    stribeck_velocity: float = 0.01  # m/s
+
+    def sliding_friction(self, v: float, s: float) -> float:
+        """Coulomb plus the low-speed curve (N) for motion in direction ``s``."""
+        curve = self.stribeck_peak * math.exp(-((v / self.stribeck_velocity) ** 2))
+        return s * (self.coulomb + curve)
 
     def position_force(self, x: float) -> float:
         f = self.offset
@@ -80,7 +90,7 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float) -> None:
         if st.v == 0.0 and stage.coulomb > 0:
             f_lugre = stage.lugre_sigma0 * st.z if stage.lugre_level else 0.0
             net = u - stage.position_force(st.x) - f_lugre
-            if abs(net) <= stage.coulomb:
+            if abs(net) <= stage.coulomb + stage.stribeck_peak:
                 return  # sticks: nothing moves until the input changes
             s = math.copysign(1.0, net)
         else:
@@ -89,7 +99,7 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float) -> None:
         def rhs(_, y, s=s):
             x, v, z = y
             f, dz = _lugre(stage, v, z)
-            fc = stage.coulomb * s
+            fc = stage.sliding_friction(v, s)
             return [v, (u - stage.viscous * v - fc - f - stage.position_force(x)) / stage.mass,
                     dz]
 
@@ -99,7 +109,8 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float) -> None:
         crossing.direction = -1
         # The velocity cannot reach zero in the rest of the sample when every force together
         # could not stop the stage (bounded deceleration): no event to watch for then.
-        bound = (abs(u) + stage.coulomb + stage.viscous * abs(st.v) + abs(stage.offset)
+        bound = (abs(u) + stage.coulomb + abs(stage.stribeck_peak) + stage.viscous * abs(st.v)
+                 + abs(stage.offset)
                  + abs(stage.cable) + abs(stage.cogging) + 2 * stage.lugre_level
                  + stage.lugre_sigma1 * 2 * abs(st.v)) / stage.mass
         watch = stage.coulomb > 0 and s != 0.0 and abs(st.v) <= 2 * bound * (ts - t)

@@ -130,6 +130,9 @@ BAD_CONFIGS = {
                             "all"),
     "zero effect period": ("name: x\nplant:\n  effects:\n    - {type: cogging, amplitude: 1.0, "
                            "period: 0.0}\n", "period", "all"),
+    "friction dip below zero": ("name: x\nplant:\n  coulomb: 2.0\n  effects:\n    - {type: "
+                                "stribeck, peak: -3.0, velocity: 0.01}\n", "stribeck peaks",
+                                "all"),
     "unknown feedforward kind": ("feedforwards:\n  - kind: magic\n", "feedforwards[0].kind",
                                  "all"),
     "pgnn without neurons": ("feedforwards:\n  - {kind: pgnn, training: sequential}\n",

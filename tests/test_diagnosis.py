@@ -315,18 +315,22 @@ def test_emps_out_of_sample_gain(tmp_path):
     assert pre["length"] == pytest.approx(pre["sliding"] / pre["stiffness"])
     assert not set(named) & {"not_supported"}  # the published model's offset is there
     g = d["gain"]
-    # On PULSES, which the diagnosis never saw, with EMPS's encoder origin: measured 12.7 %.
-    # The bound sits below the measurement by the spread seen between code versions (~2 points).
-    assert g["residual_rms_after"] < 0.90 * g["residual_rms_before"]
+    # The low-speed regime is mostly a friction dip (velocity-strengthening), below Coulomb at
+    # standstill by at most the model's Coulomb friction.
+    dip = named["stribeck"]["parameters"]
+    assert -20.3935 < dip["peak"] < 0 and dip["velocity"] > 0
+    # On PULSES, which the diagnosis never saw, with EMPS's encoder origin: the 15 %
+    # (measured 19.0 %).
+    assert g["residual_rms_after"] < 0.85 * g["residual_rms_before"]
     assert g["lip_residual_rms_after"] < 0.80 * g["lip_residual_rms_before"]
     assert g["resim_mismatch_rms_after"] < g["resim_mismatch_rms_before"]
-    # The 2.5 mm periodic force sits 0.67 mm (modulo its period) lower in PULSES's positions: the
+    # The 2.5 mm periodic force sits 0.66 mm (modulo its period) lower in PULSES's positions: the
     # two experiments were homed apart. With PULSES's origin registered on its first quarter,
-    # the gain on the other three quarters is the 15 % (measured 21.1 %; fixed origin on
-    # the same samples 12.8 %), and the re-simulated tracking error agrees better too.
+    # the gain on the other three quarters is larger still (measured 28.4 %; fixed origin on the
+    # same samples 18.9 %), and the re-simulated tracking error agrees better too.
     o = g["origin"]
     assert o["period_m"] == pytest.approx(2.501e-3, rel=1e-3)
-    assert o["shift_m"] == pytest.approx(-0.67e-3, abs=0.03e-3)
+    assert o["shift_m"] == pytest.approx(-0.66e-3, abs=0.03e-3)
     assert o["residual_rms_reduction"] >= 0.15
     assert o["residual_rms_after"] < o["residual_rms_after_fixed_origin"]
     assert o["resim_mismatch_rms_after"] < o["resim_mismatch_rms_after_fixed_origin"] \

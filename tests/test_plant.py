@@ -156,6 +156,8 @@ def test_halving_the_substep_with_presliding_moves_less_than_one_count(coulomb, 
 STICTION_PLANTS = {
     "coulomb": Plant(effects=()),
     "stribeck": Plant(effects=(Stribeck(peak=1.5, velocity=0.001, exponent=2.0),)),
+    # A dip: breakaway below Coulomb (friction rising to it with speed).
+    "stribeck dip": Plant(effects=(Stribeck(peak=-3.0, velocity=0.01, exponent=2.0),)),
     "asymmetric": Plant(effects=(FrictionAsymmetry(coulomb_pos=2.0, coulomb_neg=0.5),)),
     # Position forces (cable carrier, ripple at y0) shift the force the motor must apply.
     "default effects": Plant(),
@@ -273,6 +275,7 @@ EFFECT_CASES = {
     "force_ripple": ForceRipple(amplitude=0.05, period=0.01, phase=-1.0),
     "cable_slab": CableSlab(coefficients=(1.0, 50.0, 300.0, 2.0e4), center=-0.01),
     "stribeck": Stribeck(peak=2.0, velocity=0.02, exponent=2.0),
+    "stribeck dip": Stribeck(peak=-3.0, velocity=0.02, exponent=2.0),
     "friction_asymmetry": FrictionAsymmetry(coulomb_pos=1.0, coulomb_neg=0.5, viscous_pos=20.0,
                                             viscous_neg=10.0),
     "force_offset": ForceOffset(force_n=3.0),
@@ -281,8 +284,8 @@ EFFECT_CASES = {
 
 
 def test_every_registered_effect_has_a_case():
-    assert set(EFFECT_CASES) == set(EFFECTS)
-    assert all(type(e) is EFFECTS[name] for name, e in EFFECT_CASES.items())
+    assert {e.type for e in EFFECT_CASES.values()} == set(EFFECTS)
+    assert all(type(e) is EFFECTS[e.type] for e in EFFECT_CASES.values())
 
 
 def _ode_oracle(plant: Plant, effect, u: float, direction: float, t: np.ndarray) -> np.ndarray:

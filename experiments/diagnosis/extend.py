@@ -16,7 +16,7 @@ from experiments.diagnosis.origin import registered_gain
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, quantization_floor
 from experiments.diagnosis.search import (SmoothTerm, Step, coefficient_std, fit_cv,
                                           reportable)
-from clm_sim.effects import Effect, Presliding
+from clm_sim.effects import Effect, Presliding, Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force
 from clm_sim.loop import simulate
@@ -66,7 +66,7 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
             correction.setdefault("drop", []).append(step.term.template)
         elif step.term.effect == "parameter_mismatch":
             params = {}
-            for j, name in enumerate(THETA_NAMES):
+            for j, name in enumerate(step.term.keys):
                 delta = float(coef[name])
                 correction[name] = correction.get(name, 0.0) + delta
                 if reportable(res, delta, sd[name], step.cols[:, j]):
@@ -107,7 +107,14 @@ def extended_plant(plant: Plant, correction: dict, effects: tuple[Effect, ...]) 
     theta["mass"] = max(theta["mass"], 1e-3 * plant.mass)
     theta["viscous"] = max(theta["viscous"], 0.0)
     theta["coulomb"] = max(theta["coulomb"], 0.0)
-    return dataclasses.replace(plant, **theta, effects=kept + tuple(effects))
+    # A friction dip takes at most the Coulomb friction (the joint fit may ask a little more).
+    room, bounded = theta["coulomb"], []
+    for e in kept + tuple(effects):
+        if isinstance(e, Stribeck) and e.peak < 0:
+            e = dataclasses.replace(e, peak=max(e.peak, -room))
+        room += e.peak if isinstance(e, Stribeck) else 0.0
+        bounded.append(e)
+    return dataclasses.replace(plant, **theta, effects=tuple(bounded))
 
 
 def lip_effects(effects) -> tuple[Effect, ...]:

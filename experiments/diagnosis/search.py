@@ -30,7 +30,9 @@ folds whose held-out SSE it changes by more than 1 %, at least two), and (3) an 
 against ``S`` on all fitted samples, with the effective sample count of the filtered data, has
 p < ``p_value``, and (4) the force it explains (RMS of the held-out MSE drop) is at least
 ``min_force_fraction`` of the measured force's RMS; a Stribeck term must also be a peak
-(peak > 0), pre-sliding friction positive and at most the model's Coulomb friction, a
+(peak > 0) or a dip that beats pre-sliding friction in its place (peak < 0, friction below
+Coulomb at low speed, at most the model's Coulomb friction), pre-sliding friction positive and
+at most the model's Coulomb friction, a
 ``not_supported`` scale below -0.5, a parameter mismatch reportable (:func:`reportable`), a
 ``cable_slab`` more than its constant and linear part, and a periodic term better than a smooth
 force in its place (:func:`_beats_smooth`). Each step takes
@@ -479,7 +481,23 @@ def forward_select(res: Residual) -> list[Step]:
         if accepted is None:
             break
         steps.append(accepted)
-    return prune(res, steps)
+    return prune(res, _stiffness_in_cable(steps))
+
+
+def _stiffness_in_cable(steps: list[Step]) -> list[Step]:
+    """With a ``cable_slab`` accepted, a parameter mismatch's stiffness column lies in the span
+    of the polynomial (its linear part): their split is arbitrary, so the stiffness correction
+    is left to the polynomial and not reported as a mismatch."""
+    if not any(s.term.effect == "cable_slab" for s in steps):
+        return steps
+    out = []
+    for s in steps:
+        if s.term.effect == "parameter_mismatch" and "stiffness" in s.term.keys:
+            keep = [j for j, k in enumerate(s.term.keys) if k != "stiffness"]
+            term = Term("parameter_mismatch", None, tuple(s.term.keys[j] for j in keep))
+            s = Step(term, s.cols[:, keep], s.gain, s.folds_improved, s.p_value)
+        out.append(s)
+    return out
 
 
 def _beats_smooth(res: Residual, steps: list[Step], x_s: np.ndarray, cols: np.ndarray) -> bool:
@@ -501,8 +519,9 @@ def _beats_smooth(res: Residual, steps: list[Step], x_s: np.ndarray, cols: np.nd
 
 def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray,
               steps: list[Step]) -> bool:
-    """A Stribeck term must be a friction *peak* (peak > 0) and pre-sliding friction a positive
-    force to carry their names; a model effect is ``not_supported`` when the data holds less than
+    """A Stribeck term must be a friction peak (peak > 0), or a dip that beats pre-sliding in its
+    place (:func:`_dip_beats_presliding`), and pre-sliding friction a positive force to carry
+    their names; a model effect is ``not_supported`` when the data holds less than
     half of it; a parameter mismatch must correct at least one parameter by
     the rule of :func:`reportable` (a joint fit whose every part is within its uncertainty
     names nothing)."""
@@ -519,12 +538,44 @@ def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray,
                                                              "presliding") for s in steps])
         moved = float(coef[x_s.shape[1]:].sum() + coef[:x_s.shape[1]][mask].sum())
         return bool(coef[-1] > 0 and moved <= 1.05 * res.plant.coulomb)
+    if term.effect == "stribeck" and coef[-1] < 0:
+        return _dip_beats_presliding(res, term, x_s, cols, steps, float(coef[-1]))
     if term.effect != "parameter_mismatch":
         return bool(coef[-1] > 0)
     std = coefficient_std(res, x, coef)
     k = cols.shape[1]
     return any(reportable(res, coef[x_s.shape[1] + j], std[x_s.shape[1] + j], cols[:, j])
                for j in range(k))
+
+
+def _dip_beats_presliding(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray,
+                          steps: list[Step], peak: float) -> bool:
+    """A Stribeck *dip* (friction below Coulomb at low speed, peak < 0) is what pre-sliding
+    friction looks like in the velocity domain: after a reversal at acceleration ``a`` the Dahl
+    transition of length ``L`` ends at ``v = sqrt(2 a L)``. It is named only when it explains the
+    record better than the best pre-sliding element in its place (lower held-out MSE), which a
+    record tells apart where the encoder resolves the pre-sliding length and the reversals are
+    passed at more than one acceleration; and at most the model's Coulomb friction. Where the
+    model holds a Stribeck peak of its own, a dip must also beat, by ``min_gain`` of the held-out
+    MSE, that peak being ``not_supported`` (a dip that only cancels the model's peak is that)."""
+    if -peak > res.plant.coulomb:
+        return False
+    st = res.settings
+
+    def cv(extra: np.ndarray) -> float:
+        return fit_cv(np.column_stack([x_s, extra]), res.z, res.fold, st.folds).cv_mse
+
+    dip = cv(cols)
+    dropped = [s.term.template for s in steps if s.term.effect == "not_supported"]
+    current = fit_cv(x_s, res.z, res.fold, st.folds).cv_mse
+    for effect in res.plant.effects:
+        if isinstance(effect, Stribeck) and not any(effect is d for d in dropped):
+            absent = SupportTerm("not_supported", effect, ("support",)).columns(res)
+            if dip > cv(absent) - st.min_gain * current:
+                return False
+    avoid = [s.term.template.length for s in steps if s.term.effect == "presliding"]
+    length = search_presliding(res, x_s, avoid)
+    return length is None or dip < cv(presliding_term(length).columns(res))
 
 
 # A corrected parameter is reported when it is this many standard errors from the model's value
