@@ -141,9 +141,9 @@ def test_presliding_named_first_with_its_stiffness(foreign, cell):
     # The bar: at least 70 % out-of-sample gain on the held-out final quarter, wherever a
     # model can reach it. In the 1 kHz P-P cell (0.1 um, 18.8 kg) the encoder's quantization
     # through m*(second difference) and the 100 Hz band is a 0.039 N floor (the effect-free
-    # record of the same cell), and the residual the pre-sliding leaves is only 0.090 N: even the
-    # true LuGre friction leaves 0.0376 N there, a 58 % gain at most. There the extended model
-    # must reach the floor instead (measured 0.0374 N, gain 59 %).
+    # record of the same cell), and the residual the pre-sliding leaves is only 0.090 N: no model
+    # gains more than 56 % there (checked below). There the extended model must reach the floor
+    # instead (measured 0.0374 N, gain 59 %).
     g = d.gain
     if cell == "pp1":
         floor = foreign("none", cell)[1].gain["residual_rms_before"]

@@ -6,8 +6,7 @@ from dataclasses import dataclass, field
 
 from experiments.diagnosis.extend import extended_plant, gains, joint_fit
 from experiments.diagnosis.model import SimulationModel
-from experiments.diagnosis.residual import (DiagnosisSettings, Residual, quantization_floor,
-                                           source_of)
+from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
 from experiments.diagnosis.search import forward_select
 from clm_sim.effects import Effect
 from clm_sim.errors import UserError
@@ -77,9 +76,7 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
     info = {"record": {"source": source_of(record), "samples": len(record),
                        "sample_time_s": record.ts, "encoder_quantum_m": res.quantum,
                        "speed_floor_m_s": res.v_floor, "lowpass_hz": res.cutoff,
-                       "quantization_floor_n": quantization_floor(
-                           res.quantum, res.ts, res.cutoff, model.plant.mass,
-                           model.plant.viscous, res.features.lowpass_order),
+                       "quantization_floor_n": res.quantization_floor(),
                        "fitted_samples": int(len(res.idx)), "effective_samples": res.n_eff,
                        "residual_rms_n": res.rms()},
             "validation": source_of(validation) if validation is not None else

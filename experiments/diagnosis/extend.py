@@ -13,7 +13,7 @@ import numpy as np
 
 from experiments.diagnosis.model import Controller
 from experiments.diagnosis.origin import registered_gain
-from experiments.diagnosis.residual import DiagnosisSettings, Residual, quantization_floor
+from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.search import (SmoothTerm, Step, coefficient_std, fit_cv,
                                           reportable)
 from clm_sim.effects import Effect, Presliding, Stribeck
@@ -171,10 +171,7 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
             "validation_samples": len(val), "fitted_validation_samples": int(len(res_b.idx))}
     gain["residual_rms_reduction"] = 1.0 - gain["residual_rms_after"] / \
         max(gain["residual_rms_before"], 1e-300)
-    # What no model can remove: the encoder's quantization through the inertia term and the band.
-    gain["quantization_floor_n"] = quantization_floor(res_b.quantum, res_b.ts, res_b.cutoff,
-                                                      before.mass, before.viscous,
-                                                      res_b.features.lowpass_order)
+    gain["quantization_floor_n"] = res_b.quantization_floor()
     try:
         gain["lip_effects"] = [e.type for e in lip_effects(effects)]
         lip = (lip_residual_rms(est, res_b, val, (), res_b.cutoff),

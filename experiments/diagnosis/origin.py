@@ -34,20 +34,16 @@ def dominant_period(plant: Plant, run: Run) -> float | None:
     return max(periodic, key=lambda e: float(np.std(e.force(y, 0.0, u)))).period
 
 
-def origin_scan(run: Run, plant: Plant, settings: DiagnosisSettings = DiagnosisSettings(),
-                period: float | None = None) -> tuple[float, np.ndarray, np.ndarray]:
-    """``(delta, shifts, rms)``: the origin shift ``delta`` (m, within half a period of 0) that
-    minimizes the residual RMS (N) of ``plant`` on ``run.moved_origin(delta)``, and the scanned
-    grid; ``period`` defaults to :func:`dominant_period`.
+def origin_scan(run: Run, plant: Plant, settings: DiagnosisSettings,
+                period: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(delta, shifts, rms)``: the origin shift ``delta`` (m, within half a period (m) of 0)
+    that minimizes the residual RMS (N) of ``plant`` on ``run.moved_origin(delta)``, and the
+    scanned grid.
 
     A grid of 64 steps over one period, then a bounded scalar search around the best point (to
     1e-4 of the period). Shifts by whole periods of the dominant effect are not told apart: the
     smallest is returned (a homing error is a fraction of a millimetre, not centimetres).
     """
-    period = dominant_period(plant, run) if period is None else period
-    if period is None:
-        return 0.0, np.zeros(0), np.zeros(0)
-
     def cost(delta: float) -> float:
         return Residual(run.moved_origin(delta), plant, settings).rms()
 

@@ -198,6 +198,12 @@ class Residual:
             return np.zeros((len(self.idx), 0))
         return self.filter(np.column_stack(list(cols.values())))[self.idx]
 
+    def quantization_floor(self) -> float:
+        """What the encoder's quantization alone makes of this residual (N RMS; see
+        :func:`quantization_floor`): no model of this record goes below it."""
+        return quantization_floor(self.quantum, self.ts, self.cutoff, self.plant.mass,
+                                  self.plant.viscous, self.features.lowpass_order)
+
     def rms(self) -> float:
         """RMS (N) of the filtered residual over the fitted samples."""
         return float(np.sqrt(np.mean(self.z**2)))

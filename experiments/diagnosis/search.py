@@ -539,7 +539,7 @@ def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray,
         moved = float(coef[x_s.shape[1]:].sum() + coef[:x_s.shape[1]][mask].sum())
         return bool(coef[-1] > 0 and moved <= 1.05 * res.plant.coulomb)
     if term.effect == "stribeck" and coef[-1] < 0:
-        return _dip_beats_presliding(res, term, x_s, cols, steps, float(coef[-1]))
+        return _dip_beats_presliding(res, x_s, cols, steps, float(coef[-1]))
     if term.effect != "parameter_mismatch":
         return bool(coef[-1] > 0)
     std = coefficient_std(res, x, coef)
@@ -548,8 +548,8 @@ def _physical(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray,
                for j in range(k))
 
 
-def _dip_beats_presliding(res: Residual, term: Term, x_s: np.ndarray, cols: np.ndarray,
-                          steps: list[Step], peak: float) -> bool:
+def _dip_beats_presliding(res: Residual, x_s: np.ndarray, cols: np.ndarray, steps: list[Step],
+                          peak: float) -> bool:
     """A Stribeck *dip* (friction below Coulomb at low speed, peak < 0) is what pre-sliding
     friction looks like in the velocity domain: after a reversal at acceleration ``a`` the Dahl
     transition of length ``L`` ends at ``v = sqrt(2 a L)``. It is named only when it explains the
