@@ -10,7 +10,7 @@ Both minimize ``V(p) = ||r(p)||**2`` given ``fun(p, jacobian)`` that returns the
 
 ``callback(iteration, p, cost)`` is called on the initial point and on every accepted iterate.
 
-:func:`blas_threads` limits OpenBLAS to one thread while they run: the products here are tall and
+:func:`blas_threads` limits BLAS to one thread while they run: the products here are tall and
 thin (26k x 101), and on a 2-core machine that also runs simulations, OpenBLAS's spinning threads
 made ``J.T @ J`` nine times slower (0.37 s against 0.04 s, measured) and the small forward
 products twenty times slower.
@@ -19,53 +19,22 @@ products twenty times slower.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 
-
-def _openblas_handles():
-    """(set, get) thread-count functions of every OpenBLAS loaded in this process."""
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = {line.split()[-1] for line in fh if "openblas" in line and ".so" in line}
-    except OSError:
-        return []
-    handles = []
-    for path in sorted(paths):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for prefix in ("scipy_openblas", "openblas"):
-            for suffix in ("64_", ""):
-                try:
-                    handles.append((getattr(lib, f"{prefix}_set_num_threads{suffix}"),
-                                    getattr(lib, f"{prefix}_get_num_threads{suffix}")))
-                    break
-                except AttributeError:
-                    continue
-            else:
-                continue
-            break
-    return handles
+from clm_sim.numerics import single_threaded
 
 
 @contextlib.contextmanager
 def blas_threads(n: int = 1):
-    """Run the block with ``n`` OpenBLAS threads, restoring the previous counts (no-op where no
-    OpenBLAS is found)."""
-    handles = _openblas_handles()
-    before = [get() for _, get in handles]
-    for set_, _ in handles:
-        set_(n)
-    try:
+    """Run the block with one BLAS/OpenMP/torch thread (:func:`clm_sim.numerics.single_threaded`,
+    through threadpoolctl, whatever the BLAS); ``n`` other than 1 is not supported."""
+    if n != 1:
+        raise ValueError(f"blas_threads: only n = 1 is supported, got {n}")
+    with single_threaded():
         yield
-    finally:
-        for (set_, _), count in zip(handles, before):
-            set_(count)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ import threading
 from pathlib import Path
 
 from clm_sim.errors import UserError
+from clm_sim.numerics import pin_portable_kernels
 
 
 def _cmd_run(args) -> int:
@@ -179,6 +180,21 @@ def _cmd_diagnose(args) -> int:
     return 0
 
 
+def _cmd_compare(args) -> int:
+    from experiments.agreement import compare_files
+
+    mismatches = compare_files(Path(args.expected), Path(args.fresh))
+    for m in mismatches:
+        print(m)
+    if mismatches:
+        print(f"{len(mismatches)} cell(s) outside the cross-machine tolerance "
+              f"(docs/reproducibility.md)")
+        return 1
+    print(f"{args.fresh} reproduces the table in {args.expected} within the cross-machine "
+          f"tolerance")
+    return 0
+
+
 def _workers(text: str) -> int:
     try:
         value = int(text)
@@ -238,6 +254,12 @@ def parser() -> argparse.ArgumentParser:
     study.add_argument("--workers", type=_workers, help="parallel cells of a failure_map: study "
                        "(default: all cores)")
     study.set_defaults(func=_cmd_study)
+    compare = sub.add_parser("compare", help="does a fresh table.json reproduce a published "
+                             "table (Markdown) within the cross-machine tolerance?")
+    compare.add_argument("expected", help="Markdown file whose first results table is the "
+                         "published one, e.g. docs/results/paper_table.md")
+    compare.add_argument("fresh", help="table.json of a fresh run")
+    compare.set_defaults(func=_cmd_compare)
     return p
 
 
@@ -251,6 +273,9 @@ def _terminate(signum, frame):
 
 
 def main(argv=None) -> int:
+    # Before numpy, scipy or torch load: their AVX2 kernels on every x86-64 CPU that has them, so
+    # a fit sums in the same order on another CPU (clm_sim.numerics; CLM_SIM_NATIVE_KERNELS=1 opts out).
+    pin_portable_kernels()
     args = parser().parse_args(argv)
     # Files only, never a window: the one place where clm-sim picks matplotlib's backend.
     os.environ["MPLBACKEND"] = "Agg"

@@ -17,28 +17,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from clm_sim import __version__
 from clm_sim.errors import UserError
+from clm_sim.numerics import environment, versions
 from clm_sim.outdir import atomic_folder
 from clm_sim.record import save_npz
 from experiments import table
 from experiments.config import ExperimentConfig, resolved
 from experiments.testbed import Progress, Testbed
-
-
-def versions() -> dict[str, str]:
-    import control
-    import numba
-    import scipy
-    out = {"clm_sim": __version__, "numpy": np.__version__, "scipy": scipy.__version__,
-           "control": control.__version__, "numba": numba.__version__,
-           "python": sys.version.split()[0]}
-    try:
-        import torch
-        out["torch"] = torch.__version__
-    except ImportError:
-        pass
-    return out
 
 
 def slug(text: str) -> str:
@@ -137,7 +122,7 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     if config.truth is not None:  # diagnose the model against the emulated machine
         from experiments.diagnosis.emulate import diagnose_emulated
         diagnose_emulated(tb, record=train, out=out / "diagnosis", progress=progress)
-    (out / "table.json").write_text(table.to_json(rows))
+    (out / "table.json").write_text(table.to_json(rows, environment=environment()))
     (out / "table.md").write_text(table.to_markdown(rows))
     (out / "table.csv").write_text(table.to_csv(rows))
     from experiments import (

@@ -131,12 +131,16 @@ def comparisons(rows: list[dict]) -> list[dict]:
     return out
 
 
-def to_json(rows: list[dict]) -> str:
-    """``{"rows": ...}``, with ``"comparisons"`` when there are PGNN rows to compare."""
+def to_json(rows: list[dict], environment: dict | None = None) -> str:
+    """``{"rows": ...}``, with ``"comparisons"`` when there are PGNN rows to compare and
+    ``"environment"`` (library versions, CPU, kernels: :func:`clm_sim.numerics.environment`)
+    when given."""
     doc = {"rows": rows}
     pairs = comparisons(rows)
     if pairs:
         doc["comparisons"] = pairs
+    if environment is not None:
+        doc["environment"] = environment
     return json.dumps(doc, indent=1)
 
 

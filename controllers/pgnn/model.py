@@ -54,7 +54,6 @@ data.
 
 from __future__ import annotations
 
-import contextlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +63,7 @@ import torch
 
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
+from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import TERMS, SeparableCost, Weights
@@ -107,16 +107,10 @@ def _as_theta(theta) -> np.ndarray:
     return np.asarray(theta, dtype=np.float64)
 
 
-@contextlib.contextmanager
 def one_thread():
-    """Run the block with one torch thread and one BLAS thread (restored afterwards)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        with optim.blas_threads(1):
-            yield
-    finally:
-        torch.set_num_threads(before)
+    """The block with one torch thread and one BLAS/OpenMP thread, restored afterwards; shared
+    by fits in threads of one process (:func:`clm_sim.numerics.single_threaded`)."""
+    return single_threaded()
 
 
 def lemma_condition(data: TrainingData, h: np.ndarray, theta_lip, lam_diag=None,
