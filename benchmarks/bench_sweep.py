@@ -25,8 +25,8 @@ from pathlib import Path
 
 import yaml
 
-from experiments.grid import load_sweep
-from experiments.sweep import run_sweep
+from experiments.sweeps.grid import load_sweep
+from experiments.sweeps.run import run_sweep
 
 CONFIG = Path(__file__).resolve().parent.parent / "experiments" / "configs" / \
     "sweep_lambda_hidden.yaml"

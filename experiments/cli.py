@@ -87,8 +87,8 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from experiments.grid import load_sweep
-    from experiments.sweep import check_output, run_sweep
+    from experiments.sweeps.grid import load_sweep
+    from experiments.sweeps.run import check_output, run_sweep
 
     sweep = load_sweep(args.config)  # every grid point checked before anything runs
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
@@ -136,9 +136,9 @@ def _diagnosis_model(path, ts: float):
 def _cmd_study(args) -> int:
     from clm_sim.schema import load_yaml
     if "failure_map" in load_yaml(args.config):  # where lambda = 0 fails: its own study
-        from experiments.failure_map import main
+        from experiments.studies.failure_map import main
         return main(args.config, args.out, workers=args.workers, quiet=args.quiet)
-    from experiments.study import load_study, run_study
+    from experiments.studies.extrapolation import load_study, run_study
 
     config, study = load_study(args.config)  # checked as clm-sim run checks, before any work
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem

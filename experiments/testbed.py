@@ -176,7 +176,7 @@ class Testbed:
         """PGNN fits of ``spec`` for network seeds ``indices`` (on both cores when there are
         several; every fit is single-threaded, so the pool never changes a result)."""
         from controllers.pgnn import training_data  # torch is imported only for a PGNN
-        from experiments import parallel
+        from experiments import workers as parallel
 
         run_seed = run.meta.get("seed", self.config.seed)
         settings = spec.pgnn_settings()

@@ -14,7 +14,7 @@ from scipy import stats
 
 from clm_sim.errors import UserError
 from experiments.cli import main as cli
-from experiments.failure_map import holm, load_failure_map, paired_log_ratio, verdict
+from experiments.studies.failure_map import holm, load_failure_map, paired_log_ratio, verdict
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "experiments" / "configs" / "failure_map.yaml"
@@ -160,7 +160,7 @@ def test_tiny_fits_record_how_they_stopped(tiny):
 
 @pytest.mark.slow
 def test_tiny_grid_does_not_depend_on_the_worker_count(tiny, tmp_path):
-    from experiments.failure_map import compute, summarize
+    from experiments.studies.failure_map import compute, summarize
 
     _, _, s, _, path = tiny
     config, settings = load_failure_map(path)

@@ -1,8 +1,9 @@
 """The import graph points down and has no cycle.
 
 Layers, bottom to top: ``clm_sim`` (physics, data) -> ``controllers`` (feedback, feedforwards,
-their identification) -> ``experiments`` (testbed, runner, studies, sweeps, diagnosis) ->
-``experiments.cli``. The package facade ``clm_sim/__init__.py`` is the public API: it resolves its
+their identification) -> ``experiments`` -> ``experiments.cli``. Inside ``experiments`` the library
+(config, testbed, table, plots, agreement, workers, diagnosis) is below the runner, and the runner
+below the studies (``experiments.studies``) and sweeps (``experiments.sweeps``) built on it. The package facade ``clm_sim/__init__.py`` is the public API: it resolves its
 names lazily (PEP 562) and is the only place allowed to name a higher layer. Every import counts,
 function-local ones too: a local import that hides a cycle is still a cycle.
 """
@@ -84,6 +85,25 @@ def test_the_layers_are_the_expected_packages():
 def test_no_module_imports_a_layer_above_it(module):
     upward = sorted(t for t in GRAPH[module] if layer(t) > layer(module))
     assert not upward, f"{module} (layer {layer(module)}) imports {upward}"
+
+
+EXPERIMENT_TIERS = (("experiments.studies", "experiments.sweeps"), ("experiments.runner",))
+
+
+def _tier(module: str) -> int:
+    """0: the experiments library; 1: the runner; 2: studies and sweeps."""
+    for level, prefixes in ((2, EXPERIMENT_TIERS[0]), (1, EXPERIMENT_TIERS[1])):
+        if any(module == p or module.startswith(p + ".") for p in prefixes):
+            return level
+    return 0
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if m.startswith("experiments.")
+                                          and m != "experiments.cli"))
+def test_the_experiments_library_does_not_import_the_studies_sweeps_or_runner(module):
+    upward = sorted(t for t in GRAPH[module] if t.startswith("experiments.") and t != "experiments.cli"
+                    and _tier(t) > _tier(module))
+    assert not upward, f"{module} imports {upward}, which are built on it"
 
 
 def test_import_graph_has_no_cycle():

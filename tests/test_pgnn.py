@@ -296,7 +296,7 @@ def test_result_does_not_depend_on_the_callers_thread_count(data):
 
 def test_worker_pool_gives_the_same_bits(data):
     """Fits on the process pool equal fits in this process."""
-    from experiments import parallel
+    from experiments import workers as parallel
 
     theta = as_dict(lip_theta(data))
     small = TrainingData(data.phi[:600], data.target[:600])
@@ -359,7 +359,7 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
     from pathlib import Path
 
     from clm_sim.errors import UserError
-    from experiments.study import load_study
+    from experiments.studies.extrapolation import load_study
 
     root = Path(__file__).resolve().parents[1]
     _, study = load_study(root / "experiments/configs/extrapolation_study.yaml")

@@ -22,10 +22,10 @@ from small_config import SMALL_CONFIG
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write
 from experiments import table
-from experiments.grid import MAX_TASKS, load_sweep, parse_path, set_path
-from experiments.store import ResultStore, code_version, task_key
-from experiments.sweep import execute, run_sweep
-from experiments.sweep import markdown as sweep_markdown
+from experiments.sweeps.grid import MAX_TASKS, load_sweep, parse_path, set_path
+from experiments.sweeps.store import ResultStore, code_version, task_key
+from experiments.sweeps.run import execute, run_sweep
+from experiments.sweeps.run import markdown as sweep_markdown
 from experiments.table import series
 
 BASE = SMALL_CONFIG

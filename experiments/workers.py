@@ -1,26 +1,31 @@
-"""Where sweep tasks run: local worker processes (default) or a Dask cluster.
+"""Worker processes: the one place where clm-sim starts them.
 
-A backend maps one picklable function over task payloads and yields ``(index, result)`` as tasks
-finish, in completion order. The function never raises for a task's own failure (it returns the
-error), so an exception out of a backend means the backend itself broke (a worker killed, a lost
-scheduler); the sweep then stops and the tasks not yet stored are recomputed on the next run.
+Every worker is a fresh ``spawn`` process that starts single-threaded (BLAS, OpenMP, numba,
+torch: :func:`single_threaded_children`) and exits with its parent even when the parent is
+killed (:func:`watch_parent`). Two users: :func:`run_local` maps a function over task payloads in
+completion order (sweeps, the failure map), and :func:`map_fits` runs the PGNN fits of one table
+row on a pool kept for the process.
 
-Threads: every task runs single-threaded (BLAS, OpenMP, numba, torch), so ``N`` workers use ``N``
-cores and never oversubscribe them. Local workers inherit the limits through their environment;
-Dask's nanny sets the same variables for its worker processes (``distributed.nanny``
-pre-spawn environment) and the task function pins torch itself.
+PGNN fits of independent seeds on worker processes, one thread each.
+
+The fits of one table row differ only in their seed, so they run in a pool of ``spawn`` worker
+processes (one per available core). Every fit pins torch and BLAS to one thread itself
+(:func:`controllers.pgnn.model.one_thread`), so a fit gives the same bits in a worker and in the
+calling process, and the pool changes the wall time, never a result. Inside a worker process of
+another pool (a sweep task) the fits run in-process: pools do not nest.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import multiprocessing
 import os
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 
-from clm_sim.errors import UserError
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                     "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMBA_NUM_THREADS")
@@ -92,32 +97,45 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
     pool.shutdown(wait=True)
 
 
-def run_dask(fn: Callable, payloads: Sequence, workers: int,
-             scheduler: str | None = None) -> Iterator[tuple[int, object]]:
-    """Run ``fn(payload)`` on a Dask cluster: the scheduler at ``scheduler`` (``tcp://host:8786``)
-    or, without one, a ``LocalCluster`` of ``workers`` single-threaded worker processes."""
+_POOL: ProcessPoolExecutor | None = None
+
+
+def cores() -> int:
+    """CPU cores this process may use."""
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
-    except ImportError:
-        raise UserError("--backend dask needs the optional extra: "
-                        "pip install 'clm-sim[cluster]'") from None
-    if not payloads:
-        return
-    with contextlib.ExitStack() as stack:
-        if scheduler:
-            client = stack.enter_context(Client(scheduler))
-        else:
-            cluster = stack.enter_context(LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True,
-                dashboard_address=None, silence_logs=40))
-            client = stack.enter_context(Client(cluster))
-        # pure=False: a task is identified by our own key, never deduplicated by Dask's hashing.
-        futures = {client.submit(fn, p, pure=False): i for i, p in enumerate(payloads)}
-        try:
-            for fut in as_completed(futures):
-                yield futures[fut], fut.result()
-        finally:
-            client.cancel(list(futures))
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
-BACKENDS = {"local": run_local, "dask": run_dask}
+def _pool() -> ProcessPoolExecutor:
+    """The pool, started once per process (a spawned worker imports torch: seconds, paid once
+    rather than per row); workers start single-threaded and exit with their parent, as the
+    the sweeps' (:func:`run_local`)."""
+    global _POOL
+    if _POOL is None:
+        _POOL = ProcessPoolExecutor(max_workers=cores(),
+                                    mp_context=multiprocessing.get_context("spawn"),
+                                    initializer=watch_parent, initargs=(os.getpid(),))
+        atexit.register(_POOL.shutdown)
+    return _POOL
+
+
+def fit_pgnn(payload: tuple):
+    """One PGNN fit: ``(settings, features, data, theta_lip, seed_sequence)`` -> fitted model."""
+    import numpy as np
+
+    from controllers.pgnn import PGNNFeedforward
+
+    settings, features, data, theta_lip, seq = payload
+    model = PGNNFeedforward(**settings, features=features)
+    return model.fit_data(data=data, theta_lip=theta_lip, rng=np.random.default_rng(seq))
+
+
+def map_fits(payloads: list) -> list:
+    """``[fit_pgnn(p) for p in payloads]``, on the worker pool when there is more than one fit,
+    more than one core and this is not already a pool's worker."""
+    if len(payloads) < 2 or cores() < 2 or multiprocessing.parent_process() is not None:
+        return [fit_pgnn(p) for p in payloads]
+    with single_threaded_children():  # workers are spawned on submit and inherit this
+        return list(_pool().map(fit_pgnn, payloads))

@@ -1,7 +1,7 @@
-"""Running a sweep: one independent task per grid point (:mod:`experiments.grid`), stored
+"""Running a sweep: one independent task per grid point (:mod:`experiments.sweeps.grid`), stored
 resumably, and one table at the end.
 
-Tasks are stored by :mod:`experiments.store` under a hash of their resolved config and the code
+Tasks are stored by :mod:`experiments.sweeps.store` under a hash of their resolved config and the code
 version, so a re-run (after a crash, ``SIGKILL`` included) computes only unfinished tasks. A task
 that fails (diverged loop, unstable PID design, ...) is stored with its error and the others go
 on. The output folder holds ``tasks/`` (one JSON per task), ``table.json`` (the shared schema,
@@ -25,9 +25,9 @@ from clm_sim.outdir import atomic_write
 from clm_sim.schema import build
 from experiments import table
 from experiments.config import ExperimentConfig
-from experiments.grid import Sweep
+from experiments.sweeps.grid import Sweep
 from experiments.runner import run_task, slug
-from experiments.store import ResultStore
+from experiments.sweeps.store import ResultStore
 from experiments.testbed import Progress
 
 
@@ -99,7 +99,7 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
               scheduler: str | None = None, retry_failed: bool = False,
               quiet: bool = False) -> Outcome:
     """Run the unfinished tasks of ``sweep`` into ``out`` and aggregate all of them."""
-    from experiments.backends import BACKENDS
+    from experiments.sweeps.backends import BACKENDS
 
     out = Path(out)
     check_output(out)

@@ -20,7 +20,7 @@ claim is about, and the log makes it symmetric), transformed back to a ratio. A 
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
 (:class:`FailureMapSettings`); the cells (case x n_l x seed) are independent and run on a
-process pool (``experiments.backends.run_local``, one thread per worker). The output folder holds
+process pool (``experiments.workers.run_local``, one thread per worker). The output folder holds
 ``failure_map.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/*.png``.
 """
 
@@ -45,7 +45,7 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
-from experiments.store import code_version
+from experiments.sweeps.store import code_version
 from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
 
@@ -188,7 +188,7 @@ def run_cell(cell: Cell) -> dict:
 
 
 def _cell(cell: Cell) -> dict:
-    from experiments.study import _ranges, beyond_range
+    from experiments.studies.extrapolation import _ranges, beyond_range
 
     st = cell.settings
     config = replace(cell.config, plant=replace(cell.config.plant,
@@ -401,7 +401,7 @@ def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: 
             progress=None) -> list[dict]:
     """Run every cell (in ``workers`` processes when > 1) and return the results in task order.
     The results do not depend on ``workers``: each cell is deterministic and single-threaded."""
-    from experiments.backends import run_local
+    from experiments.workers import run_local
 
     progress = progress or (lambda message: None)
     tasks = cells(config, settings)

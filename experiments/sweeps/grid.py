@@ -29,7 +29,7 @@ from clm_sim.errors import UserError
 from clm_sim.schema import build, load_yaml
 from experiments.config import ExperimentConfig, in_file, resolved
 from experiments.runner import preflight
-from experiments.store import code_version, task_key
+from experiments.sweeps.store import code_version, task_key
 
 MAX_TASKS = 10_000
 _SWEEP_KEYS = ("grid", "max_tasks")

@@ -1,0 +1,1 @@
+"""Studies built on the testbed: the extrapolation (lambda) study and the failure map of lambda = 0."""
