@@ -17,7 +17,7 @@ sub-step its state is advanced exactly along the sub-step's displacement ``dx``
 trapezoidal mean of its start and end values, which makes the sub-step implicit in ``dx``; the
 scalar equation is monotone and is solved by safeguarded Newton iteration (:func:`dahl_substep`).
 
-Speed (see ``benchmarks/README.md``): the helpers are inlined into :func:`closed_loop`, which is
+Speed (see ``docs/performance.md``): the helpers are inlined into :func:`closed_loop`, which is
 compiled without numba's reference counting (``_nrt=False``; it allocates nothing, its caller
 passes the controller state) because counting references to the dozen parameter arrays on every
 inlined call cost an atomic update per array per sample, two thirds of the loop's time. Loop

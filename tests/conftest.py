@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-import numpy as np
+# Before numpy, scipy or torch load: the kernels the CLI pins (docs/reproducibility.md), so a test
+# that runs the CLI in-process computes what `clm-sim` computes.
+from clm_sim.numerics import pin_portable_kernels
+
+pin_portable_kernels()
+
+import numpy as np  # noqa: E402
 import pytest
 
 from clm_sim.loop import Dither, simulate
