@@ -107,16 +107,17 @@ def plot_reference(run, ax=None):
     return ax
 
 
-def plot_tracking_error(run, ax=None, *, label: str | None = None, color: str = PALETTE[0]):
-    """The tracking error e = r − y (µm) against time (s); the title names ``label`` and the
-    MAE."""
+def plot_tracking_error(run, ax=None, *, label: str | None = None, color: str = PALETTE[0],
+                        note: str = ""):
+    """The tracking error e = r − y (µm) against time (s); the title names ``label``, the MAE of
+    this run and ``note`` (e.g. which seed this is and the table's mean over seeds)."""
     ax = _ax(ax)
     ax.plot(run.t, run.e * UM, color=color, lw=0.7)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("e [µm]")
     ax.grid(alpha=0.3)
     if label:
-        ax.set_title(f"{label}: MAE {run.mae * UM:.3f} µm", loc="left", fontsize=9,
+        ax.set_title(f"{label}: MAE {run.mae * UM:.3f} µm{note}", loc="left", fontsize=9,
                      color=color)
     return ax
 
@@ -143,11 +144,15 @@ def _panels(n: int, heights: list[float], width: float = 10.0):
     return fig, np.atleast_1d(axes)
 
 
-def tracking_figure(replays: dict, ref: str, colors: dict | None = None) -> Figure:
+def tracking_figure(replays: dict, ref: str, colors: dict | None = None,
+                    rows: list[dict] | None = None) -> Figure:
     """``replays[label][ref]`` are Runs on reference ``ref`` in table order. Panels: the
     reference; feedback only (its own scale); then one panel per feedforward on one shared
     scale, so that LIP and PGNN errors compare at a glance. Feedback only is the run whose
-    feedforward is zero throughout. ``colors``: per label (default: the palette in order)."""
+    feedforward is zero throughout. ``colors``: per label (default: the palette in order).
+    ``rows``: the table rows; a row over several seeds then says that its panel shows seed 0
+    and gives the table's mean ± std beside it."""
+    stats = {row["label"]: row for row in rows or ()}
     runs = {label: r[ref] for label, r in replays.items()}
     colors = colors or {label: color(i) for i, label in enumerate(runs)}
     fb = [label for label, run in runs.items() if not np.any(run.u_ff)]
@@ -159,7 +164,12 @@ def tracking_figure(replays: dict, ref: str, colors: dict | None = None) -> Figu
     axes[0].set_title(f"Reference {ref} and tracking error per feedforward", loc="left",
                       fontsize=10)
     for ax, label in zip(axes[1:], fb + ff):
-        plot_tracking_error(runs[label], ax, label=label, color=colors[label])
+        row, note = stats.get(label), ""
+        if row is not None and row["n_seeds"] > 1:
+            mae = row["mae"][ref]
+            note = (f" (seed 0 of {row['n_seeds']}; table: {mae['mean'] * UM:.3f} ± "
+                    f"{mae['std'] * UM:.3f} µm over the seeds)")
+        plot_tracking_error(runs[label], ax, label=label, color=colors[label], note=note)
     for ax in axes[:-1]:
         ax.set_xlabel("")
     return fig
@@ -564,15 +574,28 @@ def plot_residual_against(res, x: str, ax=None, *, color: str = PALETTE[5]):
     return ax
 
 
-def plot_residual_time(before, after, ax=None):
-    """The filtered force residual (N) over time on one record, model against extended model."""
+def plot_residual_time(res, ax=None, *, label: str = "model", color: str = PALETTE[7]):
+    """The filtered force residual (N) over time on one record; the title names ``label`` and
+    its RMS. Model and extended model go in two panels on one scale (:func:`residual_time_figure`):
+    drawn on top of each other, the later curve's spikes hide the other's."""
     ax = _ax(ax)
-    ax.plot(before.t, before.filtered, lw=0.5, color=PALETTE[7], label="model")
-    ax.plot(after.t, after.filtered, lw=0.5, color=PALETTE[4], label="extended model")
+    ax.plot(res.t, res.filtered, lw=0.5, color=color)
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("force residual [N]")
-    _legend_right(ax)
+    rms = float(np.sqrt(np.mean(np.square(res.filtered))))
+    ax.set_title(f"{label}: RMS {rms:.3g} N", loc="left", fontsize=9, color=color)
+    ax.grid(alpha=0.3)
     return ax
+
+
+def residual_time_figure(before, after) -> Figure:
+    """The force residual over time, model above extended model, on one shared scale."""
+    fig, (ax, ax2) = _panels(2, [1.0, 1.0])
+    ax2.sharey(ax)
+    plot_residual_time(before, ax, label="model")
+    plot_residual_time(after, ax2, label="extended model", color=PALETTE[4])
+    ax.set_xlabel("")
+    return fig
 
 
 def plot_residual_spectrum(before, after, ax=None):
@@ -592,37 +615,43 @@ def diagnosis_figures(d) -> dict[str, tuple[Figure, str]]:
     """The figures of a diagnosis report: ``{file name: (figure, caption)}``."""
     before, after = d.signals["val_before"], d.signals["val_after"]
     out = {}
-    fig = _figure(10, 7)
-    axes = fig.subplots(2, 2)
-    for ax, x in zip(axes.flat[:3], ("position", "velocity", "acceleration")):
+    fig = _figure(12, 3.8)
+    axes = fig.subplots(1, 3, sharey=True)
+    for ax, x in zip(axes, ("position", "velocity", "acceleration")):
         plot_residual_against(d.estimation, x, ax)
-    plot_residual_time(before, after, axes.flat[3])
+    for ax in axes[1:]:
+        ax.set_ylabel("")
     fig.suptitle("Force residual u − model inverse dynamics (filtered; samples whose friction "
                  "direction is unknown left out)", fontsize=10)
     out["residual.png"] = (fig, "Residual of the model against position, velocity and "
-                                "acceleration (estimation record), and over time on the "
-                                "validation record, model against extended model")
+                                "acceleration (estimation record)")
+    out["residual_time.png"] = (residual_time_figure(before, after),
+                                "Residual over time on the validation record: the model above, "
+                                "the extended model below, on one scale")
     fig = _figure(8, 4)
     plot_residual_spectrum(before, after, fig.subplots())
     out["spectrum.png"] = (fig, "Residual spectrum on the validation record (Welch, "
                                 "unfiltered): model against extended model")
     s = d.signals
     if "e_measured" in s:
-        fig, (ax, ax2) = _panels(2, [1.0, 1.0])
-        ax.plot(s["t"], s["e_measured"] * UM, lw=0.6, color=PALETTE[0], label="measured")
-        ax.plot(s["t"], s["e_before"] * UM, lw=0.6, color=PALETTE[7],
-                label="re-simulated, model")
-        ax.plot(s["t"], s["e_after"] * UM, lw=0.6, ls="--", color=PALETTE[4],
-                label="re-simulated, extended")
-        ax.set_ylabel("tracking error e [µm]")
-        _legend_right(ax)
-        ax2.plot(s["t"], (s["e_before"] - s["e_measured"]) * UM, lw=0.6, color=PALETTE[7],
-                 label="model")
-        ax2.plot(s["t"], (s["e_after"] - s["e_measured"]) * UM, lw=0.6, color=PALETTE[4],
-                 label="extended model")
-        ax2.set_xlabel("time t [s]")
-        ax2.set_ylabel("re-simulated − measured [µm]")
-        _legend_right(ax2)
+        # Measured and re-simulated errors nearly coincide: drawn together they hide each other,
+        # so the measured error has its own panel and each model its difference from it.
+        fig, axes = _panels(3, [1.0, 1.0, 1.0])
+        axes[2].sharey(axes[1])
+        axes[0].plot(s["t"], s["e_measured"] * UM, lw=0.6, color=PALETTE[0])
+        axes[0].set_title("measured tracking error", loc="left", fontsize=9, color=PALETTE[0])
+        axes[0].set_ylabel("e [µm]")
+        for ax, key, label, c in ((axes[1], "e_before", "model", PALETTE[7]),
+                                  (axes[2], "e_after", "extended model", PALETTE[4])):
+            diff = (s[key] - s["e_measured"]) * UM
+            ax.plot(s["t"], diff, lw=0.6, color=c)
+            ax.set_title(f"re-simulated with the {label} − measured: RMS "
+                         f"{float(np.sqrt(np.mean(diff ** 2))):.3g} µm", loc="left", fontsize=9,
+                         color=c)
+            ax.set_ylabel("Δe [µm]")
+        for ax in axes:
+            ax.grid(alpha=0.3)
+        axes[2].set_xlabel("time t [s]")
         out["tracking.png"] = (fig, "Loop re-simulated on the measured reference (validation)")
     if "origin_scan" in s:
         fig = _figure(7, 3.5)

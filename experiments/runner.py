@@ -129,7 +129,8 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
         plots,  # matplotlib only where figures are drawn (not in tasks)
     )
     for name in config.replay:
-        plots.save(plots.tracking_figure(shown, name), out / "figures" / f"tracking_{name}.png")
+        plots.save(plots.tracking_figure(shown, name, rows=rows),
+                   out / "figures" / f"tracking_{name}.png")
         if any(spec.kind != "none" for spec in config.feedforwards):
             plots.save(plots.feedforward_figure(shown, name),
                        out / "figures" / f"feedforward_{name}.png")
