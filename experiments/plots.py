@@ -410,9 +410,53 @@ def plot_mae_vs_key(rows: list[dict], swept: list[str], x: str, ref: str, ax=Non
     return ax
 
 
+def plot_mae_dots(rows: list[dict], swept: list[str], x: str, ref: str, ax=None):
+    """MAE (µm) on ``ref``, one line of the panel per series, one marker per value of the swept
+    key ``x`` (a few values), the spread over seeds as a horizontal bar. For many series over
+    few x values: lines between two x values only cross each other."""
+    ax = _ax(ax)
+    data = {name: by_x for (name, r), by_x in series(rows, swept, x, _describe).items()
+            if r == ref}
+    label, factor = key_label(x)
+    values = list({v: None for by_x in data.values() for v in by_x})
+    numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+    values = sorted(values) if numeric else values
+    names = list(data)
+    for j, xv in enumerate(values):
+        offset = 0.25 * (j - (len(values) - 1) / 2)
+        pos = [i + offset for i, name in enumerate(names) if xv in data[name]]
+        stats = [data[name][xv] for name in names if xv in data[name]]
+        ax.errorbar([m * UM for m, _, _ in stats], pos, xerr=[sp * UM for _, sp, _ in stats],
+                    fmt="o", ms=4, capsize=2, lw=1.0, color=color(j),
+                    label=f"{label.split(' [')[0]} = {_fmt_value(xv, factor)}")
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel(f"MAE on {ref} [µm]")
+    ax.grid(alpha=0.3, axis="x")
+    return ax
+
+
+def _fmt_value(value, factor: float) -> str:
+    return f"{value * factor:g}" if isinstance(value, (int, float)) else str(value)
+
+
 def mae_vs_key_figure(rows: list[dict], swept: list[str], x: str) -> Figure:
-    """MAE against swept key ``x``, one panel per reference, the legend below the panels."""
+    """MAE against swept key ``x``, one panel per reference, the legend below the panels. With
+    more than three series over at most three values of ``x``, a dot plot per series
+    (:func:`plot_mae_dots`) instead of lines."""
     refs = list(rows[0]["mae"])
+    n_series = len({name for name, _ in series(rows, swept, x, _describe)})
+    if n_series > 3 and len({str(row[x]) for row in rows}) <= 3:
+        fig = _figure(4.6 * len(refs) + 2.4, 0.9 + 0.42 * n_series)
+        axes = np.atleast_1d(fig.subplots(1, len(refs), sharey=True))
+        for ax, ref in zip(axes, refs):
+            plot_mae_dots(rows, swept, x, ref, ax)
+        fig.suptitle(f"MAE per feedforward and {_key(x)[0]} (mean and spread over seeds)",
+                     fontsize=10)
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=8,
+                   frameon=False)
+        return fig
     fig = _figure(5.2 * len(refs), 4.6)
     axes = np.atleast_1d(fig.subplots(1, len(refs)))
     for ax, ref in zip(axes, refs):

@@ -138,3 +138,35 @@ def test_origin_scan_marks_the_registered_shift_in_mm():
     marked = [ln.get_xdata()[0] for ln in ax.lines[1:]]
     assert marked == pytest.approx([0.0, -0.672])
     assert "-0.672 mm" in " ".join(t.get_text() for t in ax.get_legend().get_texts())
+
+
+def _many_series_rows():
+    """Seven feedforwards (LIP and six lambdas) over two network sizes, two seeds each."""
+    rows = []
+    for hidden in (8, 16):
+        for seed in (1, 2):
+            rows.append({"row": 0, "kind": "lip", "training": None, "lambda": None,
+                         "hidden": None, "label": "LIP", "n_seeds": 1,
+                         "mae": {"r1": {"mean": 4.1e-7, "std": 0.0}},
+                         "theta_phy": None, "feedforwards[1].hidden": hidden, "seed": seed})
+            for pos, lam in enumerate((0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0), start=1):
+                rows.append({"row": 1, "kind": "pgnn", "training": "simultaneous",
+                             "lambda": lam, "hidden": hidden,
+                             "label": f"PGNN simultaneous, lambda={lam:g}, n_l={hidden}",
+                             "n_seeds": 1,
+                             "mae": {"r1": {"mean": (2.5 + 0.1 * pos + 0.01 * seed) * 1e-7,
+                                            "std": 0.0}},
+                             "theta_phy": None, "feedforwards[1].hidden": hidden,
+                             "feedforwards[1].lambda": lam, "seed": seed})
+    return rows
+
+
+def test_many_series_over_few_values_are_a_dot_plot_not_crossing_lines(tmp_path):
+    swept = ["feedforwards[1].hidden", "feedforwards[1].lambda", "seed"]
+    fig = plots.mae_vs_key_figure(_many_series_rows(), swept, "feedforwards[1].hidden")
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "MAE on r1 [µm]"
+    names = [t.get_text() for t in ax.get_yticklabels()]
+    assert len(names) == 7 and any("LIP" in n for n in names)
+    assert len(fig.legends) == 1 and len(fig.legends[0].get_texts()) == 2  # one per n_l
+    plots.save(fig, tmp_path / "dots.png")
