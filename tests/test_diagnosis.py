@@ -299,7 +299,9 @@ def test_encoder_quantum_is_the_grid_not_the_smallest_step():
 
 
 # ------------------------------------------------------------------ real data
-@pytest.mark.skipif(not (EMPS / "DATA_EMPS.mat").exists(), reason="EMPS data not present")
+@pytest.mark.skipif(not (EMPS / "DATA_EMPS.mat").exists(),
+                    reason=f"the real EMPS records are not at {EMPS} (the shared/ folder beside the "
+                    "repository): this test reads them; the product does not need them")
 def test_emps_out_of_sample_gain(tmp_path):
     from experiments.cli import main
     out = tmp_path / "emps"
