@@ -195,8 +195,13 @@ def _parser_commands() -> set[str]:
 PRESENT = _parser_commands()
 
 
+# Commands whose inputs are neither an experiment config nor a record, with where their bad input
+# is tested.
+OTHER_COMMANDS = {"compare": "tests/test_reproducibility.py::test_compare_refuses_bad_files"}
+
+
 def test_every_command_is_covered():
-    assert PRESENT <= set(CONFIG_COMMANDS) | set(DATA_COMMANDS), \
+    assert PRESENT <= set(CONFIG_COMMANDS) | set(DATA_COMMANDS) | set(OTHER_COMMANDS), \
         "a new CLI command: say how it reads configs or data files in this module"
 
 

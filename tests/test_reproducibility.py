@@ -228,3 +228,34 @@ def test_a_missing_or_extra_row_is_a_mismatch():
     found = {(m.row, m.column) for m in agreement.compare(published, fresh)}
     assert ("PGNN simultaneous, lambda=0, n_l=16", "row") in found
     assert ("PGNN simultaneous, lambda=0, n_l=8", "row") in found
+
+
+@pytest.mark.parametrize("page, table, expected", [
+    ("missing.md", None, "missing.md: cannot read it"),
+    ("page.md", "not json", "fresh.json: cannot read it"),
+    ("page.md", "[1, 2]", "not a clm-sim table.json"),
+    ("empty.md", '{"rows": []}', "no results table"),
+])
+def test_compare_refuses_bad_files(page, table, expected, tmp_path, capsys):
+    from experiments.cli import main
+
+    (tmp_path / "page.md").write_text(to_markdown(_doc()["rows"]), encoding="utf-8")
+    (tmp_path / "empty.md").write_text("# nothing here\n", encoding="utf-8")
+    if table is not None:
+        (tmp_path / "fresh.json").write_text(table, encoding="utf-8")
+    code = main(["compare", str(tmp_path / page), str(tmp_path / "fresh.json")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and expected in err[0], err
+
+
+def test_compare_names_the_cells_outside_the_tolerance(tmp_path, capsys):
+    from experiments.cli import main
+
+    (tmp_path / "page.md").write_text(to_markdown(_doc()["rows"]), encoding="utf-8")
+    (tmp_path / "same.json").write_text(json.dumps(_doc()), encoding="utf-8")
+    (tmp_path / "moved.json").write_text(json.dumps(_doc(shift_mae=3.0)), encoding="utf-8")
+    assert main(["compare", str(tmp_path / "page.md"), str(tmp_path / "same.json")]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(tmp_path / "page.md"), str(tmp_path / "moved.json")]) == 1
+    out = capsys.readouterr().out
+    assert "PGNN simultaneous, lambda=0, n_l=16 | MAE r2 [µm]" in out and "outside" in out
