@@ -1,0 +1,89 @@
+"""The Python API's contract: sample times owned by controllers and fitted models, the error
+types, saving a LIP, and the small conveniences (reprs, ``--version``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import clm_sim
+from clm_sim.errors import NotFittedError, UserError
+from clm_sim.loop import simulate
+from clm_sim.plant import Plant
+from controllers.lip import LIPFeedforward
+from controllers.pid import PIDDesign, design_pid
+
+TS = 1e-4
+
+
+def _pid(ts: float):
+    p = Plant()
+    return design_pid(mass=p.mass, viscous=p.viscous, stiffness=p.stiffness, design=PIDDesign(),
+                      ts=ts)
+
+
+def _sine_record(ts: float = TS, seconds: float = 2.0):
+    """Positions (m) of a 1 Hz, 50 mm sine and the force (N) of the rigid-body model on them."""
+    t = np.arange(int(seconds / ts)) * ts
+    w = 2 * np.pi
+    y = 0.05 * np.sin(w * t)
+    v = 0.05 * w * np.cos(w * t)
+    a = -0.05 * w**2 * np.sin(w * t)
+    u = 18.8 * a + 172.0 * v + 7.2 * np.sign(v) + 30.0 * y
+    return y, u
+
+
+@pytest.fixture(scope="module")
+def lip() -> LIPFeedforward:
+    y, u = _sine_record()
+    return LIPFeedforward().fit(y=y, u=u, ts=TS)
+
+
+def test_user_error_is_a_value_error():
+    assert issubclass(UserError, ValueError)
+    assert issubclass(NotFittedError, ValueError) and issubclass(NotFittedError, AttributeError)
+
+
+def test_pid_refuses_a_loop_at_another_rate():
+    pid = _pid(1e-4)
+    r = np.zeros(500)
+    with pytest.raises(ValueError, match=r"0\.0001 s.*0\.001 s") as info:
+        simulate(Plant(), pid, r, 1e-3)
+    assert isinstance(info.value, UserError)
+    assert len(simulate(Plant(), pid, r, 1e-4)) == 500  # its own rate runs
+
+
+@pytest.mark.parametrize("method", ["predict", "feedforward"])
+def test_lip_refuses_use_before_fit(method):
+    model = LIPFeedforward()
+    call = (lambda: model.predict(y=np.zeros(500), ts=TS)) if method == "predict" else \
+        (lambda: model.feedforward(np.zeros(500), TS))
+    with pytest.raises(NotFittedError, match="fit"):
+        call()
+
+
+def test_lip_carries_its_rate_and_refuses_another(lip):
+    assert lip.ts_ == TS
+    y, _ = _sine_record()
+    np.testing.assert_array_equal(lip.predict(y=y), lip.predict(y=y, ts=TS))  # default: own
+    with pytest.raises(UserError, match=r"0\.0001 s.*0\.001 s"):
+        lip.predict(y=y[::10], ts=1e-3)
+    with pytest.raises(ValueError, match="1000 Hz"):
+        lip.feedforward(y[::10], 1e-3)
+
+
+def test_lip_save_load_round_trip(lip, tmp_path):
+    lip.save(tmp_path / "lip.json")
+    back = LIPFeedforward.load(tmp_path / "lip.json")
+    assert back.ts_ == lip.ts_ == TS
+    assert back.theta_ == lip.theta_ and back.features == lip.features
+    y, _ = _sine_record()
+    np.testing.assert_array_equal(back.feedforward(y), lip.feedforward(y, TS))
+    with pytest.raises(UserError, match="1000 Hz"):
+        back.predict(y=y[::10], ts=1e-3)
+
+
+def test_lip_load_refuses_another_file(tmp_path):
+    (tmp_path / "x.json").write_text('{"kind": "pgnn"}')
+    with pytest.raises(UserError, match="x.json"):
+        LIPFeedforward.load(tmp_path / "x.json")
