@@ -1,5 +1,6 @@
 """The ``clm-sim`` command: ``run`` an experiment config, ``study`` or ``sweep`` one, ``identify``
-a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run.
+a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run, ``compare`` a fresh
+table with a published one.
 
 User mistakes (``UserError``) print one line on stderr and exit with code 2, never a traceback.
 ``sweep`` exits with 1 when some tasks failed (the table is still written and lists them).
@@ -16,6 +17,7 @@ import sys
 import threading
 from pathlib import Path
 
+import clm_sim
 from clm_sim.errors import UserError
 from clm_sim.numerics import pin_portable_kernels
 
@@ -213,7 +215,10 @@ def _config_arguments(p: argparse.ArgumentParser, config: str, out: str = "") ->
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="clm-sim", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="clm-sim", description="Simulate a coreless linear motor under PID feedback, "
+        "identify its LIP and PGNN feedforwards, and diagnose a model against measured records.")
+    p.add_argument("--version", action="version", version=f"clm-sim {clm_sim.__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run an experiment config and write table and figures")
     _config_arguments(run, "experiment YAML file")

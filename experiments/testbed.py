@@ -85,6 +85,13 @@ class Testbed:
         self.config = ExperimentConfig() if config is None else config
         self.progress = progress or _silent
 
+    def __repr__(self) -> str:
+        c = self.config
+        truth = "" if c.truth is None else f", truth with {len(c.truth.effects)} effects"
+        return (f"Testbed({c.name!r}, ts={c.ts:g} s, plant {c.plant.mass:g} kg with "
+                f"{len(c.plant.effects)} effects{truth}, PID {c.controller.crossover_hz:g} Hz, "
+                f"{len(c.feedforwards)} feedforwards, seed {c.seed})")
+
     @classmethod
     def from_config(cls, path, **kwargs) -> "Testbed":
         """A testbed from an experiment config file (errors name the file and the key). A

@@ -87,3 +87,34 @@ def test_lip_load_refuses_another_file(tmp_path):
     (tmp_path / "x.json").write_text('{"kind": "pgnn"}')
     with pytest.raises(UserError, match="x.json"):
         LIPFeedforward.load(tmp_path / "x.json")
+
+
+def test_reprs_are_short():
+    from clm_sim.record import Run
+    from experiments.testbed import Testbed
+
+    tb = Testbed()
+    run = simulate(tb.plant, tb.pid, np.zeros(1000), tb.ts, meta=tb.meta(run="repr"))
+    for text in (repr(run), repr(tb), repr(Run(t=[0.0], r=[0.0], y=[0.0], u=[0.0]))):
+        assert len(text) < 300, text
+    assert "1000 samples" in repr(run) and "ts=0.0001 s" in repr(run)
+    assert "30 Hz" in repr(tb)
+
+
+def test_version_and_help(capsys):
+    from experiments.cli import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"clm-sim {clm_sim.__version__}"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    description = capsys.readouterr().out.split("\n\n")[1]
+    assert description.rstrip().endswith(".")  # a whole sentence, not the docstring's first line
+
+
+def test_facade_exports_the_settings_classes():
+    for name in ("Dither", "Training", "PGNNSettings", "DiagnosisSettings", "NotFittedError",
+                 "UserError"):
+        assert name in clm_sim.__all__ and getattr(clm_sim, name).__name__ == name
