@@ -118,3 +118,20 @@ def test_facade_exports_the_settings_classes():
     for name in ("Dither", "Training", "PGNNSettings", "DiagnosisSettings", "NotFittedError",
                  "UserError"):
         assert name in clm_sim.__all__ and getattr(clm_sim, name).__name__ == name
+
+
+def test_a_progress_line_per_pgnn_fit():
+    from experiments.config import ExperimentConfig, FeedforwardSpec, Training
+    from experiments.testbed import Testbed
+
+    lines = []
+    tb = Testbed(ExperimentConfig(training=Training(repeats=1)), progress=lines.append)
+    run = tb.training_run()
+    lip = tb.fit_lip(run)
+    spec = FeedforwardSpec.pgnn_row(training="sequential", lam=None, hidden=4, seeds=1,
+                                    settings={"max_iter": 2, "decimation": 400})
+    models = tb.fit_row(spec, run, lip)
+    done = [x for x in lines if "done" in x]
+    assert len(models) == 1 and len(done) == 1
+    assert done[0].endswith(f"fit 1/1 done ({models[0].fit_['stop']}, "
+                            f"{models[0].fit_['iterations']} it)")
