@@ -135,3 +135,63 @@ def test_a_progress_line_per_pgnn_fit():
     assert len(models) == 1 and len(done) == 1
     assert done[0].endswith(f"fit 1/1 done ({models[0].fit_['stop']}, "
                             f"{models[0].fit_['iterations']} it)")
+
+
+def test_pgnn_settings_declared_once():
+    """One table: the model's settings are its keys, the config's pgnn: options a subset, the
+    activations the network's, and the config, the model and the settings refuse alike."""
+    import dataclasses
+
+    from controllers.pgnn import PGNNFeedforward
+    from controllers.pgnn.network import ACTIVATIONS
+    from controllers.pgnn_settings import ACTIVATION_NAMES, CONSTRAINTS, PGNNSettings
+    from experiments.config import FeedforwardSpec
+
+    model_fields = {f.name for f in dataclasses.fields(PGNNFeedforward)} - {"features"}
+    assert model_fields == set(CONSTRAINTS) == set(PGNNFeedforward.SETTINGS)
+    assert {f.name for f in dataclasses.fields(PGNNSettings)} <= set(CONSTRAINTS)
+    assert set(ACTIVATION_NAMES) == set(ACTIVATIONS)
+    defaults = PGNNSettings()
+    assert all(getattr(PGNNFeedforward(), k) == getattr(defaults, k)
+               for k in dataclasses.asdict(defaults))
+    y, u = _sine_record(seconds=1.0)
+    for bad, key in ((dict(max_iter=0), "pgnn.max_iter"), (dict(ftol=1.0), "pgnn.ftol"),
+                     (dict(activation="elu"), "pgnn.activation"),
+                     (dict(init="random"), "pgnn.init"),
+                     (dict(lambda_diag={"mas": 1.0}), "pgnn.lambda_diag")):
+        with pytest.raises(UserError, match=key):
+            PGNNSettings(**bad)
+        with pytest.raises(UserError, match=key):
+            FeedforwardSpec.pgnn_row(training="sequential", lam=None, hidden=4, settings=bad)
+        with pytest.raises(UserError, match=key):
+            PGNNFeedforward(**bad).fit(y=y, u=u, ts=TS, theta_lip=dict.fromkeys(
+                ("mass", "viscous", "coulomb", "stiffness"), 1.0), rng=0)
+    for bad, key in ((dict(hidden=0), "hidden"), (dict(lam=-1.0), "lambda"),
+                     (dict(training="joint"), "training")):
+        spec = dict(training="simultaneous", lam=0.0, hidden=4) | bad
+        with pytest.raises(UserError, match=key):
+            FeedforwardSpec(kind="pgnn", **spec)
+        with pytest.raises(UserError, match=key):
+            PGNNFeedforward(**spec)._check()
+
+
+def test_pgnn_fit_needs_a_seed_and_keeps_its_rate(tmp_path):
+    from controllers.pgnn import PGNNFeedforward
+
+    y, u = _sine_record(seconds=1.0)
+    theta = {"mass": 18.8, "viscous": 172.0, "coulomb": 7.2, "stiffness": 30.0}
+    small = dict(hidden=2, max_iter=2, decimation=40, training="sequential")
+    with pytest.raises(UserError, match="rng="):
+        PGNNFeedforward(**small).fit(y=y, u=u, ts=TS, theta_lip=theta)
+    model = PGNNFeedforward(**small).fit(y=y, u=u, ts=TS, theta_lip=theta, rng=3)
+    again = PGNNFeedforward(**small).fit(y=y, u=u, ts=TS, theta_lip=theta,
+                                         rng=np.random.default_rng(3))
+    assert model.ts_ == TS and model.theta_ == again.theta_  # an int seed is default_rng(seed)
+    with pytest.raises(UserError, match=r"0\.0001 s.*0\.001 s"):
+        model.feedforward(y[::10], 1e-3)
+    model.save(tmp_path / "m")
+    back = PGNNFeedforward.load(tmp_path / "m")
+    assert back.ts_ == TS
+    np.testing.assert_array_equal(back.feedforward(y), model.feedforward(y, TS))
+    with pytest.raises(ValueError, match="1000 Hz"):
+        back.predict(y=y[::10], ts=1e-3)

@@ -67,8 +67,8 @@ from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import TERMS, SeparableCost, Weights
-from controllers.pgnn.network import ACTIVATIONS, PGNNNetwork
-from controllers.pgnn_settings import OPTIMIZERS, TRAININGS, PGNNSettings
+from controllers.pgnn.network import PGNNNetwork
+from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings, check_settings
 
 _DEFAULTS = PGNNSettings()  # the one declaration of the defaults
 
@@ -160,10 +160,7 @@ class PGNNFeedforward:
     decimation: int = _DEFAULTS.decimation
     features: FeatureMap = field(default_factory=FeatureMap)
 
-    SETTINGS = ("hidden", "training", "lam", "lambda_diag", "pinn_weight", "orthogonal_weight",
-                "weight_decay", "activation", "init", "optimizer", "max_iter", "ftol",
-                "restarts", "continuation_lambda", "adam_lr", "validation_fraction",
-                "decimation")
+    SETTINGS = tuple(CONSTRAINTS)  # every field but features (tests/test_api.py checks)
 
     def _settings(self) -> dict:
         out = {k: getattr(self, k) for k in self.SETTINGS}
@@ -178,31 +175,13 @@ class PGNNFeedforward:
 
     def lambda_matrix_diag(self) -> np.ndarray:
         """Diagonal of Lambda, in the order of ``THETA_NAMES``."""
-        diag = {k: self.lam for k in THETA_NAMES}
-        for k, v in (self.lambda_diag or {}).items():
-            if k not in diag:
-                raise UserError(f"pgnn.lambda_diag: unknown parameter {k!r}; "
-                                f"expected one of {', '.join(THETA_NAMES)}")
-            diag[k] = float(v)
+        diag = {k: float(self.lam) for k in THETA_NAMES}
+        diag.update({k: float(v) for k, v in (self.lambda_diag or {}).items()})
         return np.array([diag[k] for k in THETA_NAMES])
 
     def _check(self) -> None:
-        if self.training not in TRAININGS:
-            raise UserError(f"pgnn.training: expected one of {', '.join(TRAININGS)}, "
-                            f"got {self.training!r}")
-        if self.optimizer not in OPTIMIZERS:
-            raise UserError(f"pgnn.optimizer: expected one of {', '.join(OPTIMIZERS)}, "
-                            f"got {self.optimizer!r}")
-        if self.init not in ("optimized", "random"):
-            raise UserError(f"pgnn.init: expected 'optimized' or 'random', got {self.init!r}")
-        if self.init == "random" and self.optimizer == "varpro":
-            raise UserError("pgnn.init: 'random' needs optimizer lm or adam (varpro solves the "
-                            "output layer by least squares at every step)")
-        if self.activation not in ACTIVATIONS:
-            raise UserError(f"pgnn.activation: expected one of {', '.join(ACTIVATIONS)}, "
-                            f"got {self.activation!r}")
-        if not self.widths() or min(self.widths()) < 1:
-            raise UserError(f"hidden: expected widths >= 1, got {self.hidden!r}")
+        """The settings against the one table (``controllers.pgnn_settings.CONSTRAINTS``)."""
+        check_settings({k: getattr(self, k) for k in self.SETTINGS})
 
     # -- the training problem ---------------------------------------------------------------
     def _weights(self, lam_diag: np.ndarray | None = None) -> Weights:
