@@ -195,3 +195,39 @@ def test_pgnn_fit_needs_a_seed_and_keeps_its_rate(tmp_path):
     np.testing.assert_array_equal(back.feedforward(y), model.feedforward(y, TS))
     with pytest.raises(ValueError, match="1000 Hz"):
         back.predict(y=y[::10], ts=1e-3)
+
+
+def _moving_csv(path, ts: float = TS, n: int = 60000) -> None:
+    """Two sines (1 Hz, 20 mm and 3.3 Hz, 5 mm) with their exact rigid-body force."""
+    t = np.arange(n) * ts
+    w1, w2 = 2 * np.pi * 1.0, 2 * np.pi * 3.3
+    y = 0.02 * np.sin(w1 * t) + 0.005 * np.sin(w2 * t)
+    v = 0.02 * w1 * np.cos(w1 * t) + 0.005 * w2 * np.cos(w2 * t)
+    a = -0.02 * w1**2 * np.sin(w1 * t) - 0.005 * w2**2 * np.sin(w2 * t)
+    u = 12 * a + 90 * v + 4 * np.sign(v) + 30 * y
+    np.savetxt(path, np.column_stack([t, y, y, u]), delimiter=",", header="t,r,y,u",
+               comments="", fmt="%.17g")
+
+
+def test_one_filter_setting_from_identify_to_the_diagnosis(tmp_path):
+    """``--regression-lowpass-hz`` (the config's ``features.regression_lowpass_hz``) reaches the
+    identified model and the diagnosis; the old ``--lowpass-hz`` of identify still works."""
+    import json
+
+    from experiments.cli import main
+
+    _moving_csv(tmp_path / "rec.csv")
+    assert main(["identify", str(tmp_path / "rec.csv"), "--out", str(tmp_path / "id"),
+                 "--regression-lowpass-hz", "120"]) == 0
+    lip = json.loads((tmp_path / "id" / "lip.json").read_text())
+    assert lip["features"]["regression_lowpass_hz"] == 120.0 and lip["ts"] == pytest.approx(TS)
+    assert main(["identify", str(tmp_path / "rec.csv"), "--out", str(tmp_path / "old"),
+                 "--lowpass-hz", "80"]) == 0
+    old = json.loads((tmp_path / "old" / "lip.json").read_text())
+    assert old["features"]["regression_lowpass_hz"] == 80.0
+    assert main(["diagnose", str(tmp_path / "rec.csv"), "--model",
+                 str(tmp_path / "id" / "lip.json"),
+                 "--out", str(tmp_path / "d"), "--regression-lowpass-hz", "150"]) == 0
+    report = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert report["record"]["regression_lowpass_hz"] == 150.0
+    assert "parallel low-pass 150 Hz" in (tmp_path / "d" / "report.md").read_text()

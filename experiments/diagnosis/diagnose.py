@@ -75,7 +75,7 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
                           val_offset=offset, full=record)
     info = {"record": {"source": source_of(record), "samples": len(record),
                        "sample_time_s": record.ts, "encoder_quantum_m": res.quantum,
-                       "speed_floor_m_s": res.v_floor, "lowpass_hz": res.cutoff,
+                       "speed_floor_m_s": res.v_floor, "regression_lowpass_hz": res.cutoff,
                        "quantization_floor_n": res.quantization_floor(),
                        "fitted_samples": int(len(res.idx)), "effective_samples": res.n_eff,
                        "residual_rms_n": res.rms()},
