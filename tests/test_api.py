@@ -231,3 +231,26 @@ def test_one_filter_setting_from_identify_to_the_diagnosis(tmp_path):
     report = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     assert report["record"]["regression_lowpass_hz"] == 150.0
     assert "parallel low-pass 150 Hz" in (tmp_path / "d" / "report.md").read_text()
+
+
+def test_diagnosis_model_carries_its_rate(tmp_path, lip):
+    """A model file's ts sets its controller's rate (no record needed); a file without one takes
+    the rate it is given (the record's); the diagnosis refuses a record at another rate."""
+    from clm_sim.record import Run
+    from experiments.diagnosis import diagnose, load_model
+
+    path = tmp_path / "m.yaml"
+    path.write_text("ts: 0.001\nplant: {mass: 18.8, viscous: 172.0}\n"
+                    "controller: {crossover_hz: 30.0}\n")
+    model = load_model(path)
+    assert model.ts == 1e-3 and model.controller.ts == 1e-3
+    y, u = _sine_record()
+    record = Run(t=np.arange(len(y)) * TS, r=y, y=y, u=u, meta={"source": "rec"})
+    with pytest.raises(UserError, match=r"rec: the model's controller .*0\.001 s.*0\.0001 s"):
+        diagnose(record, model)
+    path.write_text("plant: {mass: 18.8, viscous: 172.0}\ncontroller: {crossover_hz: 30.0}\n")
+    assert load_model(path, TS).controller.ts == TS  # an older file: the record's rate
+    with pytest.raises(UserError, match="ts:"):
+        load_model(path)
+    lip.save(tmp_path / "lip.json")
+    assert load_model(tmp_path / "lip.json").ts == TS
