@@ -79,7 +79,8 @@ class LIPFeedforward:
 
     def _check_fitted(self):
         if not hasattr(self, "theta_"):
-            raise NotFittedError("LIPFeedforward: call fit() before predict() or feedforward()")
+            raise NotFittedError("LIPFeedforward is not fitted: call fit() before predict(), "
+                                 "feedforward() or save()")
 
     def _rate(self, ts: float | None) -> float:
         """``ts`` checked against the fitted sample time (default: that one)."""

@@ -222,7 +222,8 @@ def _cutoff_argument(p: argparse.ArgumentParser, default: str) -> None:
     """``--regression-lowpass-hz``: the parallel filter's cut-off, named as in a config's
     ``features:`` and in the Python API (``--lowpass-hz`` still accepted, not shown)."""
     p.add_argument("--regression-lowpass-hz", type=float, metavar="HZ",
-                   help=f"cut-off of the zero-phase parallel filter of the regression, Hz {default}")
+                   help=f"cut-off of the zero-phase parallel filter of the regression, Hz "
+                   f"{default}")
     p.add_argument("--lowpass-hz", type=float, dest="regression_lowpass_hz",
                    help=argparse.SUPPRESS)
 

@@ -352,7 +352,8 @@ class PGNNFeedforward:
     # -- use ----------------------------------------------------------------------------------
     def _check_fitted(self):
         if not hasattr(self, "network_"):
-            raise NotFittedError("PGNNFeedforward: call fit() before predict() or feedforward()")
+            raise NotFittedError("PGNNFeedforward is not fitted: call fit() before predict(), "
+                                 "feedforward() or save()")
 
     def _rate(self, ts: float | None) -> float:
         """``ts`` checked against the fitted sample time (default: that one)."""
@@ -405,6 +406,7 @@ class PGNNFeedforward:
     def save(self, path) -> None:
         """Write ``path.pt`` (the module's state_dict: float64 tensors, input scalings included)
         and ``path.json`` (settings, theta, fit record, history)."""
+        self._check_fitted()
         path = Path(path)
         torch.save(self.network_.state_dict(), path.with_suffix(".pt"))
         path.with_suffix(".json").write_text(json.dumps(self.to_json(), indent=1))

@@ -46,8 +46,8 @@ class DiagnosisSettings:
     regression_lowpass_hz: cut-off (Hz; capped at 0.2/ts) of the parallel filter, the setting of
     the same name as in a config's ``features:`` and ``clm-sim identify``; 100 Hz rather than the
     identification's 250 Hz: the narrower band keeps the encoder's quantization floor low and
-    still passes the 2.5 mm periodic force of the EMPS at its speed (README). folds: contiguous blocks of the
-    blocked cross-validation. min_gain: held-out MSE reduction (fraction of the current held-out
+    still passes the 2.5 mm periodic force of the EMPS at its speed (README). folds: contiguous
+    blocks of the blocked cross-validation. min_gain: held-out MSE reduction (fraction of the current held-out
     MSE) a candidate must bring; min_explained: the same reduction as a fraction of the held-out
     MSE of the model's own residual (once the large causes are removed, the remaining residual
     is the noise and quantization floor, where min_gain alone would name model bias; 2e-4 lies
