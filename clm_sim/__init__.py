@@ -17,6 +17,8 @@ _EXPORTS = {
     "Testbed": "experiments.testbed",
     "ExperimentConfig": "experiments.config",
     "FeedforwardSpec": "experiments.config",
+    "Training": "experiments.config",
+    "PGNNSettings": "controllers.pgnn_settings",
     "load_config": "experiments.config",
     "Plant": "clm_sim.plant",
     "EFFECTS": "clm_sim.effects",
@@ -27,12 +29,14 @@ _EXPORTS = {
     "PointToPoint": "clm_sim.reference",
     "FeatureMap": "clm_sim.features",
     "UserError": "clm_sim.errors",
+    "NotFittedError": "clm_sim.errors",
     "PIDDesign": "controllers.pid",
     "design_pid": "controllers.pid",
     "LIPFeedforward": "controllers.lip",
     "PGNNFeedforward": "controllers.pgnn",
     "diagnose": "experiments.diagnosis",
     "load_model": "experiments.diagnosis",
+    "DiagnosisSettings": "experiments.diagnosis",
 }
 
 __all__ = ["__version__", *_EXPORTS]

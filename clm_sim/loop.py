@@ -8,13 +8,15 @@ from typing import Protocol
 import numpy as np
 
 from clm_sim import kernel
-from clm_sim.errors import UserError
+from clm_sim.errors import UserError, check_ts
 from clm_sim.plant import Plant
 from clm_sim.record import Run
 
 
 class DiscreteController(Protocol):
-    """A linear discrete controller ``C(z) = b(z^-1)/a(z^-1)`` acting on ``e = r - y``."""
+    """A linear discrete controller ``C(z) = b(z^-1)/a(z^-1)`` acting on ``e = r - y``; one that
+    also has a ``ts`` attribute (s, e.g. ``controllers.pid.PIDController``) runs at that rate
+    only."""
 
     b: np.ndarray
     a: np.ndarray
@@ -47,7 +49,8 @@ def simulate(plant: Plant, controller: DiscreteController, r: np.ndarray, ts: fl
              meta: dict | None = None) -> Run:
     """Run the loop over reference ``r`` (m) sampled at ``ts`` (s); the stage starts at rest at
     ``r[0]``. ``u_ff`` and ``dither`` (N) are added to the controller output. Raises
-    ``UserError`` if the loop diverges."""
+    ``UserError`` if the loop diverges, or if ``controller`` has a ``ts`` other than ``ts``."""
+    check_ts(getattr(controller, "ts", None), ts, f"the controller ({type(controller).__name__})")
     r = np.ascontiguousarray(r, dtype=np.float64)
     n = r.shape[0]
     u_ff = np.zeros(n) if u_ff is None else np.ascontiguousarray(u_ff, dtype=np.float64)

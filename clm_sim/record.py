@@ -57,6 +57,13 @@ class Run:
                                  f"got shape {value.shape}")
             object.__setattr__(self, name, value)
 
+    def __repr__(self) -> str:
+        known = [k for k in SIGNALS[1:] if not np.all(np.isnan(getattr(self, k)))]
+        where = self.meta.get("run") or self.meta.get("source")
+        timing = f", ts={self.ts:g} s, {self.t[-1] - self.t[0]:.4g} s" if len(self) > 1 else ""
+        return (f"Run({len(self)} samples{timing}; {', '.join(known)}"
+                + (f"; {str(where)[:60]}" if where else "") + ")")
+
     @property
     def ts(self) -> float:
         """Sample time (s), from the time stamps."""

@@ -7,14 +7,21 @@ features of :class:`clm_sim.features.FeatureMap`.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from clm_sim.effects import Effect
-from clm_sim.errors import UserError
+from clm_sim.errors import NotFittedError, UserError, check_ts
 from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
+from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
+from clm_sim.schema import build, build_effect
+
+
+FEATURE_KEYS = ("regression_lowpass_hz", "position_lowpass_hz", "lowpass_order", "edge_samples")
 
 
 def _effect_columns(effects, y, v, u) -> dict[str, np.ndarray]:
@@ -29,7 +36,9 @@ def _effect_columns(effects, y, v, u) -> dict[str, np.ndarray]:
 
 @dataclass
 class LIPFeedforward:
-    """LIP model; ``fit`` learns ``theta_`` (named, SI units), ``predict``/``feedforward`` use it.
+    """LIP model; ``fit`` learns ``theta_`` (named, SI units) and the sample time ``ts_`` (s) of
+    its data; ``predict``/``feedforward`` use them (at that sample time only); ``save``/``load``
+    keep them (JSON).
 
     features: the preprocessing (filter, alignment); effects: extra named effects whose linear
     coefficients are identified alongside ``theta`` (their nonlinear parameters stay fixed).
@@ -70,11 +79,25 @@ class LIPFeedforward:
 
     def _check_fitted(self):
         if not hasattr(self, "theta_"):
-            raise RuntimeError("LIPFeedforward: call fit() before predict()")
+            raise NotFittedError("LIPFeedforward is not fitted: call fit() before predict(), "
+                                 "feedforward() or save()")
 
-    def predict(self, *, y: np.ndarray, ts: float, u: np.ndarray | None = None) -> np.ndarray:
-        """Force (N) at the sample instants for positions ``y``; ``u`` feeds force-ripple terms."""
+    def _rate(self, ts: float | None) -> float:
+        """``ts`` checked against the fitted sample time (default: that one)."""
+        own = getattr(self, "ts_", None)
+        if ts is None:
+            if own is None:
+                raise UserError("LIPFeedforward: give ts (this model does not know its rate)")
+            return own
+        check_ts(own, ts, "LIPFeedforward (fitted)")
+        return float(ts)
+
+    def predict(self, *, y: np.ndarray, ts: float | None = None,
+                u: np.ndarray | None = None) -> np.ndarray:
+        """Force (N) at the sample instants for positions ``y`` sampled at ``ts`` (s; default and
+        only allowed rate: the fitted ``ts_``); ``u`` feeds force-ripple terms."""
         self._check_fitted()
+        ts = self._rate(ts)
         yf, v, a = self.features.motion(y, ts)
         th = self.theta_
         out = th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v) + th["stiffness"] * yf
@@ -84,12 +107,46 @@ class LIPFeedforward:
                 out = out + e.force(yf, v, base)
         return out
 
-    def feedforward(self, r: np.ndarray, ts: float) -> np.ndarray:
-        """The held input (N) per sample that tracks reference ``r`` (m)."""
+    def feedforward(self, r: np.ndarray, ts: float | None = None) -> np.ndarray:
+        """The held input (N) per sample that tracks reference ``r`` (m) sampled at ``ts`` (s;
+        default and only allowed rate: the fitted ``ts_``)."""
         return held_force(self.predict(y=r, ts=ts))
 
     def to_json(self) -> dict:
+        """The fitted model as plain data (``kind: lip``; what :meth:`save` writes)."""
         self._check_fitted()
-        return {"kind": "lip", **self.theta_, "std": self.std_, "coefficients": self.coef_,
+        return {"kind": "lip", **self.theta_, "ts": getattr(self, "ts_", None),
+                "std": self.std_, "coefficients": self.coef_,
                 "residual_rms_n": self.residual_rms_,
-                "effects": [e.as_config() for e in self.effects_]}
+                "effects": [e.as_config() for e in self.effects_],
+                "features": {k: getattr(self.features, k) for k in FEATURE_KEYS}}
+
+    def save(self, path) -> None:
+        """Write the fitted model to the JSON file ``path`` (theta, ts, effects, features)."""
+        atomic_write(Path(path), json.dumps(self.to_json(), indent=1))
+
+    @classmethod
+    def load(cls, path) -> LIPFeedforward:
+        """Read a model written by :meth:`save` (or by ``clm-sim identify`` and ``clm-sim run``;
+        a file without ``ts`` or ``features`` gives a model that needs ``ts`` at every use and
+        the default features)."""
+        path = Path(path)
+        try:
+            info = json.loads(path.read_text())
+            if info.get("kind") != "lip":
+                raise KeyError("kind: lip")
+            effects = tuple(build_effect(e, f"effects[{i}]")
+                            for i, e in enumerate(info.get("effects") or []))
+            features = build(FeatureMap, info.get("features") or {}, "features")
+            model = cls(features=features, effects=effects)
+            model.theta_ = {k: float(info[k]) for k in THETA_NAMES}
+            model.coef_ = {k: float(v) for k, v in info.get("coefficients", model.theta_).items()}
+            model.std_ = {k: float(v) for k, v in info.get("std", {}).items()}
+            model.residual_rms_ = float(info.get("residual_rms_n", float("nan")))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise UserError(f"{path}: cannot read a LIP model ({type(exc).__name__}: {exc})") \
+                from None
+        model.effects_ = effects
+        if info.get("ts") is not None:
+            model.ts_ = float(info["ts"])
+        return model

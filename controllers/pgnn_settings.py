@@ -1,21 +1,138 @@
-"""PGNN settings: the network and optimizer options of a PGNN feedforward, declared once (types,
-ranges, defaults) for the config, the testbed and :class:`controllers.pgnn.PGNNFeedforward`."""
+"""PGNN settings: every option of a PGNN feedforward declared once.
+
+``CONSTRAINTS`` is the one table of what each setting may be (type, range or choices) and the key
+a config file gives it under; :func:`check_settings` applies it, with the rules that tie two
+settings together. The config schema (``PGNNSettings`` below and ``experiments.config``'s
+``FeedforwardSpec``, through ``__post_init__``) and :class:`controllers.pgnn.PGNNFeedforward` (in
+``fit``) all check through it. ``PGNNSettings`` holds the defaults of the ``pgnn:`` options; the
+row keys ``hidden``, ``training`` and ``lambda`` have none (a config must give them).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+import math
+import numbers
+from dataclasses import dataclass, fields
 
 from clm_sim.errors import UserError
+from clm_sim.plant import THETA_NAMES
 
 TRAININGS = ("simultaneous", "sequential", "pinn")
 OPTIMIZERS = ("varpro", "lm", "adam")
+INITS = ("optimized", "random")
 ACTIVATION_NAMES = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
 
 
 @dataclass(frozen=True)
+class Interval:
+    """A number of ``kind`` (int or float) in ``[low, high]``; ``open`` names the excluded ends
+    (``"low"``, ``"high"``, ``"both"``); ``None``: unbounded."""
+
+    kind: type
+    low: float | None = None
+    high: float | None = None
+    open: str = ""
+
+    def describe(self) -> str:
+        name = "an integer" if self.kind is int else "a number"
+        lo_open, hi_open = self.open in ("low", "both"), self.open in ("high", "both")
+        if self.high is None:
+            return f"{name} {'>' if lo_open else '>='} {self.low:g}"
+        return (f"{name} in {'(' if lo_open else '['}{self.low:g}, {self.high:g}"
+                f"{')' if hi_open else ']'}")
+
+    def accepts(self, value) -> bool:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            return False
+        if self.kind is int and not isinstance(value, numbers.Integral):
+            return False
+        if not math.isfinite(value):
+            return False
+        lo_open, hi_open = self.open in ("low", "both"), self.open in ("high", "both")
+        if self.low is not None and (value <= self.low if lo_open else value < self.low):
+            return False
+        return self.high is None or (value < self.high if hi_open else value <= self.high)
+
+
+@dataclass(frozen=True)
+class Options:
+    """One of ``choices``."""
+
+    choices: tuple[str, ...]
+
+    def describe(self) -> str:
+        return f"one of {', '.join(self.choices)}"
+
+    def accepts(self, value) -> bool:
+        return isinstance(value, str) and value in self.choices
+
+
+@dataclass(frozen=True)
+class Widths:
+    """Widths of the hidden layers: an integer >= 1, or a non-empty list of them."""
+
+    def describe(self) -> str:
+        return "widths >= 1 (an integer or a list of integers)"
+
+    def accepts(self, value) -> bool:
+        widths = (value,) if isinstance(value, numbers.Integral) else value
+        return (isinstance(widths, (list, tuple)) and len(widths) > 0
+                and all(Interval(int, 1).accepts(w) for w in widths))
+
+
+@dataclass(frozen=True)
+class PerParameter:
+    """``None``, or a mapping from some of ``THETA_NAMES`` to numbers >= 0."""
+
+    def describe(self) -> str:
+        return f"a mapping of {', '.join(THETA_NAMES)} to weights >= 0"
+
+    def accepts(self, value) -> bool:
+        if value is None:
+            return True
+        return isinstance(value, dict) and all(
+            k in THETA_NAMES and Interval(float, 0).accepts(v) for k, v in value.items())
+
+
+# setting -> (its key in a config file, what it may be)
+CONSTRAINTS = {
+    "hidden": ("hidden", Widths()),
+    "training": ("training", Options(TRAININGS)),
+    "lam": ("lambda", Interval(float, 0)),
+    "lambda_diag": ("pgnn.lambda_diag", PerParameter()),
+    "pinn_weight": ("pgnn.pinn_weight", Interval(float, 0)),
+    "orthogonal_weight": ("pgnn.orthogonal_weight", Interval(float, 0)),
+    "weight_decay": ("pgnn.weight_decay", Interval(float, 0)),
+    "activation": ("pgnn.activation", Options(ACTIVATION_NAMES)),
+    "init": ("pgnn.init", Options(INITS)),
+    "optimizer": ("pgnn.optimizer", Options(OPTIMIZERS)),
+    "max_iter": ("pgnn.max_iter", Interval(int, 1)),
+    "ftol": ("pgnn.ftol", Interval(float, 0, 1, "both")),
+    "restarts": ("pgnn.restarts", Interval(int, 1)),
+    "continuation_lambda": ("pgnn.continuation_lambda", Interval(float, 0)),
+    "adam_lr": ("pgnn.adam_lr", Interval(float, 0, None, "low")),
+    "validation_fraction": ("pgnn.validation_fraction", Interval(float, 0, 0.5, "high")),
+    "decimation": ("pgnn.decimation", Interval(int, 1)),
+}
+
+
+def check_settings(settings: dict) -> None:
+    """Raise a ``UserError`` naming the config key of the first setting in ``settings`` (names
+    of ``CONSTRAINTS``; missing ones are not checked) that its constraint refuses, or of a
+    combination that cannot work."""
+    for name, value in settings.items():
+        key, rule = CONSTRAINTS[name]
+        if not rule.accepts(value):
+            raise UserError(f"{key}: expected {rule.describe()}, got {value!r}")
+    if settings.get("init") == "random" and settings.get("optimizer", "varpro") == "varpro":
+        raise UserError("pgnn.init: 'random' needs optimizer lm or adam (varpro solves the "
+                        "output layer by least squares at every step)")
+
+
+@dataclass(frozen=True)
 class PGNNSettings:
-    """Network and optimizer settings of a PGNN feedforward (see controllers.pgnn).
+    """The ``pgnn:`` options of a PGNN feedforward and their defaults (see controllers.pgnn;
+    constraints in ``CONSTRAINTS``).
 
     activation: of the hidden layers; init: optimized (the lemma's least squares) or random
     (lm/adam only); optimizer: varpro (output layer and theta_phy eliminated by least squares,
@@ -34,9 +151,9 @@ class PGNNSettings:
     overriding lambda; decimation: keep every n-th sample of the filtered training data.
     """
 
-    activation: Literal["tanh", "sigmoid", "softplus", "silu", "gelu", "relu"] = "tanh"
-    init: Literal["optimized", "random"] = "optimized"
-    optimizer: Literal["varpro", "lm", "adam"] = "varpro"
+    activation: str = "tanh"
+    init: str = "optimized"
+    optimizer: str = "varpro"
     max_iter: int = 200
     ftol: float = 1e-4
     restarts: int = 1
@@ -50,25 +167,4 @@ class PGNNSettings:
     decimation: int = 80
 
     def __post_init__(self):
-        for key in ("max_iter", "decimation", "restarts"):
-            value = getattr(self, key)
-            if not (isinstance(value, int) and value >= 1):
-                raise UserError(f"pgnn.{key}: expected an integer >= 1, got {value!r}")
-        if not 0.0 <= self.validation_fraction < 0.5:
-            raise UserError(f"pgnn.validation_fraction: expected a number in [0, 0.5), "
-                            f"got {self.validation_fraction!r}")
-        if not 0.0 < self.ftol < 1.0:
-            raise UserError(f"pgnn.ftol: expected a number in (0, 1), got {self.ftol!r}")
-        for key in ("pinn_weight", "orthogonal_weight", "weight_decay", "continuation_lambda"):
-            if not getattr(self, key) >= 0:
-                raise UserError(f"pgnn.{key}: expected a number >= 0, got "
-                                f"{getattr(self, key)!r}")
-        if not self.adam_lr > 0:
-            raise UserError(f"pgnn.adam_lr: expected a number > 0, got {self.adam_lr!r}")
-        if self.init == "random" and self.optimizer == "varpro":
-            raise UserError("pgnn.init: 'random' needs optimizer lm or adam (varpro solves the "
-                            "output layer by least squares at every step)")
-        for k, v in (self.lambda_diag or {}).items():
-            if k not in ("mass", "viscous", "coulomb", "stiffness") or not v >= 0:
-                raise UserError(f"pgnn.lambda_diag.{k}: expected one of mass, viscous, coulomb, "
-                                f"stiffness with a weight >= 0, got {v!r}")
+        check_settings({f.name: getattr(self, f.name) for f in fields(self)})

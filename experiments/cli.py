@@ -1,5 +1,6 @@
 """The ``clm-sim`` command: ``run`` an experiment config, ``study`` or ``sweep`` one, ``identify``
-a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run.
+a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run, ``compare`` a fresh
+table with a published one.
 
 User mistakes (``UserError``) print one line on stderr and exit with code 2, never a traceback.
 ``sweep`` exits with 1 when some tasks failed (the table is still written and lists them).
@@ -16,6 +17,7 @@ import sys
 import threading
 from pathlib import Path
 
+import clm_sim
 from clm_sim.errors import UserError
 from clm_sim.numerics import pin_portable_kernels
 
@@ -61,7 +63,9 @@ def _cmd_identify(args) -> int:
     from experiments.table import THETA_UNITS
 
     run = _load(args.data, args)
-    features = FeatureMap(regression_lowpass_hz=None if args.lowpass_hz <= 0 else args.lowpass_hz)
+    cutoff = args.regression_lowpass_hz
+    features = FeatureMap() if cutoff is None else \
+        FeatureMap(regression_lowpass_hz=None if cutoff <= 0 else cutoff)
     lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
     out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
     for name, value in lip.theta_.items():
@@ -148,13 +152,15 @@ def _cmd_study(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    from experiments.diagnosis import diagnose
+    from experiments.diagnosis import DiagnosisSettings, diagnose
     from experiments.diagnosis.report import write
 
     record = _load(args.data, args)
     validation = _load(args.validate, args) if args.validate else None
     model = _diagnosis_model(args.model, record.ts)
-    result = diagnose(record, model, validation=validation)
+    settings = DiagnosisSettings() if args.regression_lowpass_hz is None else \
+        DiagnosisSettings(regression_lowpass_hz=args.regression_lowpass_hz)
+    result = diagnose(record, model, validation=validation, settings=settings)
     out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"
     write(result, out)
     if not result.findings:
@@ -212,8 +218,21 @@ def _config_arguments(p: argparse.ArgumentParser, config: str, out: str = "") ->
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
+def _cutoff_argument(p: argparse.ArgumentParser, default: str) -> None:
+    """``--regression-lowpass-hz``: the parallel filter's cut-off, named as in a config's
+    ``features:`` and in the Python API (``--lowpass-hz`` still accepted, not shown)."""
+    p.add_argument("--regression-lowpass-hz", type=float, metavar="HZ",
+                   help=f"cut-off of the zero-phase parallel filter of the regression, Hz "
+                   f"{default}")
+    p.add_argument("--lowpass-hz", type=float, dest="regression_lowpass_hz",
+                   help=argparse.SUPPRESS)
+
+
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="clm-sim", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="clm-sim", description="Simulate a coreless linear motor under PID feedback, "
+        "identify its LIP and PGNN feedforwards, and diagnose a model against measured records.")
+    p.add_argument("--version", action="version", version=f"clm-sim {clm_sim.__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run an experiment config and write table and figures")
     _config_arguments(run, "experiment YAML file")
@@ -221,8 +240,7 @@ def parser() -> argparse.ArgumentParser:
     ident = sub.add_parser("identify", help="identify the LIP feedforward from a record")
     _record_arguments(ident)
     ident.add_argument("--out", help="folder for lip.json (default results/identify/<data name>)")
-    ident.add_argument("--lowpass-hz", type=float, default=250.0,
-                       help="zero-phase parallel filter of the regression, Hz (0 = none)")
+    _cutoff_argument(ident, "(default: a config's, FeatureMap.regression_lowpass_hz; 0 = none)")
     ident.set_defaults(func=_cmd_identify)
     export = sub.add_parser("export", help="convert a logged run (.npz) to CSV or MATLAB .mat")
     export.add_argument("run", help="run record, e.g. results/lip_baseline/runs/training.npz")
@@ -247,6 +265,8 @@ def parser() -> argparse.ArgumentParser:
                       "from identify or run, or an experiment config (default: the default CLM)")
     diag.add_argument("--validate", help="validation record (default: the final 25 %% of DATA)")
     diag.add_argument("--out", help="output folder (default results/diagnosis_<data name>)")
+    _cutoff_argument(diag, "(default: the diagnosis's narrower band, "
+                     "DiagnosisSettings.regression_lowpass_hz; capped at 0.2/ts)")
     diag.set_defaults(func=_cmd_diagnose)
     study = sub.add_parser("study", help="the PGNN extrapolation study: lambda sweep, report.md "
                            "with figures")

@@ -13,7 +13,7 @@ from clm_sim.loop import Dither
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import PGNNSettings
+from controllers.pgnn_settings import PGNNSettings, check_settings
 from controllers.pid import PIDDesign
 
 
@@ -50,7 +50,7 @@ class FeedforwardSpec:
     """
 
     kind: Literal["none", "lip", "pgnn"]
-    training: Literal["simultaneous", "sequential", "pinn"] | None = None
+    training: str | None = None
     lam: float | None = None
     hidden: int | tuple[int, ...] | None = None
     seeds: int = 1
@@ -62,6 +62,9 @@ class FeedforwardSpec:
         if self.kind == "pgnn":
             if self.training is None or self.hidden is None:
                 raise UserError("a pgnn feedforward needs 'training' and 'hidden'")
+            # the constraints of the one table (controllers.pgnn_settings.CONSTRAINTS)
+            check_settings({"training": self.training, "hidden": self.hidden,
+                            **({} if self.lam is None else {"lam": self.lam})})
             if self.training == "simultaneous" and self.lam is None:
                 raise UserError("a simultaneous pgnn needs 'lambda' (0 for none)")
             if self.training == "sequential" and self.lam:
@@ -69,11 +72,6 @@ class FeedforwardSpec:
                                 "at theta_LIP)")
             if self.training == "pinn" and not self.pgnn.pinn_weight > 0:
                 raise UserError("a pinn pgnn needs pgnn.pinn_weight > 0")
-            widths = (self.hidden,) if isinstance(self.hidden, int) else self.hidden
-            if not widths or min(widths) < 1:
-                raise UserError(f"hidden: expected widths >= 1, got {self.hidden!r}")
-            if self.lam is not None and self.lam < 0:
-                raise UserError(f"lambda must be >= 0, got {self.lam}")
         elif self.training is not None or self.lam is not None or self.hidden is not None:
             raise UserError(f"training, lambda and hidden apply to kind pgnn, not {self.kind}")
         if not (isinstance(self.seeds, int) and self.seeds >= 1):

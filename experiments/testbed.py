@@ -85,6 +85,13 @@ class Testbed:
         self.config = ExperimentConfig() if config is None else config
         self.progress = progress or _silent
 
+    def __repr__(self) -> str:
+        c = self.config
+        truth = "" if c.truth is None else f", truth with {len(c.truth.effects)} effects"
+        return (f"Testbed({c.name!r}, ts={c.ts:g} s, plant {c.plant.mass:g} kg with "
+                f"{len(c.plant.effects)} effects{truth}, PID {c.controller.crossover_hz:g} Hz, "
+                f"{len(c.feedforwards)} feedforwards, seed {c.seed})")
+
     @classmethod
     def from_config(cls, path, **kwargs) -> "Testbed":
         """A testbed from an experiment config file (errors name the file and the key). A
@@ -174,7 +181,8 @@ class Testbed:
     def _fit_seeds(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward,
                    indices: list[int]) -> list:
         """PGNN fits of ``spec`` for network seeds ``indices`` (on both cores when there are
-        several; every fit is single-threaded, so the pool never changes a result)."""
+        several; every fit is single-threaded, so the pool never changes a result), with a
+        progress line per finished fit."""
         from controllers.pgnn import training_data  # torch is imported only for a PGNN
         from experiments import workers as parallel
 
@@ -182,8 +190,18 @@ class Testbed:
         settings = spec.pgnn_settings()
         data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
                              decimation=settings["decimation"])
-        return parallel.map_fits([(settings, self.config.features, data, dict(lip.theta_),
-                                   stream(run_seed, STREAM_NETWORK, s)) for s in indices])
+        payloads = [(settings, self.config.features, data, dict(lip.theta_),
+                     stream(run_seed, STREAM_NETWORK, s)) for s in indices]
+        # One batch per core: map_fits reports nothing until its batch is done, so a row of ten
+        # seeds would otherwise be silent for a minute. A batch waits for its slowest fit.
+        batch = max(parallel.cores(), 1)
+        models = []
+        for start in range(0, len(payloads), batch):
+            for model in parallel.map_fits(payloads[start:start + batch]):
+                models.append(model)
+                self.progress(f"  {spec.label()}: fit {len(models)}/{len(payloads)} done "
+                              f"({model.fit_['stop']}, {model.fit_['iterations']} it)")
+        return models
 
     def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:
         """The fitted models of one table row: one per seed; ``[None]`` for feedback only."""

@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 
+from clm_sim.errors import NotFittedError
 from clm_sim.plant import Plant
 from controllers.lip import LIPFeedforward
 from experiments.cli import main
@@ -58,7 +59,7 @@ def test_lip_recovers_effect_free_plant(effect_free_training):
 
 
 def test_lip_predict_refuses_before_fit(ts):
-    with pytest.raises(RuntimeError, match="fit"):
+    with pytest.raises(NotFittedError, match="fit"):
         LIPFeedforward().predict(y=np.zeros(1000), ts=ts)
 
 

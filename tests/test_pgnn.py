@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from clm_sim.errors import NotFittedError
 from clm_sim.features import FeatureMap
 from clm_sim.plant import THETA_NAMES
 from clm_sim.reference import PointToPoint
@@ -337,7 +338,7 @@ def test_save_load_round_trip(tmp_path, data, hidden, activation):
 
 
 def test_predict_refuses_before_fit():
-    with pytest.raises(RuntimeError):
+    with pytest.raises(NotFittedError, match="fit"):
         PGNNFeedforward().feedforward(np.zeros(100), 1e-4)
 
 

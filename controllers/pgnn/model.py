@@ -61,14 +61,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from clm_sim.errors import UserError
+from clm_sim.errors import NotFittedError, UserError, check_ts
 from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
 from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import TERMS, SeparableCost, Weights
-from controllers.pgnn.network import ACTIVATIONS, PGNNNetwork
-from controllers.pgnn_settings import OPTIMIZERS, TRAININGS, PGNNSettings
+from controllers.pgnn.network import PGNNNetwork
+from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings, check_settings
 
 _DEFAULTS = PGNNSettings()  # the one declaration of the defaults
 
@@ -76,18 +76,20 @@ _DEFAULTS = PGNNSettings()  # the one declaration of the defaults
 @dataclass(frozen=True)
 class TrainingData:
     """Fitting data: physical columns ``phi`` (N, 4) = filtered [a, v, sign v, y] (SI units), the
-    network's inputs (the same columns) and the filtered force ``target`` (N,)."""
+    network's inputs (the same columns), the filtered force ``target`` (N,) and the sample time
+    ``ts`` (s) of the record they came from (``None``: unknown)."""
 
     phi: np.ndarray
     target: np.ndarray
+    ts: float | None = None
 
     def split(self, fraction: float) -> tuple[TrainingData, TrainingData | None]:
         """The first ``1 - fraction`` for fitting, the last ``fraction`` (contiguous) held out."""
         if fraction <= 0:
             return self, None
         n = len(self.target) - round(fraction * len(self.target))
-        return (TrainingData(self.phi[:n], self.target[:n]),
-                TrainingData(self.phi[n:], self.target[n:]))
+        return (TrainingData(self.phi[:n], self.target[:n], self.ts),
+                TrainingData(self.phi[n:], self.target[n:], self.ts))
 
 
 def training_data(features: FeatureMap, *, y: np.ndarray, u: np.ndarray, ts: float,
@@ -97,7 +99,8 @@ def training_data(features: FeatureMap, *, y: np.ndarray, u: np.ndarray, ts: flo
     cols = np.column_stack([lip_regressors(yf, v, a), edge_force(u)])
     keep = features.fit_slice(len(yf))
     cols = features.regression_filter(cols, ts)[keep][::decimation]
-    return TrainingData(phi=np.ascontiguousarray(cols[:, :4]), target=cols[:, 4].copy())
+    return TrainingData(phi=np.ascontiguousarray(cols[:, :4]), target=cols[:, 4].copy(),
+                        ts=float(ts))
 
 
 def _as_theta(theta) -> np.ndarray:
@@ -130,8 +133,9 @@ def lemma_condition(data: TrainingData, h: np.ndarray, theta_lip, lam_diag=None,
 @dataclass
 class PGNNFeedforward:
     """A PGNN feedforward; ``fit`` learns ``theta_`` (named, SI units), ``network_`` (the torch
-    module), ``fit_`` (how the fit stopped) and ``history_``; ``predict``/``feedforward`` use
-    them; ``save``/``load`` keep them. Settings: see :class:`controllers.pgnn_settings.PGNNSettings`
+    module), ``fit_`` (how the fit stopped), ``history_`` and ``ts_`` (s, the sample time of its
+    data); ``predict``/``feedforward`` use them (at that sample time only); ``save``/``load``
+    keep them. Settings: see :class:`controllers.pgnn_settings.PGNNSettings`
     (hidden: widths of the hidden layers, an int for one layer; training: simultaneous,
     sequential or pinn; lam: weight of the distance to theta_LIP; features: the preprocessing
     shared with the LIP).
@@ -156,10 +160,7 @@ class PGNNFeedforward:
     decimation: int = _DEFAULTS.decimation
     features: FeatureMap = field(default_factory=FeatureMap)
 
-    SETTINGS = ("hidden", "training", "lam", "lambda_diag", "pinn_weight", "orthogonal_weight",
-                "weight_decay", "activation", "init", "optimizer", "max_iter", "ftol",
-                "restarts", "continuation_lambda", "adam_lr", "validation_fraction",
-                "decimation")
+    SETTINGS = tuple(CONSTRAINTS)  # every field but features (tests/test_api.py checks)
 
     def _settings(self) -> dict:
         out = {k: getattr(self, k) for k in self.SETTINGS}
@@ -174,31 +175,13 @@ class PGNNFeedforward:
 
     def lambda_matrix_diag(self) -> np.ndarray:
         """Diagonal of Lambda, in the order of ``THETA_NAMES``."""
-        diag = {k: self.lam for k in THETA_NAMES}
-        for k, v in (self.lambda_diag or {}).items():
-            if k not in diag:
-                raise UserError(f"pgnn.lambda_diag: unknown parameter {k!r}; "
-                                f"expected one of {', '.join(THETA_NAMES)}")
-            diag[k] = float(v)
+        diag = {k: float(self.lam) for k in THETA_NAMES}
+        diag.update({k: float(v) for k, v in (self.lambda_diag or {}).items()})
         return np.array([diag[k] for k in THETA_NAMES])
 
     def _check(self) -> None:
-        if self.training not in TRAININGS:
-            raise UserError(f"pgnn.training: expected one of {', '.join(TRAININGS)}, "
-                            f"got {self.training!r}")
-        if self.optimizer not in OPTIMIZERS:
-            raise UserError(f"pgnn.optimizer: expected one of {', '.join(OPTIMIZERS)}, "
-                            f"got {self.optimizer!r}")
-        if self.init not in ("optimized", "random"):
-            raise UserError(f"pgnn.init: expected 'optimized' or 'random', got {self.init!r}")
-        if self.init == "random" and self.optimizer == "varpro":
-            raise UserError("pgnn.init: 'random' needs optimizer lm or adam (varpro solves the "
-                            "output layer by least squares at every step)")
-        if self.activation not in ACTIVATIONS:
-            raise UserError(f"pgnn.activation: expected one of {', '.join(ACTIVATIONS)}, "
-                            f"got {self.activation!r}")
-        if not self.widths() or min(self.widths()) < 1:
-            raise UserError(f"hidden: expected widths >= 1, got {self.hidden!r}")
+        """The settings against the one table (``controllers.pgnn_settings.CONSTRAINTS``)."""
+        check_settings({k: getattr(self, k) for k in self.SETTINGS})
 
     # -- the training problem ---------------------------------------------------------------
     def _weights(self, lam_diag: np.ndarray | None = None) -> Weights:
@@ -263,16 +246,19 @@ class PGNNFeedforward:
 
     # -- fitting ----------------------------------------------------------------------------
     def fit(self, *, y: np.ndarray, u: np.ndarray, ts: float, theta_lip: dict[str, float],
-            rng: np.random.Generator) -> PGNNFeedforward:
-        """Identify from positions ``y`` (m) and applied inputs ``u`` (N) of a logged run;
-        ``theta_lip`` is the LIP fitted with the same ``features``; ``rng`` draws the network."""
+            rng: np.random.Generator | int | None = None) -> PGNNFeedforward:
+        """Identify from positions ``y`` (m) and applied inputs ``u`` (N) of a logged run sampled
+        at ``ts`` (s); ``theta_lip`` is the LIP fitted with the same ``features``; ``rng`` (a
+        ``numpy.random.Generator`` or an integer seed; required) draws the network."""
+        rng = _generator(rng)
         data = training_data(self.features, y=y, u=u, ts=ts, decimation=self.decimation)
         return self.fit_data(data=data, theta_lip=theta_lip, rng=rng)
 
     def fit_data(self, *, data: TrainingData, theta_lip: dict[str, float],
-                 rng: np.random.Generator) -> PGNNFeedforward:
+                 rng: np.random.Generator | int | None = None) -> PGNNFeedforward:
         """Identify from prepared :class:`TrainingData` (see :func:`training_data`)."""
         self._check()
+        rng = _generator(rng)
         theta_lip_v = _as_theta(theta_lip)
         fit, held_out = data.split(self.validation_fraction)
         best, starts = None, []
@@ -300,6 +286,7 @@ class PGNNFeedforward:
         self.best_iteration_ = int(best["best_iteration"])
         self.cost_ = best["terms"]
         self.n_samples_ = len(fit.target)
+        self.ts_ = data.ts
         self.fit_ = {"stop": res.stop, "iterations": res.iterations,
                      "data_cost": self.cost_["data"],
                      "reg_cost": float(sum(v for k, v in self.cost_.items() if k != "data")),
@@ -365,7 +352,18 @@ class PGNNFeedforward:
     # -- use ----------------------------------------------------------------------------------
     def _check_fitted(self):
         if not hasattr(self, "network_"):
-            raise RuntimeError("PGNNFeedforward: call fit() before predict()")
+            raise NotFittedError("PGNNFeedforward is not fitted: call fit() before predict(), "
+                                 "feedforward() or save()")
+
+    def _rate(self, ts: float | None) -> float:
+        """``ts`` checked against the fitted sample time (default: that one)."""
+        own = getattr(self, "ts_", None)
+        if ts is None:
+            if own is None:
+                raise UserError("PGNNFeedforward: give ts (this model does not know its rate)")
+            return own
+        check_ts(own, ts, "PGNNFeedforward (fitted)")
+        return float(ts)
 
     def network(self, phi_f: np.ndarray) -> np.ndarray:
         """The network's force (N) for filtered feature columns ``phi_f`` (N, 4)."""
@@ -373,27 +371,31 @@ class PGNNFeedforward:
         with one_thread(), torch.no_grad():
             return self.network_.mlp(torch.from_numpy(np.ascontiguousarray(phi_f))).numpy()
 
-    def predict_parts(self, *, y: np.ndarray, ts: float) -> tuple[np.ndarray, np.ndarray]:
-        """Physical part ``theta . T`` and network part (N) at the sample instants of ``y`` (m)."""
+    def predict_parts(self, *, y: np.ndarray, ts: float | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Physical part ``theta . T`` and network part (N) at the sample instants of ``y`` (m),
+        sampled at ``ts`` (s; default and only allowed rate: the fitted ``ts_``)."""
         self._check_fitted()
+        ts = self._rate(ts)
         yf, v, a = self.features.motion(y, ts)
         phi = lip_regressors(yf, v, a)
         physical = phi @ _as_theta(self.theta_)
         return physical, self.network(self.features.regression_filter(phi, ts))
 
-    def predict(self, *, y: np.ndarray, ts: float) -> np.ndarray:
-        """Force (N) at the sample instants for positions ``y`` (m)."""
+    def predict(self, *, y: np.ndarray, ts: float | None = None) -> np.ndarray:
+        """Force (N) at the sample instants for positions ``y`` (m) sampled at ``ts`` (s; default
+        and only allowed rate: the fitted ``ts_``)."""
         physical, net = self.predict_parts(y=y, ts=ts)
         return physical + net
 
-    def feedforward(self, r: np.ndarray, ts: float) -> np.ndarray:
-        """The held input (N) per sample that tracks reference ``r`` (m)."""
+    def feedforward(self, r: np.ndarray, ts: float | None = None) -> np.ndarray:
+        """The held input (N) per sample that tracks reference ``r`` (m), as :meth:`predict`."""
         return held_force(self.predict(y=r, ts=ts))
 
     # -- storage ------------------------------------------------------------------------------
     def to_json(self) -> dict:
         self._check_fitted()
-        return {"kind": "pgnn", "settings": self._settings(),
+        return {"kind": "pgnn", "ts": getattr(self, "ts_", None), "settings": self._settings(),
                 "features": {k: getattr(self.features, k) for k in (
                     "regression_lowpass_hz", "position_lowpass_hz", "lowpass_order",
                     "edge_samples")},
@@ -404,6 +406,7 @@ class PGNNFeedforward:
     def save(self, path) -> None:
         """Write ``path.pt`` (the module's state_dict: float64 tensors, input scalings included)
         and ``path.json`` (settings, theta, fit record, history)."""
+        self._check_fitted()
         path = Path(path)
         torch.save(self.network_.state_dict(), path.with_suffix(".pt"))
         path.with_suffix(".json").write_text(json.dumps(self.to_json(), indent=1))
@@ -430,7 +433,23 @@ class PGNNFeedforward:
         model.cost_ = info["cost"]
         model.fit_ = info["fit"]
         model.n_samples_ = info["n_samples"]
+        model.ts_ = None if info.get("ts") is None else float(info["ts"])  # older files: unknown
         return model
+
+
+def _generator(rng) -> np.random.Generator:
+    """The network's random draw from ``rng``: a Generator, or an integer seed. There is no
+    default seed on purpose: fits that forget it would all share one draw and look like
+    independent seeds."""
+    if rng is None:
+        raise UserError("PGNNFeedforward.fit: give rng=, a numpy.random.Generator or an integer "
+                        "seed (it draws the network's hidden layers; there is no default seed)")
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if isinstance(rng, (int, np.integer, np.random.SeedSequence)) and not isinstance(rng, bool):
+        return np.random.default_rng(rng)
+    raise UserError(f"PGNNFeedforward.fit: rng must be a numpy.random.Generator or an integer "
+                    f"seed, got {type(rng).__name__}")
 
 
 def _predict(net: PGNNNetwork, data: TrainingData) -> np.ndarray:

@@ -9,7 +9,7 @@ from experiments.diagnosis.model import SimulationModel
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
 from experiments.diagnosis.search import forward_select
 from clm_sim.effects import Effect
-from clm_sim.errors import UserError
+from clm_sim.errors import UserError, check_ts
 from clm_sim.plant import Plant
 from clm_sim.record import Run
 
@@ -51,6 +51,9 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
     The causes are selected on ``record`` (or on its first ``1 - holdout_fraction`` when no
     ``validation`` record is given) and the gain is measured on the validation data.
     """
+    if model.controller is not None:  # a controller runs at its own rate only
+        check_ts(model.controller.ts, record.ts, f"{source_of(record)}: the model's controller "
+                 f"({model.name})")
     offset = None
     est, val = record, validation
     if validation is None:
@@ -75,7 +78,7 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
                           val_offset=offset, full=record)
     info = {"record": {"source": source_of(record), "samples": len(record),
                        "sample_time_s": record.ts, "encoder_quantum_m": res.quantum,
-                       "speed_floor_m_s": res.v_floor, "lowpass_hz": res.cutoff,
+                       "speed_floor_m_s": res.v_floor, "regression_lowpass_hz": res.cutoff,
                        "quantization_floor_n": res.quantization_floor(),
                        "fitted_samples": int(len(res.idx)), "effective_samples": res.n_eff,
                        "residual_rms_n": res.rms()},

@@ -36,8 +36,9 @@ def measure(truth: Plant, model: Plant, seed: int, *, ts: float = 1e-4, repeats:
 
 def simulation_model(tb: Testbed, name: str = "nominal") -> SimulationModel:
     """The testbed's model plant and PID as a diagnosis model."""
-    ctrl = Controller(np.asarray(tb.pid.b, float), np.asarray(tb.pid.a, float), np.zeros(0))
-    return SimulationModel(tb.plant, ctrl, name)
+    ctrl = Controller(np.asarray(tb.pid.b, float), np.asarray(tb.pid.a, float), np.zeros(0),
+                      tb.ts)
+    return SimulationModel(tb.plant, ctrl, name, tb.ts)
 
 
 def diagnose_emulated(tb: Testbed, *, record: Run, out, progress=print) -> dict:

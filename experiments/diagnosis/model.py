@@ -3,10 +3,14 @@
 A model file is YAML with a ``plant:`` mapping (``mass`` kg, ``viscous`` N*s/m, ``coulomb`` N,
 ``stiffness`` N/m, ``effects`` in the simulator's vocabulary, ``encoder_resolution`` m) and
 optionally a ``controller:``, either a PID design (the keys of ``controllers.pid.PIDDesign``,
-designed on the plant at the record's sample time) or a linear discrete law
-``u = C(z) e + R(z) r`` given by ``b``, ``a`` (C on ``e = r - y``, N/m) and ``reference_b``
-(FIR R on ``r``, N/m) at sample time ``ts`` (s). :func:`load_model` also reads a LIP parameter
-file and an experiment config.
+designed on the plant at the file's ``ts``) or a linear discrete law ``u = C(z) e + R(z) r``
+given by ``b``, ``a`` (C on ``e = r - y``, N/m) and ``reference_b`` (FIR R on ``r``, N/m) at
+sample time ``ts`` (s), and optionally ``ts`` (s), the rate of the machine's loop.
+:func:`load_model` also reads a LIP parameter file and an experiment config (its ``ts``).
+
+The model owns its sample time: a controller runs at the rate its file gives, and the diagnosis
+refuses a record sampled at another. A file that gives no rate (older files) takes the one
+:func:`load_model` is given, the record's in ``clm-sim diagnose``.
 
 A model has exactly the effects its file lists, whatever the file's form: no ``effects`` key
 means none (a model file that gives ``mass, viscous, coulomb, stiffness`` describes that rigid
@@ -23,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import scipy.signal
 
-from clm_sim.errors import UserError
+from clm_sim.errors import UserError, check_ts
 from clm_sim.plant import THETA_NAMES, Plant, default_effects
 from clm_sim.schema import build, load_yaml
 from controllers.pid import PIDDesign, design_pid
@@ -55,17 +59,24 @@ class ModelFile:
 
     name: str = "model"
     description: str = ""
+    ts: float | None = None
     plant: Plant = field(default_factory=Plant)
     controller: LinearController | PIDDesign | None = None
+
+    def __post_init__(self):
+        if self.ts is not None and not self.ts > 0:
+            raise UserError(f"ts: expected a sample time > 0 s, got {self.ts!r}")
 
 
 @dataclass(frozen=True)
 class Controller:
-    """A controller ready for a record: ``b, a`` on the error, ``reference_b`` on the reference."""
+    """A controller ready for a record: ``b, a`` on the error, ``reference_b`` on the reference,
+    running at ``ts`` s (``None``: unknown; ``simulate`` refuses another rate otherwise)."""
 
     b: np.ndarray
     a: np.ndarray
     reference_b: np.ndarray
+    ts: float | None = None
 
     def external_input(self, r: np.ndarray, y: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The part of the measured ``u`` (N) the feedback does not explain (dither, feedforward,
@@ -81,11 +92,13 @@ class Controller:
 
 @dataclass(frozen=True)
 class SimulationModel:
-    """What the simulation believes: ``plant`` and, if known, ``controller`` (else None)."""
+    """What the simulation believes: ``plant``, if known its ``controller`` (else None), and the
+    sample time ``ts`` (s) of the file it came from (None: not given)."""
 
     plant: Plant = field(default_factory=Plant)
     controller: Controller | None = None
     name: str = "default CLM"
+    ts: float | None = None
 
 
 def controller_for(spec, plant: Plant, ts: float, where: str) -> Controller | None:
@@ -93,15 +106,19 @@ def controller_for(spec, plant: Plant, ts: float, where: str) -> Controller | No
     if spec is None:
         return None
     if isinstance(spec, PIDDesign):
+        if ts is None:
+            raise UserError(f"{where}: the controller's PID design needs a sample time; add "
+                            f"'ts:' (s) to the file")
         pid = design_pid(mass=plant.mass, viscous=plant.viscous, stiffness=plant.stiffness,
                          design=spec, ts=ts)
-        return Controller(np.asarray(pid.b, float), np.asarray(pid.a, float), np.zeros(0))
-    if spec.ts is not None and abs(spec.ts / ts - 1) > 1e-3:
-        raise UserError(f"{where}: controller.ts is {spec.ts:g} s but the record is sampled "
-                        f"at {ts:g} s")
+        return Controller(np.asarray(pid.b, float), np.asarray(pid.a, float), np.zeros(0),
+                          pid.ts)
+    if spec.ts is not None and ts is not None:
+        check_ts(spec.ts, ts, f"{where}: controller (ts {spec.ts:g} s in the file)")
     n = max(len(spec.b), len(spec.a))  # the compiled loop takes b and a of equal length
     pad = lambda x: np.concatenate([np.asarray(x, float), np.zeros(n - len(x))])  # noqa: E731
-    return Controller(pad(spec.b), pad(spec.a), np.asarray(spec.reference_b, float))
+    return Controller(pad(spec.b), pad(spec.a), np.asarray(spec.reference_b, float),
+                      spec.ts if spec.ts is not None else ts)
 
 
 def is_model_file(data: dict) -> bool:
@@ -125,31 +142,40 @@ def _explicit_effects(data: dict, path) -> dict:
     return {**data, "plant": {**plant, "effects": effects}}
 
 
-def load_model(path, ts: float) -> SimulationModel:
-    """The simulation's model from a file, its controller (if any) prepared for sample time
-    ``ts``: a model file (``plant:``, optional ``controller:``), a LIP parameter file
-    (``kind: lip``, as ``clm-sim identify`` and ``clm-sim run`` write it; controller unknown)
-    or an experiment config (its plant and PID). Errors name the file and the key."""
+def load_model(path, ts: float | None = None) -> SimulationModel:
+    """The simulation's model from a file: a model file (``plant:``, optional ``controller:``
+    and ``ts``), a LIP parameter file (``kind: lip``, as ``clm-sim identify``, ``clm-sim run``
+    and ``LIPFeedforward.save`` write it; controller unknown) or an experiment config (its plant
+    and PID). The controller runs at the file's sample time; ``ts`` (s) is the one to use when
+    the file gives none (older files; ``clm-sim diagnose`` passes the record's). Errors name
+    the file and the key."""
     path = Path(path)
     data = load_yaml(path)
     if data.get("kind") == "lip":
-        return _lip_model(path, data)
+        return _lip_model(path, data, ts)
     data = _explicit_effects(data, path)
     schema = ModelFile if is_model_file(data) else ExperimentConfig
     try:
         spec = build(schema, data, "config")
     except UserError as exc:
         raise in_file(path, exc) from None
+    # An experiment config always has a ts (default 1e-4 s); only one the file writes counts.
+    own = data.get("ts") if isinstance(data.get("ts"), (int, float)) else None
+    linear = getattr(spec.controller, "ts", None)
+    if own is not None and linear is not None:
+        check_ts(linear, own, f"{path}: controller (ts {linear:g} s)")
+    rate = next((x for x in (own, linear, ts) if x is not None), None)
     try:
-        controller = controller_for(spec.controller, spec.plant, ts, str(path))
+        controller = controller_for(spec.controller, spec.plant, rate, str(path))
     except UserError as exc:  # a design error must still name the file it came from
         message = str(exc)
         raise UserError(message if message.startswith(str(path)) else f"{path}: {message}") \
             from None
-    return SimulationModel(spec.plant, controller, spec.name)
+    return SimulationModel(spec.plant, controller, spec.name,
+                           None if rate is None else float(rate))
 
 
-def _lip_model(path, data: dict) -> SimulationModel:
+def _lip_model(path, data: dict, ts: float | None) -> SimulationModel:
     """An identified LIP as the model: a plant with its mass, friction and stiffness and only
     the effects identified with it, controller unknown."""
     missing = [k for k in THETA_NAMES if k not in data]
@@ -160,4 +186,6 @@ def _lip_model(path, data: dict) -> SimulationModel:
         plant = build(Plant, {**plant, "effects": data.get("effects") or []}, "plant")
     except UserError as exc:
         raise UserError(f"{path}: {exc}") from None
-    return SimulationModel(plant, None, f"LIP from {data.get('source', path)}")
+    own = data.get("ts")
+    rate = float(own) if isinstance(own, (int, float)) else ts
+    return SimulationModel(plant, None, f"LIP from {data.get('source', path)}", rate)

@@ -42,7 +42,8 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
              f"{rec['samples']} samples at {1 / rec['sample_time_s']:g} Hz; encoder step "
              f"{rec['encoder_quantum_m']:.3g} m; fitted where the position path tells the "
              f"direction of motion (four same-way steps around the sample, at least "
-             f"{rec['speed_floor_m_s']:.3g} m/s); parallel low-pass {rec['lowpass_hz']:.4g} Hz "
+             f"{rec['speed_floor_m_s']:.3g} m/s); parallel low-pass "
+             f"{rec['regression_lowpass_hz']:.4g} Hz "
              f"(the encoder's quantization alone makes {rec['quantization_floor_n']:.3g} N "
              f"there). "
              f"Residual RMS {rec['residual_rms_n']:.4g} N.", "", "## Findings", ""]

@@ -210,10 +210,10 @@ def load_sweep(path, *, max_tasks: int | None = None) -> Sweep:
         for value in values:
             try:
                 _check(base, {key: value}, parts)
+            except UserError as exc:  # before ValueError: a UserError is one
+                raise _point_error(path, {key: value}, exc) from None
             except ValueError as exc:
                 raise UserError(f"{path}: sweep.grid.{key}: {exc}") from None
-            except UserError as exc:
-                raise _point_error(path, {key: value}, exc) from None
     version = code_version()
     tasks = []
     for i, combo in enumerate(itertools.product(*grid.values())):
