@@ -25,7 +25,8 @@ Everything is float64; any cast to float32 happens later, in a network.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import ClassVar
 
 import numpy as np
 import scipy.signal
@@ -87,6 +88,35 @@ class FeatureMap:
             raise UserError(f"features: record of {n} samples is too short for "
                             f"edge_samples={self.edge_samples}")
         return slice(self.edge_samples, n - self.edge_samples)
+
+
+@dataclass(frozen=True)
+class TrainingRange:
+    """The motion a training reference covers, as a feature map sees it: the largest |position|
+    (m), |velocity| (m/s) and |acceleration| (m/s²). A sample of another reference lies *beyond*
+    the range where any of the three exceeds it by more than ``MARGIN`` (1 %: two references'
+    sampled extremes of the same move differ in their last digits). The one definition of
+    "beyond the training range" for tables, studies and figures."""
+
+    position_m: float
+    velocity_m_s: float
+    acceleration_m_s2: float
+    MARGIN: ClassVar[float] = 1.01
+
+    @classmethod
+    def of(cls, features: FeatureMap, r: np.ndarray, ts: float) -> TrainingRange:
+        """The range of reference ``r`` (m) sampled at ``ts`` (s)."""
+        return cls(*(float(np.max(np.abs(x))) for x in features.motion(r, ts)))
+
+    def beyond(self, features: FeatureMap, r: np.ndarray, ts: float) -> np.ndarray:
+        """Boolean mask of the samples of ``r`` (m) beyond this range."""
+        y, v, a = features.motion(r, ts)
+        m = self.MARGIN
+        return ((np.abs(y) > m * self.position_m) | (np.abs(v) > m * self.velocity_m_s)
+                | (np.abs(a) > m * self.acceleration_m_s2))
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
 
 
 def motion(y: np.ndarray, ts: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

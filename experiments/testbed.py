@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from clm_sim.errors import UserError
+from clm_sim.features import TrainingRange
 from clm_sim.loop import simulate
 from clm_sim.plant import Plant
 from clm_sim.record import Run
@@ -239,9 +240,7 @@ class Testbed:
         refs = self.config.replay if references is None else references
         models = self.fit_row(spec, run, lip)
         ts, features = self.ts, self.config.features
-        _, v_train, a_train = features.motion(self.reference(self.config.training.reference), ts)
-        y_train = self.reference(self.config.training.reference)
-        limits = [np.max(np.abs(x)) * 1.01 for x in (y_train, v_train, a_train)]
+        inside = TrainingRange.of(features, self.reference(self.config.training.reference), ts)
         metrics, first = [], {}
         for s, model in enumerate(models):
             per_ref = {}
@@ -252,9 +251,7 @@ class Testbed:
                 if spec.kind == "pgnn":
                     r = self.reference(name)
                     _, net = model.predict_parts(y=r, ts=ts)
-                    _, v, a = features.motion(r, ts)
-                    beyond = ((np.abs(r) > limits[0]) | (np.abs(v) > limits[1])
-                              | (np.abs(a) > limits[2]))
+                    beyond = inside.beyond(features, r, ts)
                     per_ref[name]["network_peak_n"] = float(np.max(np.abs(net)))
                     per_ref[name]["network_peak_beyond_n"] = (
                         float(np.max(np.abs(net[beyond]))) if beyond.any() else None)

@@ -104,3 +104,18 @@ def test_a_config_row_can_ask_for_several_hidden_layers(tmp_path):
     path.write_text("feedforwards:\n  - {kind: pgnn, training: sequential, hidden: [8, 0]}\n")
     with pytest.raises(UserError, match="hidden: expected widths >= 1"):
         load_config(path)
+
+
+def test_beyond_the_training_range_is_one_definition(ts):
+    """r1 lies inside its own range; r2 leaves it only where its position passes 101 % of r1's
+    (r2's speed and acceleration limits are r1's)."""
+    from clm_sim.features import FeatureMap, TrainingRange
+
+    cfg, features = ExperimentConfig(), FeatureMap()
+    r1, r2 = (cfg.references[k].sample(ts).r for k in ("r1", "r2"))
+    inside = TrainingRange.of(features, r1, ts)
+    assert inside.position_m == pytest.approx(0.1)
+    assert not inside.beyond(features, r1, ts).any()
+    beyond = inside.beyond(features, r2, ts)
+    np.testing.assert_array_equal(beyond, np.abs(r2) > 1.01 * inside.position_m)
+    assert TrainingRange(**inside.as_dict()) == inside

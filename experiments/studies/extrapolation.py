@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from clm_sim.errors import UserError
+from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
@@ -145,9 +146,9 @@ def _figures(summary, config, lip, refs, models, runs, truth, folder: Path) -> N
     ts = config.ts
     plots.save(plots.theta_figure(summary, models), folder / "theta_training.png")
     plots.save(plots.cost_figure(summary, models), folder / "cost_terms.png")
-    inside = summary["ranges"][summary["inside"]]
+    inside = TrainingRange(**summary["ranges"][summary["inside"]])
     for ref in summary["outside"]:
-        beyond = beyond_range(config.features, refs[ref], ts, inside)
+        beyond = inside.beyond(config.features, refs[ref], ts)
         plots.save(plots.split_figure(summary, models, lip, refs[ref], ts, ref, beyond,
                                       truth[ref]), folder / f"split_{ref}.png")
     shown = ["feedback only", "LIP", "sequential", "lambda=0",
@@ -164,29 +165,15 @@ def _label(key: str) -> str:
     return {"sequential": "PGNN sequential"}.get(key, key.replace("lambda=", "PGNN λ = "))
 
 
-def _ranges(features, r, ts) -> dict[str, float]:
-    y, v, a = features.motion(r, ts)
-    return {"position_m": float(np.max(np.abs(y))), "velocity_m_s": float(np.max(np.abs(v))),
-            "acceleration_m_s2": float(np.max(np.abs(a)))}
-
-
-def beyond_range(features, r, ts, ranges: dict[str, float]) -> np.ndarray:
-    """Samples of reference ``r`` where position, velocity or acceleration exceeds ``ranges``
-    (those of the training reference) by more than 1 %."""
-    y, v, a = features.motion(r, ts)
-    return ((np.abs(y) > 1.01 * ranges["position_m"]) | (np.abs(v) > 1.01 * ranges["velocity_m_s"])
-            | (np.abs(a) > 1.01 * ranges["acceleration_m_s2"]))
-
-
 def _summarize(config, study, lip, refs, models, mae, runs, truth) -> dict:
     ts = config.ts
-    ranges = {r: _ranges(config.features, ref, ts) for r, ref in refs.items()}
+    ranges = {r: TrainingRange.of(config.features, ref, ts) for r, ref in refs.items()}
     variants = {}
     for key, ms in models.items():
         parts = {}
         for r, ref in refs.items():
             phys, net = zip(*(m.predict_parts(y=ref, ts=ts) for m in ms))
-            beyond = beyond_range(config.features, ref, ts, ranges[study.inside])
+            beyond = ranges[study.inside].beyond(config.features, ref, ts)
             net_abs = np.abs(np.array(net))
             parts[r] = {
                 "network_max_abs_n": float(np.mean(net_abs.max(axis=1))),
@@ -215,7 +202,7 @@ def _summarize(config, study, lip, refs, models, mae, runs, truth) -> dict:
                                  for r, v in mae[key].items()}}
     lip_beyond = {}
     for r, ref in refs.items():
-        beyond = beyond_range(config.features, ref, ts, ranges[study.inside])
+        beyond = ranges[study.inside].beyond(config.features, ref, ts)
         if beyond.any():
             lip_beyond[r] = float(np.sqrt(np.mean(
                 (lip.predict(y=ref, ts=ts) - truth[r])[beyond] ** 2)))
@@ -224,7 +211,7 @@ def _summarize(config, study, lip, refs, models, mae, runs, truth) -> dict:
             "hidden": study.hidden, "seeds": study.seeds, "inside": study.inside,
             "outside": list(study.outside),
             "theta_lip": lip.theta_, "lip_residual_rms_n": lip.residual_rms_,
-            "ranges": ranges, "variants": variants}
+            "ranges": {r: v.as_dict() for r, v in ranges.items()}, "variants": variants}
 
 
 def _um(x: float) -> str:

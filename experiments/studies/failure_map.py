@@ -40,6 +40,7 @@ import yaml
 
 from clm_sim.effects import CableSlab, Cogging, Effect, ForceRipple, Stribeck
 from clm_sim.errors import UserError
+from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
@@ -188,8 +189,6 @@ def run_cell(cell: Cell) -> dict:
 
 
 def _cell(cell: Cell) -> dict:
-    from experiments.studies.extrapolation import _ranges, beyond_range
-
     st = cell.settings
     config = replace(cell.config, plant=replace(cell.config.plant,
                                                 effects=st.cases[cell.case]))
@@ -199,19 +198,19 @@ def _cell(cell: Cell) -> dict:
     lip = tb.fit_lip(run)
     names = (st.inside, *st.outside.values())
     refs = {k: tb.reference(k) for k in names}
-    ranges_in = _ranges(config.features, refs[st.inside], ts)
+    inside = TrainingRange.of(config.features, refs[st.inside], ts)
     beyond, truth = {}, {}
     for k, r in refs.items():
         y, v, a = config.features.motion(r, ts)
         truth[k] = tb.machine.inverse_force(y, v, a)  # the simulator's oracle force
-        beyond[k] = beyond_range(config.features, r, ts, ranges_in)
+        beyond[k] = inside.beyond(config.features, r, ts)
 
     def error_beyond(force, k):
         return float(np.sqrt(np.mean((force - truth[k])[beyond[k]] ** 2))) \
             if beyond[k].any() else None
 
     out = {"case": cell.case, "hidden": cell.hidden, "seed": cell.seed,
-           "ranges": ranges_in,
+           "ranges": inside.as_dict(),
            "lip": {"theta": lip.theta_, "mae": {k: tb.replay(lip, k).mae for k in names},
                    "error_beyond_rms_n": {k: error_beyond(lip.predict(y=r, ts=ts), k)
                                           for k, r in refs.items()}}}
