@@ -1,0 +1,341 @@
+"""C99 source of a :class:`~controllers.export.window.WindowFeedforward`: ``clm_ff.h``, ``clm_ff.c``.
+
+Standard C99 and ``<math.h>`` only, no dynamic memory, every weight a ``static const double``,
+no mutable globals (the streaming form keeps its state in a struct the caller owns). The
+feedforward ``double clm_ff(const double *r)`` reads ``r[-CLM_FF_LAG] .. r[CLM_FF_LEAD]`` around
+the sample ``r[0]`` it is called for and returns the held force of that sample (N).
+
+The filtered features of a PGNN are dot products of the window with precomputed kernels (the
+regression filter folded with the central differences, see
+:meth:`WindowFeedforward.velocity_kernel`), taken on ``r[i] - r[0]`` so that the large kernels
+of the differences act on small numbers; the kernels of the two instants the held average needs
+(``k`` and ``k+1``) are interleaved so that one pass computes all eight features and a compiler
+vectorizes it. ``-DCLM_FF_FLOAT`` makes the arithmetic single precision (the weights stay
+decimal literals rounded once to float) for a target without a double-precision FPU.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clm_sim.effects import (
+    CableSlab,
+    Cogging,
+    ForceOffset,
+    ForceRipple,
+    FrictionAsymmetry,
+    Stribeck,
+)
+from clm_sim.errors import UserError
+from controllers.export.window import WindowFeedforward
+
+
+def _num(x: float) -> str:
+    """A double literal that reads back to the same bits, as a ``real`` (float or double)."""
+    text = repr(float(x))
+    if "e" not in text and "." not in text and "inf" not in text and "nan" not in text:
+        text += ".0"
+    return f"R({text})"
+
+
+def _array(values, per_line: int = 4) -> str:
+    vals = [_num(v) for v in np.ravel(values)]
+    lines = [", ".join(vals[i:i + per_line]) for i in range(0, len(vals), per_line)]
+    return "{\n    " + ",\n    ".join(lines) + "\n}"
+
+
+def _matrix(rows) -> str:
+    return "{\n" + ",\n".join("    " + _array(row, 8).replace("\n", "\n    ")
+                              for row in rows) + "\n}"
+
+
+# -- effects as C expressions of y (m), v (m/s) and base (N: the physical force) ---------------
+def _effect_c(e) -> str:
+    if isinstance(e, Cogging):
+        return (f"{_num(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {_num(e.period)} "
+                f"+ {_num(e.phase)})")
+    if isinstance(e, ForceRipple):
+        return (f"-{_num(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {_num(e.period)} "
+                f"+ {_num(e.phase)}) * base")
+    if isinstance(e, CableSlab):
+        horner = _num(e.coefficients[-1])
+        for c in reversed(e.coefficients[:-1]):
+            horner = f"({_num(c)} + (y - {_num(e.center)}) * {horner})"
+        return horner
+    if isinstance(e, Stribeck):
+        return (f"{_num(e.peak)} * SGN(v) * EXP(-POW(FABS(v) / {_num(e.velocity)}, "
+                f"{_num(e.exponent)}))")
+    if isinstance(e, FrictionAsymmetry):
+        return (f"(v > R(0.0) ? {_num(e.coulomb_pos)} + {_num(e.viscous_pos)} * v : "
+                f"(v < R(0.0) ? -{_num(e.coulomb_neg)} + {_num(e.viscous_neg)} * v : R(0.0)))")
+    if isinstance(e, ForceOffset):
+        return _num(e.force_n)
+    raise UserError(f"export: effect {e.type!r} has no C form")
+
+
+_ACT = {
+    "tanh": "TANH(x)",
+    "sigmoid": "R(1.0) / (R(1.0) + EXP(-x))",
+    "softplus": "(x > R(20.0) ? x : LOG1P(EXP(x)))",
+    "silu": "x / (R(1.0) + EXP(-x))",
+    "gelu": "R(0.5) * x * (R(1.0) + ERF(x / SQRT(R(2.0))))",
+    "relu": "(x > R(0.0) ? x : R(0.0))",
+}
+
+_PRELUDE = """\
+#ifdef CLM_FF_FLOAT
+typedef float clm_ff_real;
+#define R(x) ((float)(x))
+#define SIN sinf
+#define EXP expf
+#define POW powf
+#define FABS fabsf
+#define TANH tanhf
+#define LOG1P log1pf
+#define ERF erff
+#define SQRT sqrtf
+#else
+typedef double clm_ff_real;
+#define R(x) (x)
+#define SIN sin
+#define EXP exp
+#define POW pow
+#define FABS fabs
+#define TANH tanh
+#define LOG1P log1p
+#define ERF erf
+#define SQRT sqrt
+#endif
+#define SGN(x) ((clm_ff_real)(((x) > R(0.0)) - ((x) < R(0.0))))
+"""
+
+
+def header(wf: WindowFeedforward) -> str:
+    """``clm_ff.h``: the contract (window, units, model) and the declarations."""
+    desc = wf.describe()
+    wrapped, line = [], ""
+    for word in desc.split(" "):
+        if len(line) + len(word) > 90:
+            wrapped.append(line.rstrip())
+            line = ""
+        line += word + " "
+    wrapped.append(line.rstrip())
+    model = "\n".join(f" *   {w}" for w in wrapped)
+    return f"""\
+/* clm_ff.h -- feedforward exported by clm-sim export-ff (do not edit; re-export instead).
+ *
+ * Contract. Call clm_ff(&r[k]) once per sample k of the reference r (m), sampled every
+ * CLM_FF_TS s. It reads r[k-CLM_FF_LAG] .. r[k+CLM_FF_LEAD] (CLM_FF_LAG + 1 + CLM_FF_LEAD
+ * samples, so the reference must be known CLM_FF_LEAD samples ahead) and returns the force (N)
+ * to hold over sample k, [k*ts, (k+1)*ts): the value clm-sim's replay adds to the feedback at
+ * sample k. Everything the product does is inside: the central differences, the physical
+ * layer, the effects, the regression filter and the network, and the held average
+ * (p[k] + p[k+1])/2 of the forces at the sample instants. Before the first and after the last
+ * sample of a motion, pass the reference held at its ends (the machine at rest).
+ *
+ * No state, no dynamic memory, no mutable globals: reentrant, and safe in any task. Units: r in
+ * m, CLM_FF_TS in s, the result in N. The streaming form (clm_ff_stream_*) keeps the window in
+ * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k].
+ *
+ * Model:
+{model}
+ *
+ * Compile: C99, link -lm. -DCLM_FF_FLOAT computes in single precision (see docs/export.md for
+ * the error that costs).
+ */
+#ifndef CLM_FF_H
+#define CLM_FF_H
+
+#define CLM_FF_TS {wf.ts!r} /* s: sample time */
+#define CLM_FF_LAG {wf.lag} /* samples before k read */
+#define CLM_FF_LEAD {wf.lead} /* samples after k read */
+#define CLM_FF_WINDOW (CLM_FF_LAG + 1 + CLM_FF_LEAD)
+
+#ifdef __cplusplus
+extern "C" {{
+#endif
+
+/* Force (N) to hold over sample k; r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid. */
+double clm_ff(const double *r);
+
+/* Streaming form: state of the caller (one per axis); no allocation. */
+typedef struct {{
+    double buf[2 * CLM_FF_WINDOW]; /* each sample twice: the window is always contiguous */
+    int next;                      /* where the next sample goes, 0 .. CLM_FF_WINDOW-1 */
+}} clm_ff_stream;
+
+/* Fill the window with the rest position r0 (m): the machine at rest before the motion. */
+void clm_ff_stream_init(clm_ff_stream *s, double r0);
+
+/* Push the newest reference sample r[k + CLM_FF_LEAD] (m); returns u_ff[k] (N). */
+double clm_ff_stream_push(clm_ff_stream *s, double r_newest);
+
+#ifdef __cplusplus
+}}
+#endif
+#endif /* CLM_FF_H */
+"""
+
+
+def source(wf: WindowFeedforward) -> str:
+    """``clm_ff.c``: the feedforward, weights as ``static const`` tables."""
+    th = wf.theta
+    effects = "".join(f"    p += {_effect_c(e)};\n" for e in wf.effects)
+    physical = f"""\
+/* Force (N) at the sample instant of r[0]: physical layer and effects. */
+static clm_ff_real physical(const double *r)
+{{
+    const clm_ff_real y = (clm_ff_real)r[0];
+    const clm_ff_real v = (clm_ff_real)((r[1] - r[-1]) / (2.0 * CLM_FF_TS));
+    const clm_ff_real a = (clm_ff_real)((r[1] - 2.0 * r[0] + r[-1]) / (CLM_FF_TS * CLM_FF_TS));
+    clm_ff_real p = {_num(th['mass'])} * a + {_num(th['viscous'])} * v
+        + {_num(th['coulomb'])} * SGN(v) + {_num(th['stiffness'])} * y;
+    const clm_ff_real base = p;
+    (void)base;
+{effects}    return p;
+}}
+"""
+    out = [f"/* clm_ff.c -- generated by clm-sim export-ff; see clm_ff.h for the contract. */\n"
+           f'#include "clm_ff.h"\n#include <math.h>\n\n{_PRELUDE}\n{physical}']
+    if wf.network is None:
+        out.append("""
+double clm_ff(const double *r)
+{
+    return (double)(R(0.5) * (physical(r) + physical(r + 1)));
+}
+""")
+    else:
+        out.append(_network_source(wf))
+    out.append("""
+void clm_ff_stream_init(clm_ff_stream *s, double r0)
+{
+    int i;
+    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
+        s->buf[i] = r0;
+    s->next = 0;
+}
+
+double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
+{
+    s->buf[s->next] = r_newest;
+    s->buf[s->next + CLM_FF_WINDOW] = r_newest;
+    s->next = (s->next + 1) % CLM_FF_WINDOW;
+    /* The oldest sample is at buf[next]; r[k] is CLM_FF_LAG after it. */
+    return clm_ff(&s->buf[s->next + CLM_FF_LAG]);
+}
+""")
+    return "".join(out)
+
+
+def _network_source(wf: WindowFeedforward) -> str:
+    m = wf.half
+    ha, hv, h = wf.acceleration_kernel(), wf.velocity_kernel(), wf.kernel
+    n = 2 * m + 4  # window index i = -(m+1) .. m+2, relative to r[k]
+
+    def placed(kernel, first):  # kernel over i = first .. first+len-1, zero elsewhere
+        out = np.zeros(n)
+        out[first + m + 1:first + m + 1 + len(kernel)] = kernel
+        return out
+
+    # Columns: a(k), a(k+1), v(k), v(k+1), y(k), y(k+1) on d = r[i] - r[k]; sign(k), sign(k+1).
+    lin = np.column_stack([placed(ha, -m - 1), placed(ha, -m), placed(hv, -m - 1),
+                           placed(hv, -m), placed(h, -m), placed(h, -m + 1)])
+    sgn = np.column_stack([placed(h, -m), placed(h, -m + 1)])
+    # The main loop runs over i = -m .. m+1 (where the sign exists); the two ends separately.
+    main = np.column_stack([lin[1:-1], sgn[1:-1]])
+    ends = lin[[0, -1]]
+    hsum = float(np.sum(h))
+    net = wf.network
+    tables = [f"#define HALF {m}\n",
+              f"/* Interleaved kernels over r[k-HALF .. k+HALF+1]: acceleration, velocity and "
+              f"position\n * of the instants k and k+1 (on r[i] - r[k]), then sign of the "
+              f"velocity at k, k+1. */\n"
+              f"static const clm_ff_real KERNEL[2 * HALF + 2][8] = {_matrix(main)};\n",
+              f"/* The same six linear columns at r[k-HALF-1] and r[k+HALF+2]. */\n"
+              f"static const clm_ff_real KERNEL_ENDS[2][6] = {_matrix(ends)};\n",
+              f"static const clm_ff_real KERNEL_SUM = {_num(hsum)}; /* sum of the filter */\n",
+              f"static const clm_ff_real IN_MEAN[4] = {_array(net.input_mean)};\n",
+              f"static const clm_ff_real IN_STD[4] = {_array(net.input_std)};\n"]
+    widths = [4]
+    for li, (w, b) in enumerate(net.layers):
+        tables.append(f"static const clm_ff_real W{li}[{w.shape[0]}][{w.shape[1]}] = "
+                      f"{_matrix(w)};\n")
+        tables.append(f"static const clm_ff_real B{li}[{len(b)}] = {_array(b)};\n")
+        widths.append(w.shape[0])
+    tables.append(f"static const clm_ff_real OUT_W[{len(net.out_w)}] = {_array(net.out_w)};\n")
+    tables.append(f"static const clm_ff_real OUT_B = {_num(net.out_b)};\n")
+    layers = []
+    for li in range(len(net.layers)):
+        a, b = widths[li], widths[li + 1]
+        layers.append(f"""\
+    {{
+        clm_ff_real h{li + 1}[{b}];
+        int o, j;
+        for (o = 0; o < {b}; ++o) {{
+            clm_ff_real x = B{li}[o];
+            for (j = 0; j < {a}; ++j)
+                x += W{li}[o][j] * h{li}[j];
+            h{li + 1}[o] = {_ACT[net.activation]};
+        }}
+""")
+    last = len(net.layers)
+    body = "".join(layers)
+    closing = "    }\n" * len(net.layers)
+    return "\n" + "\n".join(tables) + f"""
+/* Network force (N) of the filtered features f = [a, v, sign v, y]. */
+static clm_ff_real network(const clm_ff_real f[4])
+{{
+    clm_ff_real h0[4];
+    clm_ff_real out = OUT_B;
+    int i;
+    for (i = 0; i < 4; ++i)
+        h0[i] = (f[i] - IN_MEAN[i]) / IN_STD[i];
+{body}        for (i = 0; i < {widths[-1]}; ++i)
+            out += OUT_W[i] * h{last}[i];
+{closing}    return out;
+}}
+
+double clm_ff(const double *r)
+{{
+    const double rk = r[0];
+    /* Eight named accumulators (not an array): they stay in registers, and a compiler pairs
+     * them into vector operations without reordering any sum. */
+    clm_ff_real acc[8];
+    clm_ff_real c0 = R(0.0), c1 = R(0.0), c2 = R(0.0), c3 = R(0.0);
+    clm_ff_real c4 = R(0.0), c5 = R(0.0), c6 = R(0.0), c7 = R(0.0);
+    clm_ff_real f0[4], f1[4];
+    int i, j;
+    for (i = 0; i < 2 * HALF + 2; ++i) {{
+        const double *q = r + i - HALF;
+        const clm_ff_real d = (clm_ff_real)(q[0] - rk);
+        const double dq = q[1] - q[-1];
+        /* a branch, not arithmetic: the sign of the velocity rarely changes along a window */
+        const clm_ff_real s = dq > 0.0 ? R(1.0) : (dq < 0.0 ? R(-1.0) : R(0.0));
+        const clm_ff_real *k = KERNEL[i];
+        c0 += k[0] * d; c1 += k[1] * d; c2 += k[2] * d; c3 += k[3] * d;
+        c4 += k[4] * d; c5 += k[5] * d; c6 += k[6] * s; c7 += k[7] * s;
+    }}
+    acc[0] = c0; acc[1] = c1; acc[2] = c2; acc[3] = c3;
+    acc[4] = c4; acc[5] = c5; acc[6] = c6; acc[7] = c7;
+    {{
+        const clm_ff_real d0 = (clm_ff_real)(r[-HALF - 1] - rk);
+        const clm_ff_real d1 = (clm_ff_real)(r[HALF + 2] - rk);
+        for (j = 0; j < 6; ++j)
+            acc[j] += KERNEL_ENDS[0][j] * d0 + KERNEL_ENDS[1][j] * d1;
+    }}
+    f0[0] = acc[0]; f0[1] = acc[2]; f0[2] = acc[6]; f0[3] = acc[4] + KERNEL_SUM * (clm_ff_real)rk;
+    f1[0] = acc[1]; f1[1] = acc[3]; f1[2] = acc[7]; f1[3] = acc[5] + KERNEL_SUM * (clm_ff_real)rk;
+    return (double)(R(0.5) * ((physical(r) + network(f0)) + (physical(r + 1) + network(f1))));
+}}
+"""
+
+
+def write(wf: WindowFeedforward, folder) -> list:
+    """Write ``clm_ff.h`` and ``clm_ff.c`` into ``folder``; returns the paths."""
+    from pathlib import Path
+
+    folder = Path(folder)
+    paths = [folder / "clm_ff.h", folder / "clm_ff.c"]
+    paths[0].write_text(header(wf))
+    paths[1].write_text(source(wf))
+    return paths
