@@ -92,4 +92,22 @@ class LIPFeedforward:
         self._check_fitted()
         return {"kind": "lip", **self.theta_, "std": self.std_, "coefficients": self.coef_,
                 "residual_rms_n": self.residual_rms_,
-                "effects": [e.as_config() for e in self.effects_]}
+                "effects": [e.as_config() for e in self.effects_], "ts": self.ts_,
+                "features": {k: getattr(self.features, k) for k in (
+                    "regression_lowpass_hz", "position_lowpass_hz", "lowpass_order",
+                    "edge_samples")}}
+
+    @classmethod
+    def fitted(cls, *, theta: dict[str, float], effects: tuple[Effect, ...] = (),
+               features: FeatureMap | None = None, ts: float | None = None) -> "LIPFeedforward":
+        """A LIP with given parameters (a file's ``theta`` in SI units and fitted ``effects``),
+        usable for ``predict`` and ``feedforward`` as if fitted; no fit statistics."""
+        missing = [k for k in THETA_NAMES if k not in theta]
+        if missing:
+            raise UserError(f"lip: parameters missing: {', '.join(missing)}")
+        lip = cls(features=features or FeatureMap(), effects=tuple(effects))
+        lip.theta_ = {k: float(theta[k]) for k in THETA_NAMES}
+        lip.effects_ = tuple(effects)
+        if ts is not None:
+            lip.ts_ = float(ts)
+        return lip
