@@ -11,6 +11,7 @@ folder appears whole or not at all and holds ``export.json`` (what was exported,
 from __future__ import annotations
 
 import json
+import pickle
 from pathlib import Path
 
 import yaml
@@ -99,7 +100,10 @@ def _pgnn(path: Path, ts: float | None) -> WindowFeedforward:
     for need in (stem.with_suffix(".pt"), stem.with_suffix(".json")):
         if not need.is_file():
             raise UserError(f"{path}: a PGNN needs {need.name} beside it")
-    model = PGNNFeedforward.load(stem)
+    try:
+        model = PGNNFeedforward.load(stem)
+    except pickle.UnpicklingError as exc:  # a foreign .pt (load names only the errors it expects)
+        raise UserError(f"{path}: cannot read PGNN model ({str(exc).splitlines()[0]})") from None
     data = _read_json(stem.with_suffix(".json"))
     return from_pgnn(model, _sample_time(path, data.get("ts"), ts), str(stem.with_suffix(".pt")))
 

@@ -195,9 +195,11 @@ class WindowFeedforward:
         padded = np.concatenate([np.full(self.lag, r[0]), r, np.full(self.lead, r[-1])])
         return np.lib.stride_tricks.sliding_window_view(padded, self.width)
 
-    def apply(self, r: np.ndarray) -> np.ndarray:
-        """``u_ff`` (N) per sample of a record ``r`` (m), held at its ends."""
-        return self(self.windows(r))
+    def apply(self, r: np.ndarray, chunk: int = 2048) -> np.ndarray:
+        """``u_ff`` (N) per sample of a record ``r`` (m), held at its ends (``chunk`` windows
+        at a time: a PGNN's windows of a long record would not fit in memory at once)."""
+        w = self.windows(r)
+        return np.concatenate([self(w[i:i + chunk]) for i in range(0, len(w), chunk)])
 
     def describe(self) -> str:
         """One paragraph on the model (for the C header and the ONNX doc string)."""
