@@ -123,6 +123,9 @@ def header(wf: WindowFeedforward) -> str:
         line += word + " "
     wrapped.append(line.rstrip())
     model = "\n".join(f" *   {w}" for w in wrapped)
+    nsec = 1
+    if wf.network is not None and wf.filter.get("cutoff_hz"):
+        nsec = len(wf.forward_filter()[0])
     return f"""\
 /* clm_ff.h -- feedforward exported by clm-sim export-ff (do not edit; re-export instead).
  *
@@ -137,7 +140,10 @@ def header(wf: WindowFeedforward) -> str:
  *
  * No state, no dynamic memory, no mutable globals: reentrant, and safe in any task. Units: r in
  * m, CLM_FF_TS in s, the result in N. The streaming form (clm_ff_stream_*) keeps the window in
- * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k].
+ * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k]. For a
+ * PGNN it also keeps the forward half of the feature filter as a recursion and the force at
+ * k+1 for the next call, which makes it several times faster than clm_ff; it equals clm_ff to
+ * rounding once the window has been filled from rest (clm_ff_stream_init).
  *
  * Model:
 {model}
@@ -152,6 +158,8 @@ def header(wf: WindowFeedforward) -> str:
 #define CLM_FF_LAG {wf.lag} /* samples before k read */
 #define CLM_FF_LEAD {wf.lead} /* samples after k read */
 #define CLM_FF_WINDOW (CLM_FF_LAG + 1 + CLM_FF_LEAD)
+#define CLM_FF_HALF {wf.half} /* half-length of the network's feature filter (0: none) */
+#define CLM_FF_NSEC {nsec} /* second-order sections of that filter (state of the stream) */
 
 #ifdef __cplusplus
 extern "C" {{
@@ -164,6 +172,12 @@ double clm_ff(const double *r);
 typedef struct {{
     double buf[2 * CLM_FF_WINDOW]; /* each sample twice: the window is always contiguous */
     int next;                      /* where the next sample goes, 0 .. CLM_FF_WINDOW-1 */
+    /* PGNN: the forward half of the feature filter run recursively (exact), its last
+     * CLM_FF_HALF + 1 outputs (twice, contiguous), and the force at the next instant. */
+    double zf[4][CLM_FF_NSEC][2];
+    double fwd[2 * (CLM_FF_HALF + 1)][4];
+    int fnext;
+    double p_next;
 }} clm_ff_stream;
 
 /* Fill the window with the rest position r0 (m): the machine at rest before the motion. */
@@ -208,7 +222,14 @@ double clm_ff(const double *r)
 """)
     else:
         out.append(_network_source(wf))
-    out.append("""
+    if wf.network is not None and wf.filter.get("cutoff_hz"):
+        out.append(_fast_stream(wf))
+    else:
+        out.append(_GENERIC_STREAM)
+    return "".join(out)
+
+
+_GENERIC_STREAM = """
 void clm_ff_stream_init(clm_ff_stream *s, double r0)
 {
     int i;
@@ -225,8 +246,99 @@ double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
     /* The oldest sample is at buf[next]; r[k] is CLM_FF_LAG after it. */
     return clm_ff(&s->buf[s->next + CLM_FF_LAG]);
 }
-""")
-    return "".join(out)
+"""
+
+
+def _fast_stream(wf: WindowFeedforward) -> str:
+    """The PGNN's streaming form: forward sections recursively, backward half as an FIR."""
+    sos, zi, g = wf.forward_filter()
+    return f"""
+static const double SOS[CLM_FF_NSEC][6] = {_matrix(sos)};
+static const double SOS_ZI[CLM_FF_NSEC][2] = {_matrix(zi)};
+/* Causal impulse response of the sections, run backwards over the next HALF samples. */
+static const clm_ff_real BACK[HALF + 1] = {_array(g)};
+
+/* Push raw features x[4] = [a, v, sign v, y] of the newest instant through the sections. */
+static void forward(clm_ff_stream *s, const double x[4])
+{{
+    int c, j;
+    for (c = 0; c < 4; ++c) {{
+        double xc = x[c];
+        for (j = 0; j < CLM_FF_NSEC; ++j) {{ /* transposed direct form II, as scipy's sosfilt */
+            const double y = SOS[j][0] * xc + s->zf[c][j][0];
+            s->zf[c][j][0] = SOS[j][1] * xc - SOS[j][4] * y + s->zf[c][j][1];
+            s->zf[c][j][1] = SOS[j][2] * xc - SOS[j][5] * y;
+            xc = y;
+        }}
+        s->fwd[s->fnext][c] = xc;
+        s->fwd[s->fnext + HALF + 1][c] = xc;
+    }}
+    s->fnext = (s->fnext + 1) % (HALF + 1);
+}}
+
+/* Force at the oldest instant of the forward outputs held (physical part at r). */
+static double stream_point(const clm_ff_stream *s, const double *r)
+{{
+    const double (*w)[4] = s->fwd + s->fnext;
+    clm_ff_real a0 = R(0.0), v0 = R(0.0), s0 = R(0.0), y0 = R(0.0);
+    clm_ff_real a1 = R(0.0), v1 = R(0.0), s1 = R(0.0), y1 = R(0.0);
+    clm_ff_real f[4];
+    int i;
+    for (i = 0; i + 1 <= HALF; i += 2) {{ /* two chains per feature: the additions overlap */
+        const clm_ff_real g0 = BACK[i], g1 = BACK[i + 1];
+        a0 += g0 * (clm_ff_real)w[i][0]; v0 += g0 * (clm_ff_real)w[i][1];
+        s0 += g0 * (clm_ff_real)w[i][2]; y0 += g0 * (clm_ff_real)w[i][3];
+        a1 += g1 * (clm_ff_real)w[i + 1][0]; v1 += g1 * (clm_ff_real)w[i + 1][1];
+        s1 += g1 * (clm_ff_real)w[i + 1][2]; y1 += g1 * (clm_ff_real)w[i + 1][3];
+    }}
+    for (; i <= HALF; ++i) {{
+        a0 += BACK[i] * (clm_ff_real)w[i][0]; v0 += BACK[i] * (clm_ff_real)w[i][1];
+        s0 += BACK[i] * (clm_ff_real)w[i][2]; y0 += BACK[i] * (clm_ff_real)w[i][3];
+    }}
+    f[0] = a0 + a1; f[1] = v0 + v1; f[2] = s0 + s1; f[3] = y0 + y1;
+    return (double)(physical(r) + network(f));
+}}
+
+void clm_ff_stream_init(clm_ff_stream *s, double r0)
+{{
+    int i, j, c;
+    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
+        s->buf[i] = r0;
+    s->next = 0;
+    /* at rest: a = v = sign v = 0, y = r0; the sections in their steady state */
+    for (c = 0; c < 4; ++c)
+        for (j = 0; j < CLM_FF_NSEC; ++j) {{
+            s->zf[c][j][0] = c == 3 ? SOS_ZI[j][0] * r0 : 0.0;
+            s->zf[c][j][1] = c == 3 ? SOS_ZI[j][1] * r0 : 0.0;
+        }}
+    for (i = 0; i < 2 * (HALF + 1); ++i) {{
+        s->fwd[i][0] = s->fwd[i][1] = s->fwd[i][2] = 0.0;
+        s->fwd[i][3] = r0;
+    }}
+    s->fnext = 0;
+    s->p_next = stream_point(s, &s->buf[CLM_FF_LAG + 1]);
+}}
+
+double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
+{{
+    const double *r, *n;
+    double x[4], p, u;
+    s->buf[s->next] = r_newest;
+    s->buf[s->next + CLM_FF_WINDOW] = r_newest;
+    s->next = (s->next + 1) % CLM_FF_WINDOW;
+    r = &s->buf[s->next + CLM_FF_LAG];   /* r[k] */
+    n = r + CLM_FF_LAG;                  /* r[k + HALF + 1]: the newest instant with differences */
+    x[1] = (n[1] - n[-1]) / (2.0 * CLM_FF_TS);
+    x[0] = (n[1] - 2.0 * n[0] + n[-1]) / (CLM_FF_TS * CLM_FF_TS);
+    x[2] = x[1] > 0.0 ? 1.0 : (x[1] < 0.0 ? -1.0 : 0.0);
+    x[3] = n[0];
+    forward(s, x);                       /* forward outputs now cover k+1 .. k+HALF+1 */
+    p = stream_point(s, r + 1);          /* force at k+1 */
+    u = 0.5 * (s->p_next + p);
+    s->p_next = p;
+    return u;
+}}
+"""
 
 
 def _network_source(wf: WindowFeedforward) -> str:

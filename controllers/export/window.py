@@ -160,6 +160,20 @@ class WindowFeedforward:
         h = np.pad(self.kernel, 2)
         return (h[2:] - 2.0 * h[1:-1] + h[:-2]) / (self.ts * self.ts)
 
+    def forward_filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The causal half of the zero-phase filter: second-order sections ``sos`` (as scipy),
+        their steady state per unit input ``zi``, and the causal impulse response ``g[0..M]``
+        (``kernel`` is the autocorrelation of the untruncated ``g``). A streaming form runs the
+        sections forwards on the features as they come (exact, with state) and ``g`` backwards
+        as an FIR over the next ``M`` samples."""
+        if self.network is None or not self.filter.get("cutoff_hz"):
+            raise ValueError("no zero-phase filter in this feedforward")
+        sos = scipy.signal.butter(self.filter["order"], self.filter["cutoff_hz"],
+                                  fs=1.0 / self.ts, output="sos")
+        impulse = np.zeros(self.half + 1)
+        impulse[0] = 1.0
+        return sos, scipy.signal.sosfilt_zi(sos), scipy.signal.sosfilt(sos, impulse)
+
     def point_force(self, w: np.ndarray) -> np.ndarray:
         """``p[j]`` (N) from windows ``w`` (B, 2M+3) = ``r[j-M-1 .. j+M+1]`` (m)."""
         m, ts, th = self.half, self.ts, self.theta
