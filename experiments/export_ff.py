@@ -64,10 +64,10 @@ def _read_json(path: Path) -> dict:
     return data
 
 
-def _effects(items, path: Path) -> tuple:
+def _effects(items) -> tuple:
     if not isinstance(items, list):
-        raise UserError(f"{path}: effects: expected a list")
-    return tuple(build_effect(e, f"{path}: effects[{i}]") for i, e in enumerate(items))
+        raise UserError("effects: expected a list")
+    return tuple(build_effect(e, f"effects[{i}]") for i, e in enumerate(items))
 
 
 def _lip(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
@@ -76,7 +76,7 @@ def _lip(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
     try:
         features = FeatureMap(**{k: features[k] for k in ("position_lowpass_hz",)
                                  if k in features})
-        lip = LIPFeedforward.fitted(theta=data, effects=_effects(data.get("effects") or [], path),
+        lip = LIPFeedforward.fitted(theta=data, effects=_effects(data.get("effects") or []),
                                     features=features)
     except (UserError, TypeError, ValueError) as exc:
         raise UserError(f"{path}: {exc}") from None
@@ -87,7 +87,7 @@ def _diagnosis(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
     model = data["extended_model"]
     stored = (data.get("record") or {}).get("sample_time_s")
     try:
-        lip = LIPFeedforward.fitted(theta=model, effects=_effects(model.get("effects") or [], path))
+        lip = LIPFeedforward.fitted(theta=model, effects=_effects(model.get("effects") or []))
     except (UserError, TypeError, ValueError) as exc:
         raise UserError(f"{path}: extended_model: {exc}") from None
     return from_lip(lip, _sample_time(path, stored, ts), f"{path} (extended model)")
@@ -111,6 +111,14 @@ def _pgnn(path: Path, ts: float | None) -> WindowFeedforward:
 def load_feedforward(path, ts: float | None = None) -> WindowFeedforward:
     """The window form of the feedforward saved at ``path`` (see the module docstring)."""
     path = Path(path)
+    try:
+        return _load(path, ts)
+    except UserError as exc:  # every message names the file
+        message = str(exc)
+        raise UserError(message if str(path) in message else f"{path}: {message}") from None
+
+
+def _load(path: Path, ts: float | None) -> WindowFeedforward:
     if not path.is_file():
         raise UserError(f"{path}: no such model file")
     if path.suffix == ".pt":
