@@ -338,3 +338,45 @@ def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, ca
 def test_export_refuses_unknown_target_before_reading(tmp_path):
     with pytest.raises(UserError, match="--to"):
         export(tmp_path / "nope.json", "matlab", tmp_path / "out")
+
+
+# -- other networks: widths, activations, no feature filter -------------------------------------
+VARIANTS = {"sigmoid_2_layers": ("sigmoid", (6, 5), 250.0), "softplus": ("softplus", (8,), 250.0),
+            "gelu": ("gelu", (8,), 250.0), "silu_unfiltered": ("silu", (8,), None),
+            "relu_400hz": ("relu", (8,), 400.0)}
+
+
+@pytest.fixture(scope="session")
+def training_run(testbed):
+    return testbed.training_run()
+
+
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_network_variants_export(variant, training_run, fitted, tmp_path):
+    """Any widths and activations, and a PGNN without the feature filter: the C (stateless and
+    streaming) and, where the activation has an ONNX form, ONNX Runtime equal the product."""
+    from clm_sim.features import FeatureMap
+    from controllers.pgnn import PGNNFeedforward
+    activation, hidden, cutoff = VARIANTS[variant]
+    model = PGNNFeedforward(hidden=hidden, activation=activation, max_iter=3,
+                            features=FeatureMap(regression_lowpass_hz=cutoff)).fit(
+        y=training_run.y, u=training_run.u, ts=TS, theta_lip=fitted["lip"].theta_,
+        rng=np.random.default_rng(5))
+    wf = from_pgnn(model, TS, variant)
+    r = random_reference(11)
+    want = model.feedforward(r, TS)
+    if compiler() is not None:
+        c_source.write(wf, tmp_path)
+        c = CompiledFeedforward(tmp_path)
+        k = np.arange(0, len(r), 101)
+        assert _rel(c(wf.windows(r)[k]), want[k]) < REL
+        assert _rel(c.stream(r), want) < REL
+    pytest.importorskip("onnx")
+    from controllers.export import onnx_graph
+    if activation in ("softplus", "gelu"):
+        with pytest.raises(UserError, match="ONNX"):
+            onnx_graph.model(wf)
+        return
+    onnx_graph.write(wf, tmp_path)
+    session, meta = _onnx_session(tmp_path / "clm_ff.onnx")
+    assert _rel(_onnx_apply(session, meta, r, 11), want[::11]) < REL

@@ -1,4 +1,4 @@
-"""C99 source of a :class:`~controllers.export.window.WindowFeedforward`: ``clm_ff.h``, ``clm_ff.c``.
+"""C99 source of a :class:`~controllers.export.window.WindowFeedforward`: clm_ff.h, clm_ff.c.
 
 Standard C99 and ``<math.h>`` only, no dynamic memory, every weight a ``static const double``,
 no mutable globals (the streaming form keeps its state in a struct the caller owns). The
@@ -250,11 +250,13 @@ double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
 
 
 def _fast_stream(wf: WindowFeedforward) -> str:
-    """The PGNN's streaming form: forward sections recursively, backward half as an FIR."""
+    """The PGNN's streaming form: forward sections recursively, backward half as an FIR. The
+    sections and their state stay in double whatever ``clm_ff_real`` is (a recursion is where
+    single precision would accumulate)."""
     sos, zi, g = wf.forward_filter()
     return f"""
-static const double SOS[CLM_FF_NSEC][6] = {_matrix(sos)};
-static const double SOS_ZI[CLM_FF_NSEC][2] = {_matrix(zi)};
+static const double SOS[CLM_FF_NSEC][6] = {_matrix(sos).replace("R(", "(")};
+static const double SOS_ZI[CLM_FF_NSEC][2] = {_matrix(zi).replace("R(", "(")};
 /* Causal impulse response of the sections, run backwards over the next HALF samples. */
 static const clm_ff_real BACK[HALF + 1] = {_array(g)};
 
@@ -341,6 +343,27 @@ double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
 """
 
 
+_RAW_FEATURES = """
+/* Raw features [a, v, sign v, y] at the instant of r[0], differenced as the product does. */
+static void raw_features(const double *r, clm_ff_real f[4])
+{
+    const double v = (r[1] - r[-1]) / (2.0 * CLM_FF_TS);
+    f[0] = (clm_ff_real)((r[1] - 2.0 * r[0] + r[-1]) / (CLM_FF_TS * CLM_FF_TS));
+    f[1] = (clm_ff_real)v;
+    f[2] = v > 0.0 ? R(1.0) : (v < 0.0 ? R(-1.0) : R(0.0));
+    f[3] = (clm_ff_real)r[0];
+}
+
+double clm_ff(const double *r)
+{
+    clm_ff_real f0[4], f1[4];
+    raw_features(r, f0);
+    raw_features(r + 1, f1);
+    return (double)(R(0.5) * ((physical(r) + network(f0)) + (physical(r + 1) + network(f1))));
+}
+"""
+
+
 def _network_source(wf: WindowFeedforward) -> str:
     m = wf.half
     ha, hv, h = wf.acceleration_kernel(), wf.velocity_kernel(), wf.kernel
@@ -360,16 +383,18 @@ def _network_source(wf: WindowFeedforward) -> str:
     ends = lin[[0, -1]]
     hsum = float(np.sum(h))
     net = wf.network
-    tables = [f"#define HALF {m}\n",
+    tables = [f"#define HALF {m}\n"]
+    if m > 0:
+        tables += [
               f"/* Interleaved kernels over r[k-HALF .. k+HALF+1]: acceleration, velocity and "
               f"position\n * of the instants k and k+1 (on r[i] - r[k]), then sign of the "
               f"velocity at k, k+1. */\n"
               f"static const clm_ff_real KERNEL[2 * HALF + 2][8] = {_matrix(main)};\n",
               f"/* The same six linear columns at r[k-HALF-1] and r[k+HALF+2]. */\n"
               f"static const clm_ff_real KERNEL_ENDS[2][6] = {_matrix(ends)};\n",
-              f"static const clm_ff_real KERNEL_SUM = {_num(hsum)}; /* sum of the filter */\n",
-              f"static const clm_ff_real IN_MEAN[4] = {_array(net.input_mean)};\n",
-              f"static const clm_ff_real IN_STD[4] = {_array(net.input_std)};\n"]
+              f"static const clm_ff_real KERNEL_SUM = {_num(hsum)}; /* sum of the filter */\n"]
+    tables += [f"static const clm_ff_real IN_MEAN[4] = {_array(net.input_mean)};\n",
+               f"static const clm_ff_real IN_STD[4] = {_array(net.input_std)};\n"]
     widths = [4]
     for li, (w, b) in enumerate(net.layers):
         tables.append(f"static const clm_ff_real W{li}[{w.shape[0]}][{w.shape[1]}] = "
@@ -395,8 +420,8 @@ def _network_source(wf: WindowFeedforward) -> str:
     last = len(net.layers)
     body = "".join(layers)
     closing = "    }\n" * len(net.layers)
-    return "\n" + "\n".join(tables) + f"""
-/* Network force (N) of the filtered features f = [a, v, sign v, y]. */
+    network = "\n" + "\n".join(tables) + f"""
+/* Network force (N) of the (filtered) features f = [a, v, sign v, y]. */
 static clm_ff_real network(const clm_ff_real f[4])
 {{
     clm_ff_real h0[4];
@@ -408,7 +433,10 @@ static clm_ff_real network(const clm_ff_real f[4])
             out += OUT_W[i] * h{last}[i];
 {closing}    return out;
 }}
-
+"""
+    if m == 0:
+        return network + _RAW_FEATURES
+    return network + f"""
 double clm_ff(const double *r)
 {{
     const double rk = r[0];

@@ -9,8 +9,9 @@ differences ``v[j] = (r[j+1] - r[j-1])/(2 ts)``, ``a[j] = (r[j+1] - 2 r[j] + r[j
   the zero-phase Butterworth of the regression (``sosfiltfilt``). That filter is an IIR run
   forwards and backwards, so ``p[j]`` depends on the whole record. Its impulse response decays
   geometrically; :func:`filtfilt_kernel` cuts it where the discarded tail is below ``tol``
-  (default 1e-15 of its sum), so the window form is the exact FIR equivalent to that tolerance:
-  lag ``M + 2``... see :attr:`WindowFeedforward.lag`. On a record the Python filter also has ends
+  (default 1e-15 of its sum), so the window form is the exact FIR equivalent to that tolerance,
+  ``h[-M..M]``: lag ``M + 1``, lead ``M + 2`` (569 + 1 and + 2 for the default 250 Hz, order 4, at
+  10 kHz). On a record the Python filter also has ends
   (odd padding, steady-state start); where the reference rests at both ends longer than the
   window, clamping the reference at its ends (:meth:`WindowFeedforward.apply`) gives the same
   values there too.
@@ -35,7 +36,8 @@ ACTIVATIONS = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
 DEFAULT_TOL = 1e-15
 
 
-def filtfilt_kernel(order: int, cutoff_hz: float, ts: float, tol: float = DEFAULT_TOL) -> np.ndarray:
+def filtfilt_kernel(order: int, cutoff_hz: float, ts: float,
+                    tol: float = DEFAULT_TOL) -> np.ndarray:
     """Impulse response ``h[-M..M]`` (length ``2M+1``, symmetric) of ``sosfiltfilt`` with the
     Butterworth low-pass of ``order`` and ``cutoff_hz`` at sample time ``ts`` (s) on an infinite
     record, cut where the discarded tail sums to less than ``tol`` times ``sum |h|``."""
@@ -187,6 +189,8 @@ class WindowFeedforward:
             p = p + e.force(r0, v, base)
         if self.network is None:
             return p
+        if m == 0:  # no feature filter: the network sees the raw features, differenced as above
+            return p + self.network(np.column_stack([a, v, np.sign(v), r0]))
         d = w - r0[:, None]
         s = np.sign(w[:, 2:] - w[:, :-2])
         f = np.column_stack([d @ self.acceleration_kernel(),
@@ -223,7 +227,11 @@ class WindowFeedforward:
             text += "; effects: " + "; ".join(
                 e.type + " " + ", ".join(f"{k} {v}" for k, v in e.parameters().items())
                 for e in self.effects)
-        if self.network is not None:
+        if self.network is not None and not self.filter.get("cutoff_hz"):
+            widths = ",".join(str(len(b)) for _, b in self.network.layers)
+            text += (f"; network: hidden ({widths}) {self.network.activation} on the unfiltered "
+                     f"features [a, v, sign v, y]")
+        elif self.network is not None:
             widths = ",".join(str(len(b)) for _, b in self.network.layers)
             text += (f"; network: hidden ({widths}) {self.network.activation} on the features "
                      f"[a, v, sign v, y] filtered by a {self.filter['order']}th-order zero-phase "
