@@ -5,12 +5,11 @@ no mutable globals (the streaming form keeps its state in a struct the caller ow
 feedforward ``double clm_ff(const double *r)`` reads ``r[-CLM_FF_LAG] .. r[CLM_FF_LEAD]`` around
 the sample ``r[0]`` it is called for and returns the held force of that sample (N).
 
-The filtered features of a PGNN are dot products of the window with precomputed kernels (the
-regression filter folded with the central differences, see
-:meth:`WindowFeedforward.velocity_kernel`), taken on ``r[i] - r[0]`` so that the large kernels
-of the differences act on small numbers; the kernels of the two instants the held average needs
-(``k`` and ``k+1``) are interleaved so that one pass computes all eight features and a compiler
-vectorizes it. ``-DCLM_FF_FLOAT`` makes the arithmetic single precision (the weights stay
+The filtered features of a PGNN: ``clm_ff`` differences the window in the product's order and
+applies the filter's FIR at the two instants the held average needs (``k`` and ``k+1``) in one
+pass of eight accumulators, which a compiler vectorizes. The streaming form runs the forward half
+of the filter as its recursion and only the backward half as an FIR, and keeps ``p[k+1]`` for the
+next call (several times faster). ``-DCLM_FF_FLOAT`` makes the arithmetic single precision (the weights stay
 decimal literals rounded once to float) for a target without a double-precision FPU.
 """
 
@@ -366,33 +365,20 @@ double clm_ff(const double *r)
 
 def _network_source(wf: WindowFeedforward) -> str:
     m = wf.half
-    ha, hv, h = wf.acceleration_kernel(), wf.velocity_kernel(), wf.kernel
-    n = 2 * m + 4  # window index i = -(m+1) .. m+2, relative to r[k]
-
-    def placed(kernel, first):  # kernel over i = first .. first+len-1, zero elsewhere
-        out = np.zeros(n)
-        out[first + m + 1:first + m + 1 + len(kernel)] = kernel
-        return out
-
-    # Columns: a(k), a(k+1), v(k), v(k+1), y(k), y(k+1) on d = r[i] - r[k]; sign(k), sign(k+1).
-    lin = np.column_stack([placed(ha, -m - 1), placed(ha, -m), placed(hv, -m - 1),
-                           placed(hv, -m), placed(h, -m), placed(h, -m + 1)])
-    sgn = np.column_stack([placed(h, -m), placed(h, -m + 1)])
-    # The main loop runs over i = -m .. m+1 (where the sign exists); the two ends separately.
-    main = np.column_stack([lin[1:-1], sgn[1:-1]])
-    ends = lin[[0, -1]]
-    hsum = float(np.sum(h))
+    h = wf.kernel
+    # The filter at the instants k (column 0) and k+1 (column 1) over i = -m .. m+1.
+    both = np.zeros((2 * m + 2, 2))
+    both[:-1, 0] = h
+    both[1:, 1] = h
     net = wf.network
     tables = [f"#define HALF {m}\n"]
     if m > 0:
         tables += [
-              f"/* Interleaved kernels over r[k-HALF .. k+HALF+1]: acceleration, velocity and "
-              f"position\n * of the instants k and k+1 (on r[i] - r[k]), then sign of the "
-              f"velocity at k, k+1. */\n"
-              f"static const clm_ff_real KERNEL[2 * HALF + 2][8] = {_matrix(main)};\n",
-              f"/* The same six linear columns at r[k-HALF-1] and r[k+HALF+2]. */\n"
-              f"static const clm_ff_real KERNEL_ENDS[2][6] = {_matrix(ends)};\n",
-              f"static const clm_ff_real KERNEL_SUM = {_num(hsum)}; /* sum of the filter */\n"]
+              "static const double INV_TS2 = 1.0 / (CLM_FF_TS * CLM_FF_TS);\n"
+              "static const double INV_2TS = 1.0 / (2.0 * CLM_FF_TS);\n",
+              f"/* The feature filter's FIR at the instants k and k+1, over the features at "
+              f"r[k-HALF .. k+HALF+1]. */\n"
+              f"static const clm_ff_real KERNEL[2 * HALF + 2][2] = {_matrix(both)};\n"]
     tables += [f"static const clm_ff_real IN_MEAN[4] = {_array(net.input_mean)};\n",
                f"static const clm_ff_real IN_STD[4] = {_array(net.input_std)};\n"]
     widths = [4]
@@ -439,34 +425,28 @@ static clm_ff_real network(const clm_ff_real f[4])
     return network + f"""
 double clm_ff(const double *r)
 {{
-    const double rk = r[0];
     /* Eight named accumulators (not an array): they stay in registers, and a compiler pairs
      * them into vector operations without reordering any sum. */
-    clm_ff_real acc[8];
     clm_ff_real c0 = R(0.0), c1 = R(0.0), c2 = R(0.0), c3 = R(0.0);
     clm_ff_real c4 = R(0.0), c5 = R(0.0), c6 = R(0.0), c7 = R(0.0);
     clm_ff_real f0[4], f1[4];
-    int i, j;
+    int i;
     for (i = 0; i < 2 * HALF + 2; ++i) {{
+        /* the features at one instant, differenced in the product's order (the constant
+         * factors as multiplications: within one rounding of the product's divisions) */
         const double *q = r + i - HALF;
-        const clm_ff_real d = (clm_ff_real)(q[0] - rk);
-        const double dq = q[1] - q[-1];
+        const double dv = q[1] - q[-1];
+        const clm_ff_real a = (clm_ff_real)((q[1] - 2.0 * q[0] + q[-1]) * INV_TS2);
+        const clm_ff_real v = (clm_ff_real)(dv * INV_2TS);
         /* a branch, not arithmetic: the sign of the velocity rarely changes along a window */
-        const clm_ff_real s = dq > 0.0 ? R(1.0) : (dq < 0.0 ? R(-1.0) : R(0.0));
-        const clm_ff_real *k = KERNEL[i];
-        c0 += k[0] * d; c1 += k[1] * d; c2 += k[2] * d; c3 += k[3] * d;
-        c4 += k[4] * d; c5 += k[5] * d; c6 += k[6] * s; c7 += k[7] * s;
+        const clm_ff_real s = dv > 0.0 ? R(1.0) : (dv < 0.0 ? R(-1.0) : R(0.0));
+        const clm_ff_real y = (clm_ff_real)q[0];
+        const clm_ff_real h0 = KERNEL[i][0], h1 = KERNEL[i][1];
+        c0 += h0 * a; c1 += h1 * a; c2 += h0 * v; c3 += h1 * v;
+        c4 += h0 * s; c5 += h1 * s; c6 += h0 * y; c7 += h1 * y;
     }}
-    acc[0] = c0; acc[1] = c1; acc[2] = c2; acc[3] = c3;
-    acc[4] = c4; acc[5] = c5; acc[6] = c6; acc[7] = c7;
-    {{
-        const clm_ff_real d0 = (clm_ff_real)(r[-HALF - 1] - rk);
-        const clm_ff_real d1 = (clm_ff_real)(r[HALF + 2] - rk);
-        for (j = 0; j < 6; ++j)
-            acc[j] += KERNEL_ENDS[0][j] * d0 + KERNEL_ENDS[1][j] * d1;
-    }}
-    f0[0] = acc[0]; f0[1] = acc[2]; f0[2] = acc[6]; f0[3] = acc[4] + KERNEL_SUM * (clm_ff_real)rk;
-    f1[0] = acc[1]; f1[1] = acc[3]; f1[2] = acc[7]; f1[3] = acc[5] + KERNEL_SUM * (clm_ff_real)rk;
+    f0[0] = c0; f0[1] = c2; f0[2] = c4; f0[3] = c6;
+    f1[0] = c1; f1[1] = c3; f1[2] = c5; f1[3] = c7;
     return (double)(R(0.5) * ((physical(r) + network(f0)) + (physical(r + 1) + network(f1))));
 }}
 """

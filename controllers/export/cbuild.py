@@ -40,7 +40,9 @@ class CompiledFeedforward:
         cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", *flags, "-shared",
                "-fPIC", "-o", str(lib), str(folder / "clm_ff.c"), "-I", str(folder),
                str(Path(__file__).with_name("clm_ff_harness.c")), "-lm"]
-        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode:
+            raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr}")
         self.command = " ".join(cmd)
         self.lib = ctypes.CDLL(str(lib))
         dp = ctypes.POINTER(ctypes.c_double)

@@ -3,7 +3,7 @@
 Input ``r_window`` (float64, ``[batch, lag+1+lead]``: ``r[k-lag] .. r[k+lead]``, m), output
 ``u_ff`` (float64, ``[batch]``, N): the same computation as the C and the numpy form. The two
 instants of the held average are stacked on the batch axis (``[2 batch, width-1]``), computed
-once and averaged. Differences are taken before any scaling (as the product does: a scaled
+once and averaged. Differences are taken before any scaling, in the product's order (a scaled
 second difference of positions would lose digits). The model's ``metadata_props`` carry ``ts``
 (s), ``lag`` and ``lead`` (samples), the units and the model's description.
 """
@@ -134,12 +134,15 @@ def model(wf: WindowFeedforward):
     if wf.network is not None and wf.half == 0:  # no feature filter: the raw features
         f = g.op("Concat", a, v, g.op("Sign", v), x0, axis=1, base="features")
     elif wf.network is not None:
-        d = g.op("Sub", w, x0)
-        lin = np.column_stack([wf.acceleration_kernel(), wf.velocity_kernel()])
-        av = g.op("MatMul", d, g.const(lin, "kernel_av"))
-        s = g.op("Sign", g.op("Sub", g.cols(w, 2, width - 1), g.cols(w, 0, width - 3)))
-        fs = g.op("MatMul", s, g.const(wf.kernel[:, None], "kernel"))
-        fy = g.op("MatMul", g.cols(w, 1, width - 2), g.const(wf.kernel[:, None], "kernel"))
+        # the features at every instant of the window, differenced first, then the filter's FIR
+        right, mid, left = g.cols(w, 2, width - 1), g.cols(w, 1, width - 2), g.cols(w, 0, width - 3)
+        va = g.op("Div", g.op("Sub", right, left), g.const(2.0 * wf.ts))
+        aa = g.op("Div", g.op("Add", g.op("Sub", right, g.op("Mul", g.const(2.0), mid)), left),
+                  g.const(wf.ts * wf.ts))
+        kernel = g.const(wf.kernel[:, None], "kernel")
+        av = g.op("Concat", g.op("MatMul", aa, kernel), g.op("MatMul", va, kernel), axis=1)
+        fs = g.op("MatMul", g.op("Sign", va), kernel)
+        fy = g.op("MatMul", mid, kernel)
         f = g.op("Concat", av, fs, fy, axis=1, base="features")
     if wf.network is not None:
         h = g.op("Div", g.op("Sub", f, g.const(net.input_mean[None, :], "input_mean")),

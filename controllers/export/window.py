@@ -152,16 +152,6 @@ class WindowFeedforward:
         return self.lag + 1 + self.lead
 
     # -- the computation, in numpy (the oracle the C and the ONNX graph are checked against) --
-    def velocity_kernel(self) -> np.ndarray:
-        """``hv[-M-1..M+1]`` with ``filter(v)[j] = sum hv[i] (r[j+i] - r[j])`` (per m: 1/s)."""
-        h = np.pad(self.kernel, 2)  # h[-M-2..M+2]
-        return (h[:-2] - h[2:]) / (2.0 * self.ts)
-
-    def acceleration_kernel(self) -> np.ndarray:
-        """``ha[-M-1..M+1]`` with ``filter(a)[j] = sum ha[i] (r[j+i] - r[j])`` (per m: 1/s**2)."""
-        h = np.pad(self.kernel, 2)
-        return (h[2:] - 2.0 * h[1:-1] + h[:-2]) / (self.ts * self.ts)
-
     def forward_filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The causal half of the zero-phase filter: second-order sections ``sos`` (as scipy),
         their steady state per unit input ``zi``, and the causal impulse response ``g[0..M]``
@@ -189,14 +179,14 @@ class WindowFeedforward:
             p = p + e.force(r0, v, base)
         if self.network is None:
             return p
-        if m == 0:  # no feature filter: the network sees the raw features, differenced as above
+        if m == 0:  # no feature filter: the network sees the raw features
             return p + self.network(np.column_stack([a, v, np.sign(v), r0]))
-        d = w - r0[:, None]
-        s = np.sign(w[:, 2:] - w[:, :-2])
-        f = np.column_stack([d @ self.acceleration_kernel(),
-                             d @ self.velocity_kernel(),
-                             s @ self.kernel,
-                             w[:, 1:-1] @ self.kernel])
+        # The features at every instant of the window, differenced as the product does, then
+        # the filter's FIR.
+        va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
+        aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
+        h = self.kernel
+        f = np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
         return p + self.network(f)
 
     def __call__(self, windows: np.ndarray) -> np.ndarray:
