@@ -113,7 +113,7 @@ typedef double clm_ff_real;
 
 def header(wf: WindowFeedforward) -> str:
     """``clm_ff.h``: the contract (window, units, model) and the declarations."""
-    desc = wf.describe()
+    desc = wf.describe().replace("*/", "* /")  # a file name must not close the comment
     wrapped, line = [], ""
     for word in desc.split(" "):
         if len(line) + len(word) > 90:
