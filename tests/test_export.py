@@ -381,3 +381,23 @@ def test_network_variants_export(variant, training_run, fitted, tmp_path):
     onnx_graph.write(wf, tmp_path)
     session, meta = _onnx_session(tmp_path / "clm_ff.onnx")
     assert _rel(_onnx_apply(session, meta, r, 11), want[::11]) < REL
+
+
+def test_identify_output_exports(training_run, tmp_path, capsys):
+    """``clm-sim identify`` on a record, then ``export-ff`` of its lip.json (ts from the file)."""
+    from clm_sim.record import save_npz
+    save_npz(training_run, tmp_path / "train.npz")
+    assert main(["identify", str(tmp_path / "train.npz"), "--out", str(tmp_path / "id")]) == 0
+    assert main(["export-ff", str(tmp_path / "id" / "lip.json"), "--to", "c", "--out",
+                 str(tmp_path / "c")]) == 0
+    capsys.readouterr()
+    wf = load_feedforward(tmp_path / "id" / "lip.json")
+    data = json.loads((tmp_path / "id" / "lip.json").read_text())
+    lip = LIPFeedforward.fitted(theta=data, ts=data["ts"])
+    r = random_reference(5)
+    # the record's ts, from its time stamps: 1e-4 within rounding; the export keeps its bits
+    assert abs(wf.ts - TS) < 1e-12 * TS and wf.ts == data["ts"]
+    want = lip.feedforward(r, wf.ts)
+    assert _rel(wf.apply(r), want) == 0.0
+    if compiler() is not None:
+        assert _rel(CompiledFeedforward(tmp_path / "c").stream(r), want) == 0.0
