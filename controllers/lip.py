@@ -150,3 +150,18 @@ class LIPFeedforward:
         if info.get("ts") is not None:
             model.ts_ = float(info["ts"])
         return model
+
+    @classmethod
+    def fitted(cls, *, theta: dict[str, float], effects: tuple[Effect, ...] = (),
+               features: FeatureMap | None = None, ts: float | None = None) -> "LIPFeedforward":
+        """A LIP with given parameters (a file's ``theta`` in SI units and fitted ``effects``),
+        usable for ``predict`` and ``feedforward`` as if fitted; no fit statistics."""
+        missing = [k for k in THETA_NAMES if k not in theta]
+        if missing:
+            raise UserError(f"lip: parameters missing: {', '.join(missing)}")
+        lip = cls(features=features or FeatureMap(), effects=tuple(effects))
+        lip.theta_ = {k: float(theta[k]) for k in THETA_NAMES}
+        lip.effects_ = tuple(effects)
+        if ts is not None:
+            lip.ts_ = float(ts)
+        return lip

@@ -1,6 +1,6 @@
 """The ``clm-sim`` command: ``run`` an experiment config, ``study`` or ``sweep`` one, ``identify``
-a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run, ``compare`` a fresh
-table with a published one.
+a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run, ``export-ff`` a
+feedforward to C or ONNX, ``compare`` a fresh table with a published one.
 
 User mistakes (``UserError``) print one line on stderr and exit with code 2, never a traceback.
 ``sweep`` exits with 1 when some tasks failed (the table is still written and lists them).
@@ -87,6 +87,14 @@ def _cmd_export(args) -> int:
         raise UserError(f"{out}: --to {args.to} needs a .{args.to} file name")
     (save_csv if args.to == "csv" else save_mat)(run, out)
     print(f"wrote {out} ({len(run)} samples)")
+    return 0
+
+
+def _cmd_export_ff(args) -> int:
+    from experiments.export_ff import export
+
+    files = export(args.model, args.to, args.out, ts=args.ts)
+    print(f"wrote {', '.join(str(f) for f in files)} (see docs/export.md)")
     return 0
 
 
@@ -247,6 +255,14 @@ def parser() -> argparse.ArgumentParser:
     export.add_argument("--to", choices=("csv", "mat"), default="csv", help="target format")
     export.add_argument("--out", help="target file (default: the run's name with the new suffix)")
     export.set_defaults(func=_cmd_export)
+    eff = sub.add_parser("export-ff", help="export a feedforward as C (clm_ff.h, clm_ff.c) or "
+                         "ONNX (clm_ff.onnx) for a real-time target")
+    eff.add_argument("model", help="params/lip.json or params/<row>_seed<k>.pt of a run, "
+                     "identify's lip.json, or a diagnosis.json")
+    eff.add_argument("--to", required=True, help="c or onnx")
+    eff.add_argument("--out", required=True, help="output folder (replaced as a whole)")
+    eff.add_argument("--ts", type=float, help="sample time (s), where the file carries none")
+    eff.set_defaults(func=_cmd_export_ff)
     sweep = sub.add_parser("sweep", help="run a grid of experiments (a config with a 'sweep:' "
                            "section) in parallel, resumably")
     _config_arguments(sweep, "experiment YAML file with a sweep: grid",

@@ -187,6 +187,28 @@ DATA_COMMANDS = {
 }
 
 
+# Commands that read a saved model (export-ff), and bad model files: (name, content, text).
+MODEL_COMMANDS = {
+    "export-ff": lambda model, out: ["export-ff", model, "--to", "c", "--out", out],
+}
+_LIP = '"kind": "lip", "mass": 18.8, "viscous": 30.0, "coulomb": 5.0, "stiffness": 0.0'
+BAD_MODELS = {
+    "missing model": ("lip.json", None, "no such model file"),
+    "empty model": ("lip.json", "", "not a clm-sim feedforward"),
+    "model is a list": ("lip.json", "[1, 2]", "not a clm-sim feedforward"),
+    "record as model": ("rec.csv", _csv(_signals()), "not a clm-sim feedforward"),
+    "lip without mass": ("lip.json", '{"kind": "lip", "viscous": 1, "coulomb": 1, '
+                         '"stiffness": 0, "ts": 0.0001}', "mass"),
+    "unknown effect": ("lip.json", "{" + _LIP + ', "ts": 0.0001, "effects": [{"type": "warp"}]}',
+                       "unknown effect 'warp'"),
+    "pre-sliding effect": ("lip.json", "{" + _LIP + ', "ts": 0.0001, "effects": '
+                           '[{"type": "presliding"}]}', "pre-sliding"),
+    "sample time out of range": ("lip.json", "{" + _LIP + ', "ts": 5}', "sample time"),
+    "no sample time": ("lip.json", "{" + _LIP + "}", "--ts"),
+    "pt without json": ("net.pt", bytes(range(256)), "needs net.json"),
+}
+
+
 def _parser_commands() -> set[str]:
     action = next(a for a in parser()._actions if isinstance(a, argparse._SubParsersAction))
     return set(action.choices)
@@ -201,7 +223,8 @@ OTHER_COMMANDS = {"compare": "tests/test_reproducibility.py::test_compare_refuse
 
 
 def test_every_command_is_covered():
-    assert PRESENT <= set(CONFIG_COMMANDS) | set(DATA_COMMANDS) | set(OTHER_COMMANDS), \
+    assert PRESENT <= (set(CONFIG_COMMANDS) | set(DATA_COMMANDS) | set(MODEL_COMMANDS)
+                       | set(OTHER_COMMANDS)), \
         "a new CLI command: say how it reads configs or data files in this module"
 
 
@@ -264,6 +287,18 @@ def test_bad_data_is_refused(case, command, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     argv = DATA_COMMANDS[command](str(data), str(tmp_path / "out"))
     _check_refused(argv, tmp_path, capsys, expected, str(data))
+
+
+@pytest.mark.parametrize("case, command", [pytest.param(case, command, id=f"{command}-{case}")
+                                           for case in BAD_MODELS for command in MODEL_COMMANDS
+                                           if command in PRESENT])
+def test_bad_model_is_refused(case, command, tmp_path, capsys, monkeypatch):
+    name, content, expected = BAD_MODELS[case]
+    model = tmp_path / name
+    _write(model, content)
+    monkeypatch.chdir(tmp_path)
+    argv = MODEL_COMMANDS[command](str(model), str(tmp_path / "out"))
+    _check_refused(argv, tmp_path, capsys, expected, str(model))
 
 
 @pytest.mark.parametrize("case", [c for c, v in BAD_CONFIGS.items() if v[2] == "sweep"][:1])

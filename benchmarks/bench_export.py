@@ -1,0 +1,123 @@
+"""Time the exported feedforward against the 10 kHz cycle (100 us): C at -O2 and ONNX Runtime.
+
+Fits a LIP and an n_l = 16 PGNN on one pass of r1 (quickly: ``max_iter`` 5; the weights' values
+do not change the work per call), exports both, compiles the C with the system compiler and
+times ``clm_ff`` over every sample of r2 (CPU time of the calling thread, so other work on a
+shared machine counts less; best of ``--repeats``). ONNX Runtime is timed per call (batch 1,
+``session.run`` included) and batched (``--batch`` windows per run). Also prints the error of the
+C against the product's Python feedforward, in float64 and with ``-DCLM_FF_FLOAT``.
+
+Run from the repository root: ``python benchmarks/bench_export.py``. Last line on stdout:
+``pgnn16_c_ns=<t> pgnn16_c_stream_ns=<t> lip_c_ns=<t> onnx_call_us=<t> onnx_batched_ns=<t>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from controllers.export import c_source  # noqa: E402
+from controllers.export.cbuild import CompiledFeedforward, compiler  # noqa: E402
+from controllers.export.window import from_lip, from_pgnn  # noqa: E402
+from experiments.config import ExperimentConfig, Training  # noqa: E402
+from experiments.testbed import Testbed  # noqa: E402
+
+CYCLE_NS = 100e3
+
+
+def _rel(got, want) -> float:
+    return float(np.max(np.abs(got - want)) / np.max(np.abs(want)))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--batch", type=int, default=1000)
+    p.add_argument("--hidden", type=int, default=16)
+    p.add_argument("--flags", default="-O2", help="C compiler flags (default -O2)")
+    args = p.parse_args(argv)
+    tb = Testbed(ExperimentConfig(training=Training(repeats=1)))
+    run = tb.training_run()
+    lip = tb.fit_lip(run)
+    pgnn = tb.fit_pgnn(run, hidden=args.hidden, lip=lip, max_iter=5)
+    r = tb.reference("r2")
+    results = {}
+    if compiler() is None:
+        print("no C compiler: C not timed", file=sys.stderr)
+    for name, model, wf in (("lip", lip, from_lip(lip, tb.ts, "bench")),
+                            (f"pgnn{args.hidden}", pgnn, from_pgnn(pgnn, tb.ts, "bench"))):
+        if compiler() is None:
+            break
+        with tempfile.TemporaryDirectory() as tmp:
+            c_source.write(wf, tmp)
+            lib = CompiledFeedforward(tmp, tuple(args.flags.split()))
+            single = CompiledFeedforward(tmp, (*args.flags.split(), "-DCLM_FF_FLOAT"))
+            want = model.feedforward(r, tb.ts)
+            err, err32 = _rel(lib.stream(r), want), _rel(single.stream(r), want)
+            k = np.arange(0, len(r), 13)  # the stateless call on every 13th window
+            w = wf.windows(r)[k]
+            err_call = max(_rel(lib(w[i:i + 2048]), want[k][i:i + 2048]) for i in
+                           range(0, len(k), 2048))
+            ns = min(lib.time_ns(r, 1) for _ in range(args.repeats))
+            ns32 = min(single.time_ns(r, 1) for _ in range(args.repeats))
+            t_stream = []
+            for _ in range(args.repeats):
+                t0 = time.process_time()
+                lib.stream(r)
+                t_stream.append((time.process_time() - t0) / len(r) * 1e9)
+        results[f"{name}_c_ns"] = ns
+        results[f"{name}_c_stream_ns"] = min(t_stream)
+        print(f"{name}: window {wf.lag}+1+{wf.lead} samples; C {args.flags}: {ns:,.0f} ns per "
+              f"call ({100 * ns / CYCLE_NS:.2f} % of the 100 us cycle), streaming form "
+              f"{min(t_stream):,.0f} ns; float32 build {ns32:,.0f} ns; error vs Python "
+              f"{err_call:.1e} (clm_ff), {err:.1e} (streaming), {err32:.1e} (streaming, "
+              f"-DCLM_FF_FLOAT) of the peak force",
+              file=sys.stderr)
+    try:
+        import onnxruntime as ort
+
+        from controllers.export import onnx_graph
+    except ImportError:
+        print("onnxruntime not installed (pip install 'clm-sim[export]'): ONNX not timed",
+              file=sys.stderr)
+    else:
+        wf = from_pgnn(pgnn, tb.ts, "bench")
+        with tempfile.TemporaryDirectory() as tmp:
+            onnx_graph.write(wf, tmp)
+            opts = ort.SessionOptions()
+            opts.intra_op_num_threads = 1
+            sess = ort.InferenceSession(str(Path(tmp) / "clm_ff.onnx"), opts,
+                                        providers=["CPUExecutionProvider"])
+        windows = np.ascontiguousarray(wf.windows(r)[20000:20000 + args.batch])
+        one = [np.ascontiguousarray(windows[i:i + 1]) for i in range(min(200, len(windows)))]
+        sess.run(["u_ff"], {"r_window": one[0]})
+        calls = []
+        for _ in range(args.repeats):
+            t0 = time.process_time()
+            for w in one:
+                sess.run(["u_ff"], {"r_window": w})
+            calls.append((time.process_time() - t0) / len(one) * 1e9)
+        batched = []
+        for _ in range(args.repeats):
+            t0 = time.process_time()
+            sess.run(["u_ff"], {"r_window": windows})
+            batched.append((time.process_time() - t0) / len(windows) * 1e9)
+        results["onnx_call_us"] = min(calls) / 1e3
+        results["onnx_batched_ns"] = min(batched)
+        print(f"pgnn{args.hidden}: ONNX Runtime {ort.__version__} (1 thread): "
+              f"{min(calls) / 1e3:,.1f} us per call (batch 1, {100 * min(calls) / CYCLE_NS:.1f} % "
+              f"of the cycle), {min(batched):,.0f} ns per window in batches of {len(windows)}",
+              file=sys.stderr)
+    print(" ".join(f"{k}={v:.4g}" for k, v in results.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""Compile exported C with the system compiler and call it through ctypes (tests, benchmark,
+and a user's own check of an export). Not needed on the target."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def compiler() -> str | None:
+    """The C compiler (``$CC``, else gcc, cc or clang on the PATH), or ``None``."""
+    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
+        if name and shutil.which(name):
+            return name
+    return None
+
+
+class CompiledFeedforward:
+    """``clm_ff`` of an exported folder compiled as a shared library (``flags``, default -O2).
+
+    ``windows(B, width)`` -> forces (B,) by calling ``clm_ff`` once per row; the library stays
+    loaded as long as this object lives."""
+
+    def __init__(self, folder, flags=("-O2",), workdir=None):
+        cc = compiler()
+        if cc is None:
+            raise RuntimeError("no C compiler (set CC, or install gcc)")
+        self._tmp = None
+        if workdir is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="clm_ff_")
+            workdir = self._tmp.name
+        lib = Path(workdir) / "libclm_ff.so"
+        folder = Path(folder)
+        cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", *flags, "-shared",
+               "-fPIC", "-o", str(lib), str(folder / "clm_ff.c"), "-I", str(folder),
+               str(Path(__file__).with_name("clm_ff_harness.c")), "-lm"]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode:
+            raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr}")
+        self.command = " ".join(cmd)
+        self.lib = ctypes.CDLL(str(lib))
+        dp = ctypes.POINTER(ctypes.c_double)
+        self.lib.clm_ff.restype = ctypes.c_double
+        self.lib.clm_ff.argtypes = [dp]
+        self.lib.clm_ff_windows.restype = None
+        self.lib.clm_ff_windows.argtypes = [dp, ctypes.c_long, ctypes.c_long, dp]
+        self.lib.clm_ff_record.restype = None
+        self.lib.clm_ff_record.argtypes = [dp, ctypes.c_long, dp]
+        self.lib.clm_ff_time_ns.restype = ctypes.c_double
+        self.lib.clm_ff_time_ns.argtypes = [dp, ctypes.c_long, ctypes.c_long]
+        self.lag = int(self.lib.clm_ff_lag())
+        self.lead = int(self.lib.clm_ff_lead())
+
+    @staticmethod
+    def _ptr(a: np.ndarray):
+        return a.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+
+    def __call__(self, windows: np.ndarray) -> np.ndarray:
+        w = np.ascontiguousarray(windows, dtype=np.float64)
+        out = np.empty(len(w))
+        self.lib.clm_ff_windows(self._ptr(w), len(w), w.shape[1], self._ptr(out))
+        return out
+
+    def stream(self, r: np.ndarray) -> np.ndarray:
+        """``u_ff`` of a record ``r`` (m) by the streaming form (held at its ends)."""
+        r = np.ascontiguousarray(r, dtype=np.float64)
+        out = np.empty(len(r))
+        self.lib.clm_ff_record(self._ptr(r), len(r), self._ptr(out))
+        return out
+
+    def time_ns(self, r: np.ndarray, repeats: int) -> float:
+        """Mean ns per ``clm_ff`` call over every sample of ``r`` (padded), ``repeats`` times."""
+        r = np.ascontiguousarray(r, dtype=np.float64)
+        return float(self.lib.clm_ff_time_ns(self._ptr(r), len(r), repeats))

@@ -1,0 +1,56 @@
+/* Test and timing harness around an exported clm_ff (compiled beside clm_ff.c by cbuild.py).
+ * Not part of an export: a target calls clm_ff or clm_ff_stream_push itself. */
+#define _POSIX_C_SOURCE 199309L
+#include "clm_ff.h"
+#include <time.h>
+
+int clm_ff_lag(void) { return CLM_FF_LAG; }
+int clm_ff_lead(void) { return CLM_FF_LEAD; }
+
+/* out[b] = clm_ff of row b of windows (n rows of width doubles). */
+void clm_ff_windows(const double *windows, long n, long width, double *out)
+{
+    long b;
+    if (width != CLM_FF_WINDOW)
+        return;
+    for (b = 0; b < n; ++b)
+        out[b] = clm_ff(windows + b * width + CLM_FF_LAG);
+}
+
+/* u_ff of a record r[0..n-1] through the streaming form, the record held at its ends. */
+void clm_ff_record(const double *r, long n, double *out)
+{
+    clm_ff_stream s;
+    long k;
+    clm_ff_stream_init(&s, r[0]);
+    /* push r[0 .. LEAD-1]: the window then ends at r[LEAD-1]; k = -1 */
+    for (k = 0; k < CLM_FF_LEAD; ++k)
+        (void)clm_ff_stream_push(&s, r[k < n ? k : n - 1]);
+    for (k = 0; k < n; ++k) {
+        long newest = k + CLM_FF_LEAD;
+        out[k] = clm_ff_stream_push(&s, r[newest < n ? newest : n - 1]);
+    }
+}
+
+static double now_s(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t); /* CPU time: the machine is shared */
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* Mean ns per clm_ff call over r[LAG .. n-LEAD-1], repeated. */
+double clm_ff_time_ns(const double *r, long n, long repeats)
+{
+    volatile double sink = 0.0;
+    long k, rep, calls = 0;
+    double t0 = now_s(), t1;
+    for (rep = 0; rep < repeats; ++rep)
+        for (k = CLM_FF_LAG; k + CLM_FF_LEAD < n; ++k) {
+            sink += clm_ff(r + k);
+            ++calls;
+        }
+    t1 = now_s();
+    (void)sink;
+    return calls ? 1e9 * (t1 - t0) / (double)calls : 0.0;
+}

@@ -1,0 +1,185 @@
+"""ONNX graph of a :class:`~controllers.export.window.WindowFeedforward` (the ``export`` extra).
+
+Input ``r_window`` (float64, ``[batch, lag+1+lead]``: ``r[k-lag] .. r[k+lead]``, m), output
+``u_ff`` (float64, ``[batch]``, N): the same computation as the C and the numpy form. The two
+instants of the held average are stacked on the batch axis (``[2 batch, width-1]``), computed
+once and averaged. Differences are taken before any scaling, in the product's order (a scaled
+second difference of positions would lose digits). The model's ``metadata_props`` carry ``ts``
+(s), ``lag`` and ``lead`` (samples), the units and the model's description.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clm_sim.effects import (
+    CableSlab,
+    Cogging,
+    ForceOffset,
+    ForceRipple,
+    FrictionAsymmetry,
+    Stribeck,
+)
+from clm_sim.errors import UserError
+from controllers.export.window import WindowFeedforward
+
+# The opset the graph is written in: the current one of onnx 1.23 (onnxruntime 1.32 runs it), or
+# the newest an older onnx knows.
+OPSET = 28
+
+
+class _Graph:
+    """Nodes and constants under construction, with fresh names."""
+
+    def __init__(self):
+        from onnx import helper, numpy_helper
+
+        self.helper, self.numpy_helper = helper, numpy_helper
+        self.nodes, self.inits, self.count = [], [], 0
+
+    def name(self, base: str) -> str:
+        self.count += 1
+        return f"{base}_{self.count}"
+
+    def const(self, value, base: str = "c") -> str:
+        name = self.name(base)
+        arr = np.asarray(value)
+        if arr.dtype.kind == "f":
+            arr = arr.astype(np.float64)
+        self.inits.append(self.numpy_helper.from_array(arr, name))
+        return name
+
+    def op(self, op_type: str, *inputs: str, base: str | None = None, **attrs) -> str:
+        out = self.name(base or op_type.lower())
+        self.nodes.append(self.helper.make_node(op_type, list(inputs), [out], **attrs))
+        return out
+
+    def cols(self, x: str, start: int, end: int) -> str:
+        """``x[:, start:end]`` (end may be negative)."""
+        return self.op("Slice", x, self.const(np.array([start], np.int64)),
+                       self.const(np.array([end], np.int64)),
+                       self.const(np.array([1], np.int64)))
+
+
+def _effect(g: _Graph, e, y: str, v: str, base: str) -> str:
+    """Force (N) of effect ``e`` as graph nodes of ``y`` (m), ``v`` (m/s), ``base`` (N)."""
+    two_pi = g.const(2.0 * np.pi)
+    if isinstance(e, (Cogging, ForceRipple)):
+        arg = g.op("Div", g.op("Mul", two_pi, y), g.const(e.period))
+        sin = g.op("Sin", g.op("Add", arg, g.const(e.phase)))
+        if isinstance(e, Cogging):
+            return g.op("Mul", g.const(e.amplitude), sin)
+        return g.op("Mul", g.op("Mul", g.const(-e.amplitude), sin), base)
+    if isinstance(e, CableSlab):
+        x = g.op("Sub", y, g.const(e.center))
+        out = g.op("Mul", g.const(e.coefficients[-1]), g.op("Mul", x, g.const(0.0)))
+        out = g.op("Add", out, g.const(e.coefficients[-1]))
+        for c in reversed(e.coefficients[:-1]):
+            out = g.op("Add", g.const(c), g.op("Mul", x, out))
+        return out
+    if isinstance(e, Stribeck):
+        ratio = g.op("Div", g.op("Abs", v), g.const(e.velocity))
+        shape = g.op("Mul", g.op("Sign", v),
+                     g.op("Exp", g.op("Neg", g.op("Pow", ratio, g.const(e.exponent)))))
+        return g.op("Mul", g.const(e.peak), shape)
+    if isinstance(e, FrictionAsymmetry):
+        zero = g.const(0.0)
+        pos = g.op("Add", g.const(e.coulomb_pos), g.op("Mul", g.const(e.viscous_pos), v))
+        neg = g.op("Add", g.const(-e.coulomb_neg), g.op("Mul", g.const(e.viscous_neg), v))
+        inner = g.op("Where", g.op("Less", v, zero), neg, g.op("Mul", v, zero))
+        return g.op("Where", g.op("Greater", v, zero), pos, inner)
+    if isinstance(e, ForceOffset):
+        return g.op("Add", g.op("Mul", y, g.const(0.0)), g.const(e.force_n))
+    raise UserError(f"export: effect {e.type!r} has no ONNX form")
+
+
+def _activation(g: _Graph, name: str, x: str) -> str:
+    if name == "tanh":
+        return g.op("Tanh", x)
+    # 1/(1 + e^-x), not the Sigmoid operator: ONNX Runtime's float64 Sigmoid is an approximation
+    # (1e-4 off, measured with 1.32), its Exp is exact to rounding.
+    if name in ("sigmoid", "silu"):
+        one = g.const(1.0)
+        sig = g.op("Div", one, g.op("Add", one, g.op("Exp", g.op("Neg", x))))
+        return sig if name == "sigmoid" else g.op("Mul", x, sig)
+    if name == "relu":
+        return g.op("Relu", x)
+    raise UserError(f"export: activation {name!r} has no ONNX form here (use --to c)")
+
+
+def model(wf: WindowFeedforward):
+    """The ONNX ``ModelProto`` of ``wf`` (checked by ``onnx.checker``)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    g = _Graph()
+    width = wf.width
+    # Both instants of the held average on the batch axis: rows r[j-M-1 .. j+M+1], j = k, k+1.
+    w = g.op("Concat", g.cols("r_window", 0, width - 1), g.cols("r_window", 1, width), axis=0)
+    c = wf.half + 1
+    xm, x0, xp = g.cols(w, c - 1, c), g.cols(w, c, c + 1), g.cols(w, c + 1, c + 2)
+    v = g.op("Div", g.op("Sub", xp, xm), g.const(2.0 * wf.ts), base="v")
+    a = g.op("Div", g.op("Add", g.op("Sub", xp, g.op("Mul", g.const(2.0), x0)), xm),
+             g.const(wf.ts * wf.ts), base="a")
+    th = wf.theta
+    p = g.op("Add", g.op("Add", g.op("Add", g.op("Mul", g.const(th["mass"]), a),
+                                     g.op("Mul", g.const(th["viscous"]), v)),
+                         g.op("Mul", g.const(th["coulomb"]), g.op("Sign", v))),
+             g.op("Mul", g.const(th["stiffness"]), x0), base="physical")
+    base = p
+    for e in wf.effects:
+        p = g.op("Add", p, _effect(g, e, x0, v, base))
+    if wf.network is not None:
+        net = wf.network
+    if wf.network is not None and wf.half == 0:  # no feature filter: the raw features
+        f = g.op("Concat", a, v, g.op("Sign", v), x0, axis=1, base="features")
+    elif wf.network is not None:
+        # the features at every instant of the window, differenced first, then the filter's FIR
+        right, mid, left = g.cols(w, 2, width - 1), g.cols(w, 1, width - 2), g.cols(w, 0, width - 3)
+        va = g.op("Div", g.op("Sub", right, left), g.const(2.0 * wf.ts))
+        aa = g.op("Div", g.op("Add", g.op("Sub", right, g.op("Mul", g.const(2.0), mid)), left),
+                  g.const(wf.ts * wf.ts))
+        kernel = g.const(wf.kernel[:, None], "kernel")
+        av = g.op("Concat", g.op("MatMul", aa, kernel), g.op("MatMul", va, kernel), axis=1)
+        fs = g.op("MatMul", g.op("Sign", va), kernel)
+        fy = g.op("MatMul", mid, kernel)
+        f = g.op("Concat", av, fs, fy, axis=1, base="features")
+    if wf.network is not None:
+        h = g.op("Div", g.op("Sub", f, g.const(net.input_mean[None, :], "input_mean")),
+                 g.const(net.input_std[None, :], "input_std"))
+        for wl, bl in net.layers:
+            h = _activation(g, net.activation,
+                            g.op("Add", g.op("MatMul", h, g.const(wl.T.copy(), "weight")),
+                                 g.const(bl[None, :], "bias")))
+        out = g.op("Add", g.op("MatMul", h, g.const(net.out_w[:, None], "out_weight")),
+                   g.const(np.array([[net.out_b]]), "out_bias"))
+        p = g.op("Add", p, out, base="point_force")
+    pair = g.op("Reshape", p, g.const(np.array([2, -1], np.int64)))
+    first = g.op("Gather", pair, g.const(np.array(0, np.int64)), axis=0)
+    second = g.op("Gather", pair, g.const(np.array(1, np.int64)), axis=0)
+    g.nodes.append(helper.make_node("Mul", [g.const(0.5), g.op("Add", first, second)],
+                                    ["u_ff"]))
+    graph = helper.make_graph(
+        g.nodes, "clm_ff",
+        [helper.make_tensor_value_info("r_window", TensorProto.DOUBLE, ["batch", width])],
+        [helper.make_tensor_value_info("u_ff", TensorProto.DOUBLE, ["batch"])],
+        initializer=g.inits)
+    opset = min(OPSET, onnx.defs.onnx_opset_version())
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)],
+                              producer_name="clm-sim export-ff", doc_string=wf.describe())
+    proto.ir_version = 10
+    meta = {"ts": repr(wf.ts), "lag": str(wf.lag), "lead": str(wf.lead),
+            "units": "r_window: m (r[k-lag] .. r[k+lead]); u_ff: N, held over sample k; ts: s",
+            "kind": wf.kind, "model": wf.describe()}
+    helper.set_model_props(proto, meta)
+    onnx.checker.check_model(proto, full_check=True)
+    return proto
+
+
+def write(wf: WindowFeedforward, folder) -> list:
+    """Write ``clm_ff.onnx`` into ``folder``; returns the paths."""
+    from pathlib import Path
+
+    path = Path(folder) / "clm_ff.onnx"
+    path.write_bytes(model(wf).SerializeToString())
+    return [path]

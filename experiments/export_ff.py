@@ -1,0 +1,164 @@
+"""``clm-sim export-ff``: a saved feedforward to C or ONNX for a real-time target.
+
+Reads any feedforward the product saves: a run's ``params/lip.json``, a PGNN's
+``params/<row>_seed<k>.pt`` (with its ``.json``), ``clm-sim identify``'s ``lip.json`` and a
+diagnosis's ``diagnosis.json`` (its extended model as a LIP with effects). The sample time comes
+from the file where it carries one, else from the run's ``config.resolved.yaml`` beside
+``params/``, else from ``--ts``; a ``--ts`` that contradicts the file is refused. The output
+folder appears whole or not at all and holds ``export.json`` (what was exported, from what).
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+from pathlib import Path
+
+import yaml
+
+from clm_sim.errors import UserError
+from clm_sim.features import FeatureMap
+from clm_sim.outdir import atomic_folder
+from clm_sim.schema import build_effect
+from controllers.export import c_source
+from controllers.export.window import WindowFeedforward, from_lip, from_pgnn
+from controllers.lip import LIPFeedforward
+
+TARGETS = ("c", "onnx")
+KNOWN = ("a run's params/lip.json or params/<row>_seed<k>.pt, identify's lip.json or a "
+         "diagnosis.json")
+
+
+def _run_config(path: Path) -> dict:
+    """The resolved config of the run a ``params/`` file belongs to (``{}`` if none)."""
+    cfg = path.resolve().parent.parent / "config.resolved.yaml"
+    if not cfg.is_file():
+        return {}
+    try:
+        data = yaml.safe_load(cfg.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise UserError(f"{cfg}: cannot read the run's config ({exc})") from None
+    return data if isinstance(data, dict) else {}
+
+
+def _sample_time(path: Path, stored, option: float | None) -> float:
+    ts = stored if stored is not None else _run_config(path).get("ts")
+    if ts is not None and option is not None and abs(float(ts) - option) > 1e-12 * float(ts):
+        raise UserError(f"{path}: the model was identified at ts = {float(ts):g} s; "
+                        f"--ts {option:g} contradicts it")
+    ts = option if ts is None else ts
+    if ts is None:
+        raise UserError(f"{path}: the file carries no sample time; pass --ts (s)")
+    if not (isinstance(ts, (int, float)) and 0 < float(ts) <= 0.1):
+        raise UserError(f"{path}: sample time {ts!r} is not in (0, 0.1] s")
+    return float(ts)
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN}): {exc}") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
+    return data
+
+
+def _effects(items) -> tuple:
+    if not isinstance(items, list):
+        raise UserError("effects: expected a list")
+    return tuple(build_effect(e, f"effects[{i}]") for i, e in enumerate(items))
+
+
+def _lip(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
+    run_features = _run_config(path).get("features") or {}
+    features = data.get("features") or run_features
+    try:
+        features = FeatureMap(**{k: features[k] for k in ("position_lowpass_hz",)
+                                 if k in features})
+        lip = LIPFeedforward.fitted(theta=data, effects=_effects(data.get("effects") or []),
+                                    features=features)
+    except (UserError, TypeError, ValueError) as exc:
+        raise UserError(f"{path}: {exc}") from None
+    return from_lip(lip, _sample_time(path, data.get("ts"), ts), str(path))
+
+
+def _diagnosis(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
+    model = data["extended_model"]
+    stored = (data.get("record") or {}).get("sample_time_s")
+    try:
+        lip = LIPFeedforward.fitted(theta=model, effects=_effects(model.get("effects") or []))
+    except (UserError, TypeError, ValueError) as exc:
+        raise UserError(f"{path}: extended_model: {exc}") from None
+    return from_lip(lip, _sample_time(path, stored, ts), f"{path} (extended model)")
+
+
+def _pgnn(path: Path, ts: float | None) -> WindowFeedforward:
+    from controllers.pgnn import PGNNFeedforward  # torch only for a PGNN
+
+    stem = path.with_suffix("")
+    for need in (stem.with_suffix(".pt"), stem.with_suffix(".json")):
+        if not need.is_file():
+            raise UserError(f"{path}: a PGNN needs {need.name} beside it")
+    try:
+        model = PGNNFeedforward.load(stem)
+    except pickle.UnpicklingError as exc:  # a foreign .pt (load names only the errors it expects)
+        raise UserError(f"{path}: cannot read PGNN model ({str(exc).splitlines()[0]})") from None
+    data = _read_json(stem.with_suffix(".json"))
+    return from_pgnn(model, _sample_time(path, data.get("ts"), ts), str(stem.with_suffix(".pt")))
+
+
+def load_feedforward(path, ts: float | None = None) -> WindowFeedforward:
+    """The window form of the feedforward saved at ``path`` (see the module docstring)."""
+    path = Path(path)
+    try:
+        return _load(path, ts)
+    except UserError as exc:  # every message names the file
+        message = str(exc)
+        raise UserError(message if str(path) in message else f"{path}: {message}") from None
+
+
+def _load(path: Path, ts: float | None) -> WindowFeedforward:
+    if not path.is_file():
+        raise UserError(f"{path}: no such model file")
+    if path.suffix == ".pt":
+        return _pgnn(path, ts)
+    if path.suffix != ".json":
+        raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
+    data = _read_json(path)
+    if data.get("kind") == "pgnn":
+        return _pgnn(path, ts)
+    if data.get("kind") == "lip":
+        return _lip(path, data, ts)
+    if isinstance(data.get("extended_model"), dict):
+        return _diagnosis(path, data, ts)
+    raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
+
+
+def export(model_path, to: str, out, *, ts: float | None = None) -> list[Path]:
+    """Export the feedforward at ``model_path`` as ``to`` (``c`` or ``onnx``) into folder
+    ``out`` (replaced as a whole; an earlier export there is replaced). Returns the files."""
+    if to not in TARGETS:
+        raise UserError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
+    writer = c_source.write
+    if to == "onnx":
+        try:
+            from controllers.export import onnx_graph
+            import onnx  # noqa: F401
+        except ImportError:
+            raise UserError("--to onnx needs the export extra: pip install 'clm-sim[export]'") \
+                from None
+        writer = onnx_graph.write
+    wf = load_feedforward(model_path, ts)
+    out = Path(out)
+    try:
+        with atomic_folder(out, marker="export.json", what="an exported feedforward",
+                           subdirs=()) as tmp:
+            names = [p.name for p in writer(wf, tmp)]
+            (tmp / "export.json").write_text(json.dumps({
+                "model": str(model_path), "kind": wf.kind, "to": to, "ts": wf.ts,
+                "lag": wf.lag, "lead": wf.lead, "files": names, "description": wf.describe()},
+                indent=1))
+    except OSError as exc:
+        raise UserError(f"{out}: cannot write the export ({exc.strerror or exc})") from None
+    return [out / n for n in names]
