@@ -31,7 +31,13 @@ class PGNNSettings:
     lambda_perp of the orthogonal-projection penalty (Kon et al. 2022; dimensionless);
     weight_decay: L2 weight of the network weights (N**2 per unit weight**2); lambda_diag:
     per-parameter regularization weights (mass, viscous, coulomb, stiffness; physical units)
-    overriding lambda; decimation: keep every n-th sample of the filtered training data.
+    overriding lambda; decimation: keep every n-th sample of the filtered training data (None:
+    one sample per 8 ms whatever the record's rate, :func:`decimation_for`: 80 at 10 kHz, 8 at
+    1 kHz); theta_ftol: a fit is ``converged`` only when, besides the first-order test on the
+    cost, theta_phy has settled: over the last quarter of the iterations its force
+    ``T . delta theta`` moved by at most this fraction of the training force's rms (else the stop
+    is ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
+    converge to).
     """
 
     activation: Literal["tanh", "sigmoid", "softplus", "silu", "gelu", "relu"] = "tanh"
@@ -47,11 +53,14 @@ class PGNNSettings:
     orthogonal_weight: float = 0.0
     weight_decay: float = 0.0
     lambda_diag: dict[str, float] | None = None
-    decimation: int = 80
+    decimation: int | None = None
+    theta_ftol: float = 0.01
 
     def __post_init__(self):
         for key in ("max_iter", "decimation", "restarts"):
             value = getattr(self, key)
+            if key == "decimation" and value is None:
+                continue
             if not (isinstance(value, int) and value >= 1):
                 raise UserError(f"pgnn.{key}: expected an integer >= 1, got {value!r}")
         if not 0.0 <= self.validation_fraction < 0.5:
@@ -59,7 +68,8 @@ class PGNNSettings:
                             f"got {self.validation_fraction!r}")
         if not 0.0 < self.ftol < 1.0:
             raise UserError(f"pgnn.ftol: expected a number in (0, 1), got {self.ftol!r}")
-        for key in ("pinn_weight", "orthogonal_weight", "weight_decay", "continuation_lambda"):
+        for key in ("pinn_weight", "orthogonal_weight", "weight_decay", "continuation_lambda",
+                    "theta_ftol"):
             if not getattr(self, key) >= 0:
                 raise UserError(f"pgnn.{key}: expected a number >= 0, got "
                                 f"{getattr(self, key)!r}")
@@ -72,3 +82,15 @@ class PGNNSettings:
             if k not in ("mass", "viscous", "coulomb", "stiffness") or not v >= 0:
                 raise UserError(f"pgnn.lambda_diag.{k}: expected one of mass, viscous, coulomb, "
                                 f"stiffness with a weight >= 0, got {v!r}")
+
+
+DECIMATION_S = 0.008  # s between kept samples of the filtered data: 125 samples/s
+
+
+def decimation_for(ts: float, decimation: int | None = None) -> int:
+    """``decimation`` if given, else the step that keeps one sample per ``DECIMATION_S`` of a
+    record sampled every ``ts`` s (80 at 10 kHz, 8 at 1 kHz): the fitting data then hold the
+    same number of samples per second of record whatever its rate."""
+    if decimation is not None:
+        return int(decimation)
+    return max(1, round(DECIMATION_S / ts))
