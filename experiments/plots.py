@@ -651,7 +651,8 @@ def plot_origin_scan(delta: float, shifts: np.ndarray, rms: np.ndarray, ax=None)
 def plot_profile(ident: dict, name: str, ax=None):
     """The data cost's profile over parameter ``name`` (above the best data cost, N²) per
     network size, the threshold δ, and the table's λ = 0 and λ = 0.01 fits at their θ (a fit
-    beyond the grid is drawn at its edge as a triangle pointing out)."""
+    beyond the grid is drawn at its edge as a triangle pointing out; data costs are those of
+    each row's own fit, its data term alone)."""
     ax = _ax(ax)
     for i, (key, rec) in enumerate(ident.items()):
         e = rec["parameters"][name]
@@ -669,9 +670,9 @@ def plot_profile(ident: dict, name: str, ax=None):
             if v < lo or v > hi:
                 v, marker = (lo, "<") if v < lo else (hi, ">")
             ax.plot([v], [max(f["data_cost"] - best, 0.0)], marker, ms=6, ls="none",
-                    color=color(i + 2 if lam0 else i + 4), alpha=0.7)
-    ax.plot([], [], "x", color=color(2), ls="none", label="λ = 0 fits")
-    ax.plot([], [], "+", color=color(4), ls="none", label="λ = 0.01 fits")
+                    mec=color(i), mfc="none", alpha=0.7)
+    ax.plot([], [], "x", color="0.3", ls="none", label="λ = 0 fits (colour: n_l)")
+    ax.plot([], [], "+", color="0.3", ls="none", label="λ = 0.01 fits")
     ax.set_xlabel(f"{name} [{THETA_UNITS[name]}]")
     ax.set_ylabel("data cost − best [N²]")
     return ax
