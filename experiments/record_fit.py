@@ -65,7 +65,8 @@ def _stat(values) -> dict | None:
     if not values:
         return None
     return {"mean": float(np.mean(values)),
-            "std": float(np.std(values, ddof=1)) if len(values) > 1 else 0.0}
+            "std": float(np.std(values, ddof=1)) if len(values) > 1 else 0.0,
+            "median": float(np.median(values))}
 
 
 def evaluate(config: ExperimentConfig, records: list[Prepared], progress) -> list[dict]:
@@ -123,20 +124,23 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress) -> lis
 def _fmt(stat) -> str:
     if stat is None:
         return "–"
-    return f"{stat['mean']:.3f}" + (f" ± {stat['std']:.3f}" if stat["std"] else "")
+    if not stat["std"]:
+        return f"{stat['mean']:.3f}"
+    return f"{stat['mean']:.3f} ± {stat['std']:.3f} (median {stat['median']:.3f})"
 
 
 def comparisons(rows: list[dict]) -> list[dict]:
-    """Paired differences of ``force_rms`` over seeds: every simultaneous PGNN row with lambda
-    > 0 against the lambda = 0 row of the same n_l and seeds (``a - b``, 95 % t-interval), per
-    record and side."""
+    """Paired differences of ``force_rms`` over seeds: every other PGNN row against the
+    lambda = 0 row of the same n_l, seeds and network weight decay (``a - b``, 95 %
+    t-interval), per record and side."""
     out = []
     lam0 = [r for r in rows if r["kind"] == "pgnn" and r["training"] == "simultaneous"
             and not r["lambda"]]
     for b in lam0:
         for a in rows:
             if a is b or a["kind"] != "pgnn" or a["hidden"] != b["hidden"] \
-                    or a["n_seeds"] != b["n_seeds"]:
+                    or a["n_seeds"] != b["n_seeds"] or a in lam0 \
+                    or a["regularizers"]["weight_decay"] != b["regularizers"]["weight_decay"]:
                 continue
             for rec in a["force_rms"]:
                 for side in ("inside", "outside"):

@@ -211,8 +211,10 @@ def test_emps_config_loads():
     assert config.data is not None and config.data.columns == {"y": "qm", "r": "qg",
                                                                  "u": "vir"}
     kinds = [(s.kind, s.training, s.lam) for s in config.feedforwards]
-    assert kinds == [("lip", None, None), ("pgnn", "simultaneous", 0.0),
-                     ("pgnn", "simultaneous", 0.01), ("pgnn", "sequential", None)]
+    assert kinds[:4] == [("lip", None, None), ("pgnn", "simultaneous", 0.0),
+                         ("pgnn", "simultaneous", 0.01), ("pgnn", "sequential", None)]
+    paper = config.feedforwards[1].pgnn
+    assert paper.weight_decay == 0 and paper.continuation_lambda == 0
     assert all(s.seeds >= 10 for s in config.feedforwards if s.kind == "pgnn")
 
 
