@@ -94,6 +94,19 @@ class PerParameter:
             k in THETA_NAMES and Interval(float, 0).accepts(v) for k, v in value.items())
 
 
+@dataclass(frozen=True)
+class OrNone:
+    """``None`` (a default that depends on the data), or what ``rule`` accepts."""
+
+    rule: object
+
+    def describe(self) -> str:
+        return f"{self.rule.describe()} or null"
+
+    def accepts(self, value) -> bool:
+        return value is None or self.rule.accepts(value)
+
+
 # setting -> (its key in a config file, what it may be)
 CONSTRAINTS = {
     "hidden": ("hidden", Widths()),
@@ -112,7 +125,8 @@ CONSTRAINTS = {
     "continuation_lambda": ("pgnn.continuation_lambda", Interval(float, 0)),
     "adam_lr": ("pgnn.adam_lr", Interval(float, 0, None, "low")),
     "validation_fraction": ("pgnn.validation_fraction", Interval(float, 0, 0.5, "high")),
-    "decimation": ("pgnn.decimation", Interval(int, 1)),
+    "decimation": ("pgnn.decimation", OrNone(Interval(int, 1))),
+    "theta_ftol": ("pgnn.theta_ftol", Interval(float, 0)),
 }
 
 
@@ -148,7 +162,13 @@ class PGNNSettings:
     lambda_perp of the orthogonal-projection penalty (Kon et al. 2022; dimensionless);
     weight_decay: L2 weight of the network weights (N**2 per unit weight**2); lambda_diag:
     per-parameter regularization weights (mass, viscous, coulomb, stiffness; physical units)
-    overriding lambda; decimation: keep every n-th sample of the filtered training data.
+    overriding lambda; decimation: keep every n-th sample of the filtered training data (None:
+    one sample per 8 ms whatever the record's rate, :func:`decimation_for`: 80 at 10 kHz, 8 at
+    1 kHz); theta_ftol: a fit is ``converged`` only when, besides the first-order test on the
+    cost, theta_phy has settled: over the last quarter of the iterations its force
+    ``T . delta theta`` moved by at most this fraction of the training force's rms (else the stop
+    is ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
+    converge to).
     """
 
     activation: str = "tanh"
@@ -164,7 +184,20 @@ class PGNNSettings:
     orthogonal_weight: float = 0.0
     weight_decay: float = 0.0
     lambda_diag: dict[str, float] | None = None
-    decimation: int = 80
+    decimation: int | None = None
+    theta_ftol: float = 0.01
 
     def __post_init__(self):
         check_settings({f.name: getattr(self, f.name) for f in fields(self)})
+
+
+DECIMATION_S = 0.008  # s between kept samples of the filtered data: 125 samples/s
+
+
+def decimation_for(ts: float, decimation: int | None = None) -> int:
+    """``decimation`` if given, else the step that keeps one sample per ``DECIMATION_S`` of a
+    record sampled every ``ts`` s (80 at 10 kHz, 8 at 1 kHz): the fitting data then hold the
+    same number of samples per second of record whatever its rate."""
+    if decimation is not None:
+        return int(decimation)
+    return max(1, round(DECIMATION_S / ts))

@@ -36,7 +36,10 @@ def _cmd_run(args) -> int:
     config = load_config(args.config)
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
-    print(to_markdown(rows), end="")
+    if config.identifiability is not None or config.data is not None:
+        print((out / "table.md").read_text(), end="")  # with the sections beyond the rows
+    else:
+        print(to_markdown(rows), end="")
     return 0
 
 

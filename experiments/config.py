@@ -103,6 +103,80 @@ class FeedforwardSpec:
         return f"PGNN {self.training}{lam}, n_l={'x'.join(map(str, widths))}"
 
 
+@dataclass(frozen=True)
+class Identifiability:
+    """The profile of the data cost over each physical parameter, per network size of the
+    table's simultaneous PGNN rows (:mod:`experiments.identifiability`).
+
+    span: the grid reaches theta_LIP +- span * scale (scale: the change that alone moves the
+    force by its rms); max_iter: Levenberg-Marquardt iterations per profile point; references:
+    replayed with every profile fit (MAE over the valley).
+    """
+
+    span: float = 1.0
+    max_iter: int = 25
+    references: tuple[str, ...] = ("r1", "r2")
+
+    def __post_init__(self):
+        if not self.span > 0:
+            raise UserError(f"identifiability.span: expected a number > 0, got {self.span!r}")
+        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
+            raise UserError(f"identifiability.max_iter: expected an integer >= 1, "
+                            f"got {self.max_iter!r}")
+
+
+@dataclass(frozen=True)
+class Window:
+    """A training window: the samples whose (filtered) position and velocity lie in these
+    closed intervals (m, m/s; None: no limit on that signal)."""
+
+    position_m: tuple[float, ...] | None = None
+    velocity_m_s: tuple[float, ...] | None = None
+
+    def __post_init__(self):
+        for key in ("position_m", "velocity_m_s"):
+            value = getattr(self, key)
+            if value is not None and not (len(value) == 2 and value[0] < value[1]):
+                raise UserError(f"{key}: expected [low, high] with low < high, got "
+                                f"{list(value)!r}")
+
+    def inside(self, y, v):
+        """Boolean mask of the samples inside the window (positions ``y`` m, velocities ``v``
+        m/s)."""
+        import numpy as np
+
+        mask = np.ones(len(y), dtype=bool)
+        for value, x in ((self.position_m, y), (self.velocity_m_s, v)):
+            if value is not None:
+                mask &= (x >= value[0]) & (x <= value[1])
+        return mask
+
+
+@dataclass(frozen=True)
+class RecordData:
+    """Identification from measured records instead of the simulation (``clm-sim run`` with a
+    ``data:`` section): the training record, an optional validation record, how their columns
+    map onto a record (``columns``, ``scale``: as ``clm-sim identify --columns --scale``) and
+    the training window. Paths relative to the current folder."""
+
+    training: str
+    validation: str | None = None
+    columns: dict[str, str] | None = None
+    scale: dict[str, float | str] | None = None
+    window: Window = field(default_factory=Window)
+
+    def load(self, which: str = "training"):
+        """The record ``which`` (training or validation), read with ``columns`` and ``scale``;
+        a missing file is an error that names the key."""
+        from clm_sim.record import load_record
+
+        path = getattr(self, which)
+        if not Path(path).exists():
+            raise UserError(f"data.{which}: file not found: {path} (paths are relative to the "
+                            f"current folder {Path.cwd()})")
+        return load_record(path, columns=self.columns, scale=self.scale)
+
+
 def _default_feedforwards() -> tuple[FeedforwardSpec, ...]:
     return (FeedforwardSpec(kind="none"), FeedforwardSpec(kind="lip"))
 
@@ -127,18 +201,28 @@ class ExperimentConfig:
     features: FeatureMap = field(default_factory=FeatureMap)
     feedforwards: tuple[FeedforwardSpec, ...] = field(default_factory=_default_feedforwards)
     replay: tuple[str, ...] = ("r1", "r2")
+    identifiability: Identifiability | None = None
+    data: RecordData | None = None
 
     def __post_init__(self):
         if not (0 < self.ts <= 0.1):
             raise UserError(f"ts: expected a sample time in (0, 0.1] s, got {self.ts!r}")
         uses = [("training.reference", self.training.reference)]
         uses += [(f"replay[{i}]", name) for i, name in enumerate(self.replay)]
+        if self.identifiability is not None:
+            uses += [(f"identifiability.references[{i}]", name)
+                     for i, name in enumerate(self.identifiability.references)]
         for key, name in uses:
             if name not in self.references:
                 raise UserError(f"{key}: reference {name!r} is not defined under 'references' "
                                 f"(defined: {', '.join(self.references)})")
         if not self.feedforwards:
             raise UserError("feedforwards: expected at least one entry")
+        if self.data is not None:
+            for i, spec in enumerate(self.feedforwards):
+                if spec.kind == "none":
+                    raise UserError(f"feedforwards[{i}]: kind none has nothing to identify "
+                                    f"from a record (data:)")
 
 
 def in_file(path, exc: Exception, where: str = "") -> UserError:

@@ -54,6 +54,13 @@ def preflight(config: ExperimentConfig) -> None:
     """
     from controllers.pid import _check as check_pid_design
 
+    if config.data is not None:  # the records own their sample time; no simulation runs
+        for which in ("training", "validation"):
+            path = getattr(config.data, which)
+            if path is not None and not Path(path).exists():
+                raise UserError(f"data.{which}: file not found: {path} (paths are relative "
+                                f"to the current folder {Path.cwd()})")
+        return
     check_pid_design(config.plant.mass, config.plant.viscous, config.plant.stiffness,
                      config.controller, config.ts)
     nyquist = 0.5 / config.ts
@@ -73,6 +80,25 @@ def preflight(config: ExperimentConfig) -> None:
                         f"where it starts to be repeated")
 
 
+def _run_records(config: ExperimentConfig, out: Path | None, progress) -> list[dict]:
+    """The rows of a config with a ``data:`` section (:mod:`experiments.record_fit`); with
+    ``out`` also table.json, table.md and the fitted models."""
+    from experiments import record_fit
+
+    result = record_fit.compute(config, progress)
+    if out is not None:
+        for row, models in zip(result["rows"], result["models"]):
+            for s, model in enumerate(models):
+                if model is not None:
+                    model.save(out / "params" / f"{slug(row['label'])}_seed{s}")
+        doc = {k: v for k, v in result.items() if k != "models"}
+        (out / "table.json").write_text(json.dumps({**doc, "environment": environment()},
+                                                   indent=1))
+        (out / "table.md").write_text(record_fit.to_markdown(result["rows"],
+                                                             result["comparisons"]))
+    return result["rows"]
+
+
 def run_task(config: ExperimentConfig, *, progress=None) -> list[dict]:
     """The table rows of ``config``, computed without writing any file (one sweep task)."""
     preflight(config)
@@ -81,10 +107,12 @@ def run_task(config: ExperimentConfig, *, progress=None) -> list[dict]:
 
 def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> list[dict]:
     """Compute the rows of ``config``; with ``out`` also write runs, parameters and figures."""
-    tb = Testbed(config, progress=progress)
     if out is not None:
         (out / "config.resolved.yaml").write_text(yaml.safe_dump(resolved(config),
                                                                  sort_keys=False))
+    if config.data is not None:  # measured records instead of the simulation
+        return _run_records(config, out, progress)
+    tb = Testbed(config, progress=progress)
     try:
         pid = tb.pid
     except UserError as exc:
@@ -104,9 +132,10 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     if out is not None:
         (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
 
-    rows, shown = [], {}
+    rows, shown, results = [], {}, []
     for spec in config.feedforwards:
         result = tb.evaluate(spec, train, lip)
+        results.append(result)
         thetas = [dict(m.theta_) for m in result.models if m is not None]
         rows.append(table.make_row(spec, result.metrics, thetas))
         if out is not None:
@@ -117,17 +146,26 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
                 for s, model in enumerate(result.models):
                     model.save(out / "params" / f"{slug(spec.label())}_seed{s}")
 
+    ident = None
+    if config.identifiability is not None:
+        from experiments import identifiability
+        ident = tb.identifiability(train, lip, results)
+        identifiability.rows_against(ident, rows)
     if out is None:
         return rows
     if config.truth is not None:  # diagnose the model against the emulated machine
         from experiments.diagnosis.emulate import diagnose_emulated
         diagnose_emulated(tb, record=train, out=out / "diagnosis", progress=progress)
-    (out / "table.json").write_text(table.to_json(rows, environment=environment()))
-    (out / "table.md").write_text(table.to_markdown(rows))
+    (out / "table.json").write_text(table.to_json(rows, environment=environment(),
+                                                  identifiability=ident))
+    (out / "table.md").write_text(table.to_markdown(rows) + (
+        "" if ident is None else identifiability.to_markdown(ident, rows)))
     (out / "table.csv").write_text(table.to_csv(rows))
     from experiments import (
         plots,  # matplotlib only where figures are drawn (not in tasks)
     )
+    if ident:
+        plots.save(plots.identifiability_figure(ident), out / "figures" / "identifiability.png")
     for name in config.replay:
         plots.save(plots.tracking_figure(shown, name, rows=rows),
                    out / "figures" / f"tracking_{name}.png")

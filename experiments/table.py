@@ -58,8 +58,7 @@ def make_row(spec, metrics_per_seed: list[dict[str, dict]],
     }
     if FIT in metrics_per_seed[0]:
         fits = [m[FIT] for m in metrics_per_seed]
-        row["regularizers"] = {k: getattr(spec.pgnn, k) for k in (
-            "weight_decay", "orthogonal_weight", "pinn_weight", "lambda_diag")}
+        row["regularizers"] = regularizers(spec, fits)
         row["fits"] = fits
         row["converged"] = sum(f["stop"] == "converged" for f in fits)
         row["data_cost"] = _stat([f["data_cost"] for f in fits])
@@ -69,6 +68,26 @@ def make_row(spec, metrics_per_seed: list[dict[str, dict]],
             ref: _stat([m[ref]["network_peak_beyond_n"] for m in metrics_per_seed])
             for ref in refs if metrics_per_seed[0][ref].get("network_peak_beyond_n") is not None}
     return row
+
+
+def regularizers(spec, fits: list[dict]) -> dict:
+    """Every term and start that shaped a PGNN row besides the data: the pull toward theta_LIP
+    (``lambda``, ``lambda_diag``), the network L2 (``weight_decay``), the other penalties, the
+    continuation start (``continuation_lambda``: the lambda of the extra start where it applied,
+    else 0), the initialization (``init``: ``lemma`` is the paper's least-squares start) and the
+    starts whose best fit was kept (``starts_kept``, counted over seeds)."""
+    pg = spec.pgnn
+    kept = [f.get("start", "draw") for f in fits]
+    return {"lambda": spec.lam if spec.training != "sequential" else None,
+            "lambda_diag": pg.lambda_diag,
+            "weight_decay": pg.weight_decay,
+            "orthogonal_weight": pg.orthogonal_weight,
+            "pinn_weight": pg.pinn_weight if spec.training == "pinn" else 0.0,
+            "continuation_lambda": max((f.get("continuation_lambda", 0.0) for f in fits),
+                                       default=0.0),
+            "init": "lemma" if pg.init == "optimized" else "random",
+            "restarts": pg.restarts,
+            "starts_kept": {k: kept.count(k) for k in sorted(set(kept))}}
 
 
 def t_interval(d, confidence: float = 0.95) -> tuple[float, float, float]:
@@ -100,13 +119,15 @@ def comparisons(rows: list[dict]) -> list[dict]:
                     "diff": mean, "ci95": ci, "excludes_zero": bool(ci and (lo > 0 or hi < 0))})
 
     def plain_lambda0(r):
-        """A lambda = 0 row without further regularizers (beyond the smallest weight decay of
-        its n_l): the baseline of the paper's finding (iii)."""
+        """A lambda = 0 row without further regularizers (beyond the smallest weight decay and
+        continuation of its n_l): the baseline of the paper's finding (iii)."""
         if r["training"] != "simultaneous" or r["lambda"] or r["regularizers"]["orthogonal_weight"] \
                 or r["regularizers"]["lambda_diag"]:
             return False
-        return r["regularizers"]["weight_decay"] == min(
-            q["regularizers"]["weight_decay"] for q in pgnn if q["hidden"] == r["hidden"])
+        def shaping(q):  # network L2 first, then the continuation start
+            return (q["regularizers"]["weight_decay"],
+                    q["regularizers"].get("continuation_lambda", 0.0))
+        return shaping(r) == min(shaping(q) for q in pgnn if q["hidden"] == r["hidden"])
 
     done = set()
     for b in pgnn:
@@ -131,7 +152,8 @@ def comparisons(rows: list[dict]) -> list[dict]:
     return out
 
 
-def to_json(rows: list[dict], environment: dict | None = None) -> str:
+def to_json(rows: list[dict], environment: dict | None = None,
+            identifiability: dict | None = None) -> str:
     """``{"rows": ...}``, with ``"comparisons"`` when there are PGNN rows to compare and
     ``"environment"`` (library versions, CPU, kernels: :func:`clm_sim.numerics.environment`)
     when given."""
@@ -139,6 +161,8 @@ def to_json(rows: list[dict], environment: dict | None = None) -> str:
     pairs = comparisons(rows)
     if pairs:
         doc["comparisons"] = pairs
+    if identifiability is not None:
+        doc["identifiability"] = identifiability
     if environment is not None:
         doc["environment"] = environment
     return json.dumps(doc, indent=1)
@@ -202,7 +226,8 @@ def fit_report(rows: list[dict]) -> str:
     beyond the training range; the fits that did not converge; the paired comparisons."""
     pgnn = [r for r in rows if "fits" in r]
     beyond = list(dict.fromkeys(ref for r in pgnn for ref in r["network_peak_beyond_n"]))
-    head = (["PGNN", "data cost [N²]", "reg. cost [N²]", "max θ drift [%]"]
+    head = (["PGNN", "data cost [N²]", "reg. cost [N²]", "max θ drift [%]",
+             "median fk [N/m] (max)", "fits with fc < 0"]
             + [f"peak f_NN beyond training range, {ref} [N]" for ref in beyond])
     lines = ["", ("Training cost, largest relative drift of θ_phy from θ_LIP, peak network force "
                   "beyond the training range (mean ± std over seeds):"), "",
@@ -211,6 +236,10 @@ def fit_report(rows: list[dict]) -> str:
         cells = [r["label"], f"{r['data_cost']['mean']:.5f} ± {r['data_cost']['std']:.5f}",
                  f"{r['reg_cost']['mean']:.3g}",
                  f"{r['theta_drift']['mean'] * 100:.2f} ± {r['theta_drift']['std'] * 100:.2f}"]
+        per_seed = r.get("theta_phy_per_seed") or []
+        fk = [t["stiffness"] for t in per_seed]
+        cells += [f"{np.median(fk):.4g} ({max(fk):.4g})" if fk else "–",
+                  f"{sum(t['coulomb'] < 0 for t in per_seed)}/{len(per_seed)}"]
         cells += [f"{r['network_peak_beyond_n'][ref]['mean']:.2f} ± "
                   f"{r['network_peak_beyond_n'][ref]['std']:.2f}"
                   if ref in r["network_peak_beyond_n"] else "–" for ref in beyond]
@@ -218,11 +247,17 @@ def fit_report(rows: list[dict]) -> str:
     capped = [(r["label"], f) for r in pgnn for f in r["fits"] if f["stop"] != "converged"]
     total = sum(len(r["fits"]) for r in pgnn)
     lines += ["", (f"**Fits:** {total - len(capped)} of {total} converged (the Gauss-Newton "
-                   "model predicts at most a relative decrease ftol of the training cost).")]
+                   "model predicts at most a relative decrease ftol of the training cost, and "
+                   "θ_phy has settled: over the last quarter of the iterations its force moved "
+                   "by at most theta_ftol of the training force's rms; `theta_moving`: the "
+                   "cost test held while θ_phy still travelled).")]
     if capped:
         lines += ["Not converged (⚠ above): " + "; ".join(
             f"{label} seed {f['seed']} ({f['stop']} after {f['iterations']} iterations, "
-            f"first-order measure {f['first_order']:.1e})" for label, f in capped) + "."]
+            f"first-order measure {f['first_order']:.1e}"
+            + (f", θ force moved {100 * f['theta_moved']:.1f} %" if "theta_moved" in f else "")
+            + ")" for label, f in capped) + "."]
+    lines += theta_paths(pgnn)
     lines += ["", ("**Paired comparisons** (a − b over the same seeds, i.e. the same network "
                    "draw; mean and 95 % t-interval; * where the interval excludes 0):"), ""]
     for c in comparisons(rows):
@@ -234,6 +269,31 @@ def fit_report(rows: list[dict]) -> str:
                      f"{_fmt_diff(c['metric'], c['diff'])} {ci}"
                      + (" *" if c["excludes_zero"] else ""))
     return "\n".join(lines) + "\n"
+
+
+def theta_paths(pgnn: list[dict]) -> list[str]:
+    """How θ_phy moves with the iterations in the rows where a fit did not converge: the median
+    over seeds of the data cost and θ_phy at each checkpoint iteration reached by every seed."""
+    out = []
+    for r in pgnn:
+        if r["training"] == "sequential" or all(f["stop"] == "converged" for f in r["fits"]):
+            continue
+        paths = [f.get("theta_path") for f in r["fits"]]
+        if not all(paths):
+            continue
+        common = set.intersection(*({p["iteration"] for p in path} for path in paths))
+        if not out:
+            out += ["", "**θ_phy with the iterations** (median over seeds, at the iterations "
+                    "every seed reached; rows with a fit that did not converge):", ""]
+        out += [f"{r['label']}:", "", "| iteration | data cost [N²] | "
+                + " | ".join(f"{_SHORT[k]} [{THETA_UNITS[k]}]" for k in THETA_NAMES) + " |",
+                "|---|---|" + "---|" * len(THETA_NAMES)]
+        for it in sorted(common):
+            at = [next(p for p in path if p["iteration"] == it) for path in paths]
+            out.append(f"| {it} | {np.median([a['data_cost'] for a in at]):.5f} | " + " | ".join(
+                f"{np.median([a[k] for a in at]):.4g}" for k in THETA_NAMES) + " |")
+        out.append("")
+    return out
 
 
 def to_csv(rows: list[dict], swept: list[str] = ()) -> str:

@@ -132,10 +132,21 @@ def fit_pgnn(payload: tuple):
     return model.fit_data(data=data, theta_lip=theta_lip, rng=np.random.default_rng(seq))
 
 
-def map_fits(payloads: list) -> list:
-    """``[fit_pgnn(p) for p in payloads]``, on the worker pool when there is more than one fit,
-    more than one core and this is not already a pool's worker."""
+def fit_pinned(payload: tuple):
+    """One PGNN fit with pinned physical parameters: ``(settings, features, data, theta_lip,
+    beta0, pinned)`` -> fitted model (a point of the cost's profile)."""
+    from controllers.pgnn import PGNNFeedforward
+
+    settings, features, data, theta_lip, beta0, pinned = payload
+    model = PGNNFeedforward(**settings, features=features)
+    return model.fit_pinned(data=data, theta_lip=theta_lip, beta0=beta0, pinned=pinned)
+
+
+def map_fits(payloads: list, fn: Callable = fit_pgnn) -> list:
+    """``[fn(p) for p in payloads]`` (default :func:`fit_pgnn`; or :func:`fit_pinned`), on the
+    worker pool when there is more than one fit, more than one core and this is not already a
+    pool's worker."""
     if len(payloads) < 2 or cores() < 2 or multiprocessing.parent_process() is not None:
-        return [fit_pgnn(p) for p in payloads]
+        return [fn(p) for p in payloads]
     with single_threaded_children():  # workers are spawned on submit and inherit this
-        return list(_pool().map(fit_pgnn, payloads))
+        return list(_pool().map(fn, payloads))

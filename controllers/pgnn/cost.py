@@ -46,17 +46,23 @@ class Weights:
 class SeparableCost:
     """``cost(beta, jacobian)`` -> reduced residual ``r`` (and Jacobian) for
     :func:`controllers.optim.levenberg_marquardt`; ``||r||**2`` is the training cost at the best
-    linear parameters for ``beta``, which :meth:`linear` returns."""
+    linear parameters for ``beta``, which :meth:`linear` returns. ``pinned``: physical
+    parameters held at given values (index in THETA order -> value) while the rest is fitted
+    (the profile of the cost over those parameters, :mod:`controllers.pgnn.profile`)."""
 
     def __init__(self, net: PGNNNetwork, phi: np.ndarray, target: np.ndarray,
-                 theta_lip: np.ndarray, weights: Weights, fit_theta: bool):
+                 theta_lip: np.ndarray, weights: Weights, fit_theta: bool,
+                 pinned: dict[int, float] | None = None):
         self.net, self.phi, self.t = net, phi, target
         self.z = torch.from_numpy(np.ascontiguousarray(phi))
         self.theta_lip, self.w, self.fit_theta = theta_lip, weights, fit_theta
         self.n = len(target)
         self.sq = 1.0 / np.sqrt(self.n)
         self.n_hidden = net.mlp.out.in_features
-        self.n_theta = 4 if fit_theta else 0
+        self.pinned = dict(pinned or {}) if fit_theta else {}
+        self.free = [k for k in range(4) if k not in self.pinned]
+        self.pinned_force = phi @ np.array([self.pinned.get(k, 0.0) for k in range(4)])
+        self.n_theta = len(self.free) if fit_theta else 0
         self.lip_pred = phi @ theta_lip
         self.q_phi = np.linalg.qr(phi)[0] if weights.orthogonal > 0 else None
         # Entries of beta that are weights (decayed), not biases.
@@ -71,18 +77,21 @@ class SeparableCost:
         outputs ``h``; ``x = (theta?, w, b)``."""
         n, w = self.n, self.w
         ones = np.ones((n, 1))
-        cols = np.hstack([self.phi, h, ones]) if self.fit_theta else np.hstack([h, ones])
-        base = self.t if self.fit_theta else self.t - self.lip_pred
+        cols = (np.hstack([self.phi[:, self.free], h, ones]) if self.fit_theta
+                else np.hstack([h, ones]))
+        base = self.t - self.pinned_force if self.fit_theta else self.t - self.lip_pred
         k = cols.shape[1]
         blocks = [("data", cols * self.sq, base * self.sq)]
         if w.pinn > 0:
             s = np.sqrt(w.pinn) * self.sq
             blocks.append(("pinn", cols * s,
-                           (self.lip_pred if self.fit_theta else np.zeros(n)) * s))
+                           (self.lip_pred - self.pinned_force if self.fit_theta
+                            else np.zeros(n)) * s))
         if self.fit_theta and np.any(w.lam_diag > 0):
-            R = np.zeros((4, k))
-            R[:, :4] = np.diag(np.sqrt(w.lam_diag))
-            blocks.append(("deviation", R, np.sqrt(w.lam_diag) * self.theta_lip))
+            lam, free = w.lam_diag[self.free], self.free
+            R = np.zeros((len(free), k))
+            R[:, :len(free)] = np.diag(np.sqrt(lam))
+            blocks.append(("deviation", R, np.sqrt(lam) * self.theta_lip[free]))
         if w.orthogonal > 0:
             net_cols = np.hstack([h, ones])
             R = np.zeros((4, k))
@@ -119,7 +128,11 @@ class SeparableCost:
     def linear(self, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """``(theta, w_out, b_out)`` minimizing the cost for nonlinear parameters ``beta``."""
         x = self._solve(beta)["x"]
-        theta = x[:4] if self.fit_theta else self.theta_lip.copy()
+        if self.fit_theta:
+            theta = np.array([self.pinned.get(k, 0.0) for k in range(4)])
+            theta[self.free] = x[:self.n_theta]
+        else:
+            theta = self.theta_lip.copy()
         return theta, x[self.n_theta:self.n_theta + self.n_hidden], float(x[-1])
 
     def _decay_rows(self, beta):

@@ -45,7 +45,8 @@ input as the filtered features: the model is ``theta . T(phi) + f_NN(filter(phi)
 applies the same filter to the reference's features, so training and use see the same inputs.
 This is accurate as long as the parasitic forces vary slowly compared with the filter, which holds
 for forces of position and velocity. After the filter the data carry nothing above its cut-off, so
-they are decimated (``decimation``, default 80 -> 125 samples/s, 6,600 samples for the default
+they are decimated (``decimation``, default one sample per 8 ms: 80 at 10 kHz, 8 at 1 kHz, so
+125 samples/s at any rate, 6,600 samples for the default
 training run, some 80 per network parameter; for a static map subsampling only costs statistical
 efficiency, and neighbouring samples are strongly correlated after the filter anyway) to keep a
 full-batch second-order fit at a few seconds. The lemma's comparison with the LIP uses these same
@@ -68,7 +69,7 @@ from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import TERMS, SeparableCost, Weights
 from controllers.pgnn.network import PGNNNetwork
-from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings, check_settings
+from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings, check_settings, decimation_for
 
 _DEFAULTS = PGNNSettings()  # the one declaration of the defaults
 
@@ -93,8 +94,10 @@ class TrainingData:
 
 
 def training_data(features: FeatureMap, *, y: np.ndarray, u: np.ndarray, ts: float,
-                  decimation: int = 20) -> TrainingData:
-    """Filtered, aligned and decimated fitting data from positions ``y`` (m) and inputs ``u`` (N)."""
+                  decimation: int | None = None) -> TrainingData:
+    """Filtered, aligned and decimated fitting data from positions ``y`` (m) and inputs ``u`` (N);
+    ``decimation`` None: one sample per 8 ms (:func:`controllers.pgnn_settings.decimation_for`)."""
+    decimation = decimation_for(ts, decimation)
     yf, v, a = features.motion(y, ts)
     cols = np.column_stack([lip_regressors(yf, v, a), edge_force(u)])
     keep = features.fit_slice(len(yf))
@@ -157,7 +160,8 @@ class PGNNFeedforward:
     continuation_lambda: float = _DEFAULTS.continuation_lambda
     adam_lr: float = _DEFAULTS.adam_lr
     validation_fraction: float = _DEFAULTS.validation_fraction
-    decimation: int = _DEFAULTS.decimation
+    decimation: int | None = _DEFAULTS.decimation
+    theta_ftol: float = _DEFAULTS.theta_ftol
     features: FeatureMap = field(default_factory=FeatureMap)
 
     SETTINGS = tuple(CONSTRAINTS)  # every field but features (tests/test_api.py checks)
@@ -279,6 +283,10 @@ class PGNNFeedforward:
                     if best is None or got["result"].cost < best["result"].cost:
                         best = dict(got, start=start)
         res = best["result"]
+        moved = theta_movement(best["history"], fit)
+        stop = res.stop
+        if stop == "converged" and self.training != "sequential" and moved > self.theta_ftol:
+            stop = "theta_moving"
         self.network_ = best["net"]
         self.theta_ = dict(zip(THETA_NAMES, map(float, self.network_.theta.detach().numpy())))
         self.theta_lip_ = dict(zip(THETA_NAMES, map(float, theta_lip_v)))
@@ -287,12 +295,60 @@ class PGNNFeedforward:
         self.cost_ = best["terms"]
         self.n_samples_ = len(fit.target)
         self.ts_ = data.ts
-        self.fit_ = {"stop": res.stop, "iterations": res.iterations,
+        self.fit_ = {"stop": stop, "cost_stop": res.stop, "iterations": res.iterations,
+                     "iterations_total": int(sum(s["iterations"] for s in starts)),
+                     "theta_moved": moved, "theta_ftol": self.theta_ftol,
+                     "theta_path": theta_path(best["history"]),
+                     "continuation_lambda": (float(self.continuation_lambda)
+                                             if self._continues() else 0.0),
                      "data_cost": self.cost_["data"],
                      "reg_cost": float(sum(v for k, v in self.cost_.items() if k != "data")),
                      "grad_norm": res.grad_norm, "first_order": res.first_order,
                      "ftol": self.ftol, "max_iter": self.max_iter, "start": best["start"],
                      "starts": starts}
+        return self
+
+    def fit_pinned(self, *, data: TrainingData, theta_lip: dict[str, float],
+                   beta0: np.ndarray, pinned: dict[str, float]) -> PGNNFeedforward:
+        """Fit with the physical parameters ``pinned`` (name -> value, SI units) held fixed and
+        everything else trained (varpro from hidden layers ``beta0``, this model's cost with
+        theta_phy's pinned entries removed): one point of the cost's profile over them."""
+        self._check()
+        if self.optimizer != "varpro" or self.training == "sequential":
+            raise UserError("fit_pinned: needs optimizer varpro and a trained theta_phy")
+        unknown = set(pinned) - set(THETA_NAMES)
+        if unknown:
+            raise UserError(f"fit_pinned: unknown parameter(s) {sorted(unknown)}; expected "
+                            f"{', '.join(THETA_NAMES)}")
+        theta_lip_v = _as_theta(theta_lip)
+        index = {THETA_NAMES.index(k): float(v) for k, v in pinned.items()}
+        history = []
+        with one_thread():
+            net = self.new_network(data, None, np.asarray(beta0, dtype=np.float64))
+            cost = SeparableCost(net, data.phi, data.target, theta_lip_v, self._weights(),
+                                 fit_theta=True, pinned=index)
+
+            def record(it, p, value):
+                theta, _, _ = cost.linear(p)
+                history.append({"iteration": it, "cost": value, **cost.terms(p),
+                                "theta": dict(zip(THETA_NAMES, map(float, theta)))})
+
+            res = optim.levenberg_marquardt(cost, net.get_nonlinear(), max_iter=self.max_iter,
+                                            ftol=self.ftol, callback=record)
+            theta, w, b = cost.linear(res.p)
+            net.set_nonlinear(res.p)
+            net.set_linear(theta, w, b)
+            terms = cost.terms(res.p)
+        self.network_ = net
+        self.theta_ = dict(zip(THETA_NAMES, map(float, theta)))
+        self.theta_lip_ = dict(zip(THETA_NAMES, map(float, theta_lip_v)))
+        self.history_, self.best_iteration_, self.cost_ = history, res.iterations, terms
+        self.n_samples_ = len(data.target)
+        self.fit_ = {"stop": res.stop, "cost_stop": res.stop, "iterations": res.iterations,
+                     "data_cost": terms["data"], "pinned": dict(pinned),
+                     "reg_cost": float(sum(v for k, v in terms.items() if k != "data")),
+                     "first_order": res.first_order, "grad_norm": res.grad_norm,
+                     "ftol": self.ftol, "max_iter": self.max_iter}
         return self
 
     def _one_start(self, fit: TrainingData, held_out, theta_lip, rng, beta0: np.ndarray,
@@ -450,6 +506,29 @@ def _generator(rng) -> np.random.Generator:
         return np.random.default_rng(rng)
     raise UserError(f"PGNNFeedforward.fit: rng must be a numpy.random.Generator or an integer "
                     f"seed, got {type(rng).__name__}")
+
+
+CHECKPOINTS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
+
+
+def theta_path(history: list[dict]) -> list[dict]:
+    """theta_phy (named) at the iterations ``CHECKPOINTS`` that the fit reached, and at its last
+    accepted iteration: how theta moves as the optimizer goes on."""
+    by_it = {e["iteration"]: e for e in history}
+    its = [i for i in CHECKPOINTS if i in by_it] + [history[-1]["iteration"]]
+    return [{"iteration": i, "data_cost": by_it[i]["data"], **by_it[i]["theta"]}
+            for i in dict.fromkeys(its)]
+
+
+def theta_movement(history: list[dict], data: TrainingData) -> float:
+    """How far theta_phy still travels at the end of a fit: the rms of ``T . delta theta`` over
+    ``data`` (delta theta: last accepted iterate minus the one a quarter of the iterations
+    earlier), as a fraction of the rms training force. 0 for a fit without iterations."""
+    last = history[-1]
+    m = max(1, int(np.ceil(last["iteration"] / 4)))
+    earlier = next((e for e in history if e["iteration"] >= last["iteration"] - m), history[0])
+    d = _as_theta(last["theta"]) - _as_theta(earlier["theta"])
+    return float(np.sqrt(np.mean((data.phi @ d) ** 2)) / np.sqrt(np.mean(data.target ** 2)))
 
 
 def _predict(net: PGNNNetwork, data: TrainingData) -> np.ndarray:
