@@ -28,6 +28,11 @@ about three counts of the whole transition, so those cells are not asked to name
 there: nothing at all is named, not even a friction dip in its place). The cable force is
 identifiable in every cell; a friction curve on top of Coulomb (a Stribeck peak or a dip) in
 the cells where the test asks for it.
+
+Naming (issue 15): a constant force beside a cogging force is ``force_offset`` and ``cogging``
+(the parsimony rule), and LuGre friction with critically damped bristles and no Stribeck curve is
+pre-sliding or unexplained, never a Stribeck curve (its law: the same force while the speed rises
+and falls). Measured before and after in ``docs/diagnosis.md``.
 """
 
 from __future__ import annotations

@@ -302,29 +302,55 @@ class Step:
 @dataclass
 class Context:
     """The state a family proposes and checks candidates in: the residual, the accepted steps,
-    their columns ``x_s`` and fit, the current residual ``e`` on the fitted samples, and
-    ``base``, the held-out MSE of the model's own residual."""
+    the ``nuisance`` columns (what the data holds but no family explains, :class:`Rejection`),
+    the columns ``x_s`` of both (steps first) and their fit, the current residual ``e`` on the
+    fitted samples, and ``base``, the held-out MSE of the model's own residual."""
 
     res: Residual
     steps: list[Step]
+    nuisance: np.ndarray
     x_s: np.ndarray
     fit_s: Fit
     e: np.ndarray
     base: float
 
     @classmethod
-    def of(cls, res: Residual, steps: list[Step], base: float) -> Context:
-        x_s = np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps])
+    def of(cls, res: Residual, steps: list[Step], base: float,
+           nuisance: np.ndarray | None = None) -> Context:
+        if nuisance is None:
+            nuisance = np.zeros((len(res.z), 0))
+        x_s = np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps]
+                              + [nuisance])
         fit_s = fit_cv(x_s, res.z, res.fold, res.settings.folds)
-        return cls(res, list(steps), x_s, fit_s, res.z - x_s @ fit_s.coef, base)
+        return cls(res, list(steps), nuisance, x_s, fit_s, res.z - x_s @ fit_s.coef, base)
 
     def used(self, name: str) -> list[Term]:
         return [s.term for s in self.steps if s.term.effect == name]
+
+    def columns_of(self, name: str) -> np.ndarray:
+        """Mask over the columns of ``x_s``: those of the accepted terms of family ``name``."""
+        return np.concatenate([np.zeros(0, bool)]
+                              + [np.full(s.cols.shape[1], s.term.effect == name)
+                                 for s in self.steps]
+                              + [np.zeros(self.nuisance.shape[1], bool)])
 
     def coef_with(self, cols: np.ndarray) -> np.ndarray:
         """In-sample least-squares coefficients of the accepted columns plus ``cols``."""
         x = np.column_stack([self.x_s, cols])
         return solve(x.T @ x, x.T @ self.res.z)
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """Why a significant candidate may not carry its family's name. ``nuisance``: columns that
+    describe what the data holds there (the candidate's, or its law's split columns) when that
+    part of the residual stays unexplained; None when the rejection only says there is nothing
+    worth naming or another family names it. The selection holds the nuisance columns in every
+    later test, not in the extended model: a part of the residual that is there but unexplained
+    must not pass for another effect that happens to correlate with it."""
+
+    reason: str
+    nuisance: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -360,9 +386,6 @@ class Family:
     units: ClassVar[dict[str, str]] = {}
     # The linear coefficient behind a reported parameter (its standard error is reported).
     std_of: ClassVar[dict[str, str]] = {}
-    # Whether a significant candidate that is not admissible marks residual left unexplained
-    # (False where the rejection only says there is nothing worth naming).
-    rejection_unexplained: ClassVar[bool] = True
 
     def n_params(self, term: Term) -> int:
         """Parameters of an explanation by ``term``: its coefficients and searched parameters."""
@@ -379,9 +402,9 @@ class Family:
         """The candidate with its parameters searched exactly (ranking used cheap columns)."""
         return cand
 
-    def admissible(self, ctx: Context, term: Term, cols: np.ndarray) -> str | None:
-        """None if the fitted candidate may carry the family's name, else the reason it may not
-        (a physical bound, or a check of the family's law the data fails)."""
+    def admissible(self, ctx: Context, term: Term, cols: np.ndarray) -> Rejection | None:
+        """None if the fitted candidate may carry the family's name, else why it may not (a
+        physical bound, or a check of the family's law the data fails)."""
         return None
 
     def splits(self, res: Residual) -> list[tuple[np.ndarray, str]]:
@@ -389,7 +412,7 @@ class Family:
         hold: per pair, the full-rate mask of one regime and what the law is."""
         return []
 
-    def law_holds(self, ctx: Context, term: Term, cols: np.ndarray) -> str | None:
+    def law_holds(self, ctx: Context, term: Term, cols: np.ndarray) -> Rejection | None:
         """The family's law checked on the data: the term fitted with separate coefficients in
         the two regimes of each of :meth:`splits` (jointly with the accepted terms); the law
         fails where the two sets disagree by the rule of :func:`disagrees` (their force differs
@@ -404,13 +427,14 @@ class Family:
         for mask, law in self.splits(res):
             split = {**{f"{key}+": c * mask for key, c in full.items()},
                      **{f"{key}-": c * ~mask for key, c in full.items()}}
-            x = np.column_stack([ctx.x_s, res.columns(split)])
+            split_cols = res.columns(split)
+            x = np.column_stack([ctx.x_s, split_cols])
             coef = solve(x.T @ x, x.T @ res.z)
             cov = coefficient_cov(res, x, coef)
             delta = coef[a] - coef[b]
             cov_d = cov[a, a] + cov[b, b] - cov[a, b] - cov[b, a]
             if disagrees(res, delta, cov_d, cols, joint):
-                return f"{law}; fitted apart they differ"
+                return Rejection(f"{law}; fitted apart they differ", split_cols)
         return None
 
     def finding(self, res: Residual, term: Term, coef: dict[str, float], sd: dict[str, float],
@@ -451,7 +475,7 @@ class ParameterMismatch(FixedFamily):
 
     name = "parameter_mismatch"
     keys = THETA_NAMES
-    rejection_unexplained = False
+
     units = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
     def admissible(self, ctx, term, cols):
@@ -462,7 +486,7 @@ class ParameterMismatch(FixedFamily):
         if any(reportable(ctx.res, coef[n + j], std[n + j], cols[:, j])
                for j in range(cols.shape[1])):
             return None
-        return "no correction is both significant and practically relevant"
+        return Rejection("no correction is both significant and practically relevant")
 
     def finding(self, res, term, coef, sd, cols, stats, correction):
         params = {}
@@ -516,7 +540,7 @@ class PeriodicFamily(Family):
 
     def admissible(self, ctx, term, cols):
         if not beats_smooth(ctx, cols):
-            return "a smooth force in position explains it as well"
+            return Rejection("a smooth force in position explains it as well")
         return self.law_holds(ctx, term, cols)
 
     def finding(self, res, term, coef, sd, cols, stats, correction):
@@ -572,7 +596,7 @@ class StribeckFamily(Family):
     def admissible(self, ctx, term, cols):
         peak = float(ctx.coef_with(cols)[-1])
         if peak < 0 and not dip_beats_presliding(ctx, cols, peak):
-            return "a friction dip that pre-sliding friction explains as well"
+            return Rejection("a friction dip that pre-sliding friction explains as well")
         return self.law_holds(ctx, term, cols)
 
 
@@ -598,16 +622,18 @@ class PreslidingFamily(Family):
 
     def admissible(self, ctx, term, cols):
         coef = ctx.coef_with(cols)
-        mask = np.concatenate([np.zeros(0, bool)] + [np.full(s.cols.shape[1], s.term.effect ==
-                                                             self.name) for s in ctx.steps])
+        mask = ctx.columns_of(self.name)
         n = ctx.x_s.shape[1]
         # It takes friction over from the model's Coulomb friction: at most all of it (5 %
         # slack for its uncertainty), shared among the accepted elements.
         moved = float(coef[n:].sum() + coef[:n][mask].sum())
         if coef[-1] <= 0:
-            return "negative pre-sliding friction"
+            # Friction above the Coulomb level after a reversal (bristle damping, a lag): Dahl
+            # friction can only lie below it there.
+            return Rejection("negative pre-sliding friction: friction above the Coulomb level "
+                             "after a reversal", cols)
         if moved > 1.05 * ctx.res.plant.coulomb:
-            return "more pre-sliding friction than the model's Coulomb friction"
+            return Rejection("more pre-sliding friction than the model's Coulomb friction", cols)
         return None
 
     def finding(self, res, term, coef, sd, cols, stats, correction):
@@ -643,7 +669,7 @@ class CableSlabFamily(Family):
         x_lin = np.column_stack([ctx.x_s, cols[:, :2]])
         fit_lin = fit_cv(x_lin, res.z, res.fold, res.settings.folds)
         if not significance(res, x_lin, fit_lin, cols[:, 2:], ctx.base).passes(res):
-            return "no more than an offset and a stiffness"
+            return Rejection("no more than an offset and a stiffness")
         return self.law_holds(ctx, term, cols)
 
     def finding(self, res, term, coef, sd, cols, stats, correction):
@@ -664,7 +690,7 @@ class NotSupported(Family):
 
     name = "not_supported"
     repeatable = True
-    rejection_unexplained = False
+
     units = {"support": ""}
 
     def propose(self, ctx):
@@ -680,7 +706,7 @@ class NotSupported(Family):
     def admissible(self, ctx, term, cols):
         if ctx.coef_with(cols)[-1] < -0.5:
             return None
-        return "the data holds more than half of the model's effect"
+        return Rejection("the data holds more than half of the model's effect")
 
     def finding(self, res, term, coef, sd, cols, stats, correction):
         correction.setdefault("drop", []).append(term.template)
@@ -736,7 +762,7 @@ def beats_smooth(ctx: Context, cols: np.ndarray) -> bool:
     fold's positions lie outside the others')."""
     res, st = ctx.res, ctx.res.settings
     fit_p = fit_cv(np.column_stack([ctx.x_s, cols]), res.z, res.fold, st.folds)
-    rest = [s.cols for s in ctx.steps if s.term.effect != "cable_slab"]
+    rest = [s.cols for s in ctx.steps if s.term.effect != "cable_slab"] + [ctx.nuisance]
     x_rest = np.column_stack([np.zeros((len(res.z), 0))] + rest)
     have = [s.term.order for s in ctx.steps if s.term.effect == "cable_slab"]
     if not have:

@@ -10,7 +10,7 @@ CLI, the emulated machine and the report all print that one rendering.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Mapping
 
@@ -76,11 +76,9 @@ class Finding:
     n_params: int = 0
     effect_object: Effect | None = None
     model_effect: Effect | None = None
-    stats: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self):
         object.__setattr__(self, "parameters", MappingProxyType(dict(self.parameters)))
-        object.__setattr__(self, "stats", MappingProxyType(dict(self.stats)))
 
     def __str__(self) -> str:
         what = self.effect
@@ -104,7 +102,7 @@ class Finding:
                "unique_fraction": float(self.unique_fraction),
                "selection_gain": float(self.selection_gain),
                "folds_improved": int(self.folds_improved), "p_value": float(self.p_value),
-               "n_params": int(self.n_params), **{k: float(v) for k, v in self.stats.items()}}
+               "n_params": int(self.n_params)}
         if self.effect_object is not None:
             out["effect_config"] = self.effect_object.as_config()
         if self.model_effect is not None:

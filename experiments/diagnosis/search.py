@@ -30,9 +30,13 @@ already explains the data yields no finding. A backward pass then drops any term
 from the final model raises the held-out MSE by less than these thresholds (made redundant by
 later terms).
 
-Unexplained: when the search stops, a candidate that passed the significance rule but was not
-admissible to its family marks a part of the residual that is there but that no family explains;
-it is reported as such (:class:`~experiments.diagnosis.finding.Unexplained`), not named.
+Unexplained: a candidate that passes the significance rule but is not admissible to its family,
+for a reason that leaves residual unexplained (its law fails on the data, a physical bound), marks
+a part of the residual that is there but that no family explains. It is reported as such
+(:class:`~experiments.diagnosis.finding.Unexplained`), not named, and its columns (for a failed
+law, the law's split columns: what the data holds) are held as a nuisance in every later test and
+in the final passes, never in the extended model, so that it cannot pass for another effect that
+happens to correlate with it.
 """
 
 from __future__ import annotations
@@ -42,7 +46,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.diagnosis.families import REGISTRY, Candidate, Context, Step, Term
+from experiments.diagnosis.families import (REGISTRY, Candidate, Context, Rejection, Step,
+                                            Term)
 from experiments.diagnosis.finding import Unexplained
 from experiments.diagnosis.fitting import (Significance, clearly_better, cv_of, fit_cv,
                                            significance)
@@ -94,7 +99,7 @@ def _candidates(ctx: Context) -> list[Candidate]:
 
 
 def _simplest(ctx: Context, best: _Tested, others: list[Candidate],
-              rejected: dict[str, Unexplained]) -> _Tested:
+              rejected: dict[str, tuple[Unexplained, np.ndarray]]) -> _Tested:
     """Parsimony: the admissible, significant candidate with the fewest parameters that ``best``
     does not fit clearly better (``best`` itself if none)."""
     chosen = best
@@ -105,56 +110,71 @@ def _simplest(ctx: Context, best: _Tested, others: list[Candidate],
         t = _evaluate(ctx, cand)
         if t is None or clearly_better(ctx.res, t.test.fit, best.test.fit, ctx.base):
             continue
-        why = family.admissible(ctx, t.term, t.cols)
-        if why is None:
+        rejection = family.admissible(ctx, t.term, t.cols)
+        if rejection is None:
             chosen = t
         else:
-            _note(rejected, family.name, why, t.test.explained)
+            _note(rejected, t, rejection)
     return chosen
 
 
-def _note(rejected: dict[str, Unexplained], name: str, why: str, explained: float) -> None:
-    if not REGISTRY[name].rejection_unexplained:
+def _note(rejected: dict[str, tuple[Unexplained, np.ndarray]], t: _Tested,
+          rejection: Rejection) -> None:
+    """Keep a rejection that leaves residual unexplained (the strongest per family)."""
+    name = t.term.effect
+    if rejection.nuisance is None:
         return
-    if name not in rejected or rejected[name].fraction < explained:
-        rejected[name] = Unexplained(name, why, float(explained))
+    if name not in rejected or rejected[name][0].fraction < t.test.explained:
+        rejected[name] = (Unexplained(name, rejection.reason, float(t.test.explained)),
+                          rejection.nuisance)
 
 
 def forward_select(res: Residual) -> Selection:
     """Forward selection of causes on ``res`` by the significance and parsimony rules of this
-    module, then the final model's parsimony pass and the backward pass."""
+    module, then the final model's parsimony pass and the backward pass.
+
+    A significant candidate whose family may not name it (:class:`Rejection` with nuisance
+    columns) is unexplained: its columns are held as a nuisance in the later tests (not in the
+    model), once per family, and the step is searched again."""
     st = res.settings
     steps: list[Step] = []
     base = cv_of(res).cv_mse
-    rejected: dict[str, Unexplained] = {}
+    held: dict[str, tuple[Unexplained, np.ndarray]] = {}
     while len(steps) < st.max_findings:
-        ctx = Context.of(res, steps, base)
+        nuisance = np.column_stack([np.zeros((len(res.z), 0))] + [c for _, c in held.values()])
+        ctx = Context.of(res, steps, base, nuisance)
         ranked = _candidates(ctx)
-        rejected = {}
+        rejected: dict[str, tuple[Unexplained, np.ndarray]] = {}
         accepted = None
         for i, cand in enumerate(ranked):
             t = _evaluate(ctx, cand)
             if t is None:
                 continue
-            why = REGISTRY[t.term.effect].admissible(ctx, t.term, t.cols)
-            if why is not None:
-                _note(rejected, t.term.effect, why, t.test.explained)
+            rejection = REGISTRY[t.term.effect].admissible(ctx, t.term, t.cols)
+            if rejection is not None:
+                _note(rejected, t, rejection)
                 continue
             accepted = _simplest(ctx, t, ranked[:i] + ranked[i + 1:], rejected)
             break
-        if accepted is None:
+        new = {k: v for k, v in rejected.items() if k not in held}
+        if accepted is None and not new:
             break
+        if accepted is None:  # hold the strongest new unexplained part, search the step again
+            name = max(new, key=lambda k: new[k][0].fraction)
+            held[name] = new[name]
+            continue
         steps.append(Step(accepted.term, accepted.cols, accepted.test.gain,
                           accepted.test.improved, accepted.test.p))
+    nuisance = np.column_stack([np.zeros((len(res.z), 0))] + [c for _, c in held.values()])
     named = {s.term.effect for s in steps}
-    unexplained = tuple(sorted((u for u in rejected.values() if u.candidate not in named
+    unexplained = tuple(sorted((u for u, _ in held.values() if u.candidate not in named
                                 or REGISTRY[u.candidate].repeatable),
                                key=lambda u: -u.fraction))
-    steps = prune(res, _stiffness_in_cable(simplify(res, steps, base)))
+    steps = prune(res, _stiffness_in_cable(simplify(res, steps, base, nuisance)), nuisance)
     return Selection(tuple(steps), unexplained)
 
 
-def simplify(res: Residual, steps: list[Step], base: float) -> list[Step]:
+def simplify(res: Residual, steps: list[Step], base: float, nuisance: np.ndarray) -> list[Step]:
     """Parsimony on the final model: each term, most parameters first, gives way to the
     alternative with the fewest parameters (any family, proposed on the residual without it)
     that is significant and admissible in its place and that it does not fit clearly better."""
@@ -169,7 +189,7 @@ def simplify(res: Residual, steps: list[Step], base: float) -> list[Step]:
             if n_term <= 1:
                 continue
             rest = steps[:i] + steps[i + 1:]
-            ctx = Context.of(res, rest, base)
+            ctx = Context.of(res, rest, base, nuisance)
             fit_term = fit_cv(np.column_stack([ctx.x_s, steps[i].cols]), res.z, res.fold,
                               res.settings.folds)
             best = None
@@ -209,17 +229,19 @@ def _stiffness_in_cable(steps: list[Step]) -> list[Step]:
     return out
 
 
-def prune(res: Residual, steps: list[Step]) -> list[Step]:
-    """Backward pass: drop the weakest term while leaving it out of the final model costs less
-    than ``min_gain`` of the held-out MSE (a term that later ones made redundant)."""
+def prune(res: Residual, steps: list[Step], nuisance: np.ndarray) -> list[Step]:
+    """Backward pass: drop the weakest term while leaving it out of the final model (with the
+    ``nuisance`` columns held) costs less than ``min_gain`` of the held-out MSE (a term that
+    later ones made redundant)."""
     st = res.settings
     steps = list(steps)
     base = cv_of(res).cv_mse
     while steps:
-        full = cv_of(res, *[s.cols for s in steps]).cv_mse
+        full = cv_of(res, nuisance, *[s.cols for s in steps]).cv_mse
         losses = []
         for i in range(len(steps)):
-            loss = cv_of(res, *[s.cols for j, s in enumerate(steps) if j != i]).cv_mse - full
+            loss = cv_of(res, nuisance, *[s.cols for j, s in enumerate(steps)
+                                          if j != i]).cv_mse - full
             losses.append(min(loss / full / max(st.min_gain, 1e-12),
                               loss / base / max(st.min_explained, 1e-12)))
         worst = int(np.argmin(losses))
