@@ -145,6 +145,7 @@ def forward_select(res: Residual) -> Selection:
         ctx = Context.of(res, steps, base, nuisance)
         ranked = _candidates(ctx)
         rejected: dict[str, tuple[Unexplained, np.ndarray]] = {}
+        refused: list[_Tested] = []
         accepted = None
         for i, cand in enumerate(ranked):
             t = _evaluate(ctx, cand)
@@ -153,9 +154,15 @@ def forward_select(res: Residual) -> Selection:
             rejection = REGISTRY[t.term.effect].admissible(ctx, t.term, t.cols)
             if rejection is not None:
                 _note(rejected, t, rejection)
+                refused.append(t)
                 continue
             accepted = _simplest(ctx, t, ranked[:i] + ranked[i + 1:], rejected)
             break
+        if accepted is None:
+            pair = _joint_pair(res, steps, base, ctx.nuisance, refused)
+            if pair:
+                steps += pair
+                continue
         new = {k: v for k, v in rejected.items() if k not in held}
         if accepted is None and not new:
             break
@@ -172,6 +179,34 @@ def forward_select(res: Residual) -> Selection:
                                key=lambda u: -u.fraction))
     steps = prune(res, _stiffness_in_cable(simplify(res, steps, base, nuisance)), nuisance)
     return Selection(tuple(steps), unexplained)
+
+
+def _joint_pair(res: Residual, steps: list[Step], base: float, nuisance: np.ndarray,
+                refused: list[_Tested]) -> list[Step]:
+    """A significant candidate that fails its family's checks alone may pass them beside
+    another effect: pre-sliding friction (after reversals only) makes a friction curve look
+    different while the speed rises and falls, and the curve makes a pre-sliding element alone
+    look negative. For each refused candidate ``a`` (strongest first), the candidates proposed
+    with ``a`` in the model are tried as its partner ``b``; the first pair in which each is
+    significant and admissible with the other in the model is accepted as two steps."""
+    def step(t: _Tested, test=None) -> Step:
+        test = test or t.test
+        return Step(t.term, t.cols, test.gain, test.improved, test.p)
+
+    for a in sorted(refused, key=lambda t: -t.test.explained):
+        ctx_a = Context.of(res, steps + [step(a)], base, nuisance)
+        for cand in _candidates(ctx_a):
+            if cand.term.effect == a.term.effect:
+                continue
+            b = _evaluate(ctx_a, cand)
+            if b is None or REGISTRY[b.term.effect].admissible(ctx_a, b.term, b.cols):
+                continue
+            ctx_b = Context.of(res, steps + [step(b)], base, nuisance)
+            test = significance(res, ctx_b.x_s, ctx_b.fit_s, a.cols, base)
+            if test.passes(res) and \
+                    REGISTRY[a.term.effect].admissible(ctx_b, a.term, a.cols) is None:
+                return [step(b), step(a, test)]
+    return []
 
 
 def simplify(res: Residual, steps: list[Step], base: float, nuisance: np.ndarray) -> list[Step]:
