@@ -225,9 +225,13 @@ def search_stribeck(res: Residual, base: np.ndarray, exact: bool) -> float:
     # speed floor (below it the fitted column lives on a few samples at the mask's edge).
     lo, hi = math.log(1.5 * res.v_floor), math.log(max(v_typ / 2, 4 * res.v_floor))
 
+    cache = res.cache.setdefault("stribeck", {})  # filtered columns do not depend on base
+
     def col(logv):
         if exact:
-            return stribeck_term(math.exp(logv)).columns(res)
+            if logv not in cache:
+                cache[logv] = stribeck_term(math.exp(logv)).columns(res)
+            return cache[logv]
         shape = np.sign(vf) * np.exp(-((np.abs(vf) / math.exp(logv)) ** 2))
         return (res.coverage[res.idx] * shape)[:, None]
 
