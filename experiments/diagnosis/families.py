@@ -754,8 +754,8 @@ def speed_rising(res: Residual) -> np.ndarray:
 def position_law(res: Residual) -> list[tuple[np.ndarray, str]]:
     """The regimes a force of the position must not tell apart: whether the speed rises or
     falls. (The direction of motion is not used: EMPS's 2.5 mm periodic force differs between
-    the directions by more than half of itself, a position-dependent friction beside a
-    magnetic one, and would be left unexplained.)"""
+    the directions by more than half of itself (a friction that depends on the position would
+    do that; not checked further), and would be left unexplained.)"""
     return [(speed_rising(res), "a force of the position is the same while the speed rises "
              "and while it falls")]
 
