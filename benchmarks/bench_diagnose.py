@@ -37,10 +37,7 @@ def main() -> None:
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     print(f"samples: {len(run)}  diagnose wall time: {elapsed:.2f} s, CPU {cpu:.2f} s  "
           f"(target <= 5 s)")
-    for f in result.findings:
-        print(f"  {f['effect']}: {f['parameters']}  explained {f['explained_fraction']:.3f}")
-    g = result.gain
-    print(f"  residual rms {g['residual_rms_before']:.4g} N -> {g['residual_rms_after']:.4g} N")
+    print(result.summary())
 
 
 if __name__ == "__main__":

@@ -174,25 +174,7 @@ def _cmd_diagnose(args) -> int:
     result = diagnose(record, model, validation=validation, settings=settings)
     out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"
     write(result, out)
-    if not result.findings:
-        print("no significant discrepancy: the model explains the record")
-    for k, f in enumerate(result.findings, 1):
-        params = ", ".join(f"{n} {v:.4g}" if isinstance(v, float) else
-                           f"{n} {v['model']:.4g} -> {v['data']:.4g}"
-                           for n, v in f["parameters"].items())
-        print(f"{k}. {f['effect']}: {params} (explains {100 * f['explained_fraction']:.1f} %)")
-    g = result.gain
-    print(f"out-of-sample force residual RMS {g['residual_rms_before']:.4g} N -> "
-          f"{g['residual_rms_after']:.4g} N ({-100 * g['residual_rms_reduction']:+.1f} %; the "
-          f"encoder's quantization floor is {g['quantization_floor_n']:.2g} N)")
-    if "origin" in g:
-        o = g["origin"]
-        print(f"with the validation record's encoder origin registered on the "
-              f"{o['registered_on']}: shift {o['shift_m'] * 1e3:+.4g} mm modulo "
-              f"{o['period_m'] * 1e3:.4g} mm; {o['residual_rms_before']:.4g} N -> "
-              f"{o['residual_rms_after']:.4g} N on the rest "
-              f"({-100 * o['residual_rms_reduction']:+.1f} %; fixed origin "
-              f"{o['residual_rms_after_fixed_origin']:.4g} N)")
+    print(result.summary())
     print(f"report in {out}/report.md")
     return 0
 

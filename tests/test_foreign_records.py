@@ -28,6 +28,11 @@ about three counts of the whole transition, so those cells are not asked to name
 there: nothing at all is named, not even a friction dip in its place). The cable force is
 identifiable in every cell; a friction curve on top of Coulomb (a Stribeck peak or a dip) in
 the cells where the test asks for it.
+
+Naming (issue 15): a constant force beside a cogging force is ``force_offset`` and ``cogging``
+(the parsimony rule), and LuGre friction with critically damped bristles and no Stribeck curve is
+pre-sliding or unexplained, never a Stribeck curve (its law: the same force while the speed rises
+and falls). Measured before and after in ``docs/diagnosis.md``.
 """
 
 from __future__ import annotations
@@ -78,6 +83,13 @@ STAGES = {
     # Coulomb at standstill, rising to it over 10 mm/s: velocity-strengthening, as EMPS shows).
     "peak": ref.Stage(stribeck_peak=2.0, stribeck_velocity=0.005),
     "dip": ref.Stage(stribeck_peak=-3.0, stribeck_velocity=0.01),
+    # Issue 15's naming cases. A constant force beside a cogging force (was named a 9th-order
+    # cable_slab whose force ran from 3.39 to 3.41 N).
+    "offset_cogging": ref.Stage(offset=3.4, cogging=4.0, cogging_period=0.005, cogging_phase=0.7),
+    # LuGre friction with the textbook bristle damping sigma1 = 2*sqrt(sigma0*m) (critically
+    # damped bristles) and no Stribeck curve (was named a Stribeck peak).
+    "lugre_damped": ref.Stage(coulomb=0.0, lugre_level=7.21, lugre_sigma0=2.0e6,
+                              lugre_sigma1=2 * math.sqrt(2.0e6 * 18.8)),
 }
 NOT_IDENTIFIABLE = {("lugre", "dwell1"), ("lugre", "coarse1")}
 
@@ -124,20 +136,20 @@ def _cells(hidden: str, *, identifiable_only: bool = False):
 @pytest.mark.parametrize("cell", _cells("none") + list(SEED_CELLS))
 def test_right_model_no_finding(foreign, cell):
     _, d = foreign("none", cell)
-    assert [f["effect"] for f in d.findings] == []
+    assert d.findings == ()
     assert d.gain["residual_rms_after"] == d.gain["residual_rms_before"]
 
 
 @pytest.mark.parametrize("cell", _cells("lugre", identifiable_only=True))
 def test_presliding_named_first_with_its_stiffness(foreign, cell):
     _, d = foreign("lugre", cell)
-    assert d.findings and d.findings[0]["effect"] == "presliding"
-    p = d.findings[0]["parameters"]
+    assert d.findings and d.findings[0].effect == "presliding"
+    p = d.findings[0].values()
     # The issue's bar: the initial pre-sliding stiffness within a factor of 2 (LuGre's sigma0).
     assert 0.5 < p["stiffness"] / STAGES["lugre"].lugre_sigma0 < 2.0
     # Most of the Coulomb friction is recognised as pre-sliding (the model's is all of it).
     assert p["sliding"] > 0.6 * STAGES["lugre"].lugre_level
-    assert not {f["effect"] for f in d.findings} & {"cogging", "force_ripple", "stribeck"}
+    assert not {f.effect for f in d.findings} & {"cogging", "force_ripple", "stribeck"}
     # The issue's bar: at least 70 % out-of-sample gain on the held-out final quarter, wherever a
     # model can reach it. In the 1 kHz P-P cell (0.1 um, 18.8 kg) the encoder's quantization
     # through m*(second difference) and the 100 Hz band is a 0.039 N floor (the effect-free
@@ -161,19 +173,19 @@ def test_presliding_where_not_identifiable_names_nothing(foreign, cell):
     _, d = foreign("lugre", cell)
     # Nothing at all: no periodic or cable term, and no friction dip standing in for the
     # unresolved pre-sliding (it loses to the Dahl element in its place).
-    assert [f["effect"] for f in d.findings] == []
+    assert d.findings == ()
 
 
 @pytest.mark.parametrize("cell", _cells("cable"))
 def test_cable_force_named_cable_slab_never_periodic(foreign, cell):
     run, d = foreign("cable", cell)
-    names = [f["effect"] for f in d.findings]
+    names = [f.effect for f in d.findings]
     assert names and names[0] == "cable_slab"
     assert not set(names) & {"cogging", "force_ripple"}
     # The found polynomial against the true tanh over the positions the record visits, up to a
     # constant (a constant force is a force offset either way): within 5 % of the 8 N range.
-    found = next(CableSlab(**{k: v for k, v in f["effect_config"].items() if k != "type"})
-                 for f in d.findings if f["effect"] == "cable_slab")
+    found = next(f.effect_object for f in d.findings if f.effect == "cable_slab")
+    assert isinstance(found, CableSlab)
     stage = STAGES["cable"]
     y = np.linspace(np.quantile(run.y, 0.01), np.quantile(run.y, 0.99), 200)
     true = stage.cable * np.tanh((y - stage.cable_center) / stage.cable_width)
@@ -190,15 +202,15 @@ def test_earlier_hidden_effects_on_foreign_records(foreign, hidden, cell):
     first = d.findings[0]
     stage = STAGES[hidden]
     if hidden == "cogging":
-        assert first["effect"] == "cogging"
-        p = first["parameters"]
+        assert first.effect == "cogging"
+        p = first.values()
         assert p["period"] == pytest.approx(stage.cogging_period, rel=0.02)  # the issue's bar
         assert p["amplitude"] == pytest.approx(stage.cogging, rel=0.10)  # the issue's bar
     else:
-        assert first["effect"] == "force_offset"
+        assert first.effect == "force_offset"
         # 5 %: a linear term (the truncating encoder's half count is not a force).
-        assert first["parameters"]["force"] == pytest.approx(stage.offset, rel=0.05)
-    assert not {f["effect"] for f in d.findings} & {"presliding", "cable_slab"}
+        assert first.values()["force"] == pytest.approx(stage.offset, rel=0.05)
+    assert not {f.effect for f in d.findings} & {"presliding", "cable_slab"}
     assert d.gain["residual_rms_reduction"] >= 0.70
 
 
@@ -215,7 +227,7 @@ def test_validation_record_homed_elsewhere_is_registered(foreign, homed_at):
                  + 2 * math.pi * homed_at / stage.cogging_period)
     val, model = _record(ref.Stage(**moved), **dict(CELLS["pp1"], seed=7))
     d = diagnose(run, model, validation=val)
-    assert d.findings[0]["effect"] == "cogging"
+    assert d.findings[0].effect == "cogging"
     o = d.gain["origin"]
     period = stage.cogging_period
     wrapped = (o["shift_m"] - homed_at + period / 2) % period - period / 2
@@ -242,9 +254,9 @@ def test_low_speed_friction_curve_named_with_its_sign(foreign, hidden, cell):
     8 % (the encoder's quantization floor is 0.37 N), so that pair is not part of the bar."""
     _, d = foreign(hidden, cell)
     stage = STAGES[hidden]
-    names = [f["effect"] for f in d.findings]
+    names = [f.effect for f in d.findings]
     assert names and names[0] == "stribeck" and "presliding" not in names
-    p = d.findings[0]["parameters"]
+    p = d.findings[0].values()
     found = Stribeck(peak=p["peak"], velocity=p["velocity"])
     true = Stribeck(peak=stage.stribeck_peak, velocity=stage.stribeck_velocity)
     v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.1, 400)
@@ -255,3 +267,40 @@ def test_low_speed_friction_curve_named_with_its_sign(foreign, hidden, cell):
     # 70 %, the issue's bar for a hidden effect; with the 1 um encoder the quantization floor
     # (0.37 N) bounds it: measured 61 %.
     assert d.gain["residual_rms_reduction"] >= (0.50 if cell == "coarse1" else 0.70)
+
+
+@pytest.mark.parametrize("cell", ["pp1", "long1", "emps1"])
+def test_offset_beside_cogging_is_an_offset_not_a_cable(foreign, cell):
+    """A constant force beside a cogging force: ``force_offset`` and ``cogging``, never a
+    ``cable_slab`` (a polynomial whose force is nearly constant fits about as well as the
+    offset on held-out data, and has nine more parameters: the parsimony rule names the
+    offset)."""
+    _, d = foreign("offset_cogging", cell)
+    stage = STAGES["offset_cogging"]
+    assert sorted(f.effect for f in d.findings) == ["cogging", "force_offset"]
+    named = {f.effect: f.values() for f in d.findings}
+    # 5 %: a linear term (the truncating encoder's half count is not a force).
+    assert named["force_offset"]["force"] == pytest.approx(stage.offset, rel=0.05)
+    assert named["cogging"]["period"] == pytest.approx(stage.cogging_period, rel=0.02)
+    assert named["cogging"]["amplitude"] == pytest.approx(stage.cogging, rel=0.10)
+    assert d.gain["residual_rms_reduction"] >= 0.70  # the issue's bar for a hidden effect
+
+
+@pytest.mark.parametrize("cell", ["pp1", "long1", "emps1", "coarse1"])
+def test_damped_lugre_is_presliding_or_unexplained_never_stribeck(foreign, cell):
+    """LuGre with critically damped bristles and no Stribeck curve. After a reversal the
+    bristle damping adds a force that grows with the speed, which a Stribeck peak mimics in the
+    velocity domain; but it is there only while the speed rises after a reversal, not while it
+    falls before one, and a friction curve of the velocity is the same force on both ways. The
+    answer is pre-sliding friction where that beats the alternatives on held-out data, else the
+    residual is reported unexplained; never a Stribeck curve, nor a position force standing in
+    for it."""
+    _, d = foreign("lugre_damped", cell)
+    names = [f.effect for f in d.findings]
+    assert not set(names) & {"stribeck", "cogging", "force_ripple", "cable_slab"}
+    if not names or names[0] != "presliding":
+        assert names == []
+        assert d.unexplained and d.unexplained[0].fraction > 0.02
+        assert "unexplained" in d.summary()
+    # The extended model never makes the held-out residual worse (1 % for its noise).
+    assert d.gain["residual_rms_after"] <= 1.01 * d.gain["residual_rms_before"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from experiments.diagnosis.extend import extended_plant, gains, joint_fit
+from experiments.diagnosis.finding import Finding, Unexplained
 from experiments.diagnosis.model import SimulationModel
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
 from experiments.diagnosis.search import forward_select
@@ -16,10 +17,11 @@ from clm_sim.record import Run
 
 @dataclass
 class Diagnosis:
-    """Result of :func:`diagnose`: ``findings`` (ranked), ``gain`` (out of sample), the
-    ``extended`` plant and found ``effects``, and the residuals the report draws."""
+    """Result of :func:`diagnose`: ``findings`` (ranked :class:`Finding`), what stays
+    ``unexplained``, ``gain`` (out of sample), the ``extended`` plant and found ``effects``, and
+    the residuals the report draws. :meth:`summary` is the one rendering every front end prints."""
 
-    findings: list[dict]
+    findings: tuple[Finding, ...]
     gain: dict
     model: SimulationModel
     extended: Plant
@@ -28,11 +30,40 @@ class Diagnosis:
     estimation: Residual
     signals: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    unexplained: tuple[Unexplained, ...] = ()
+
+    def __repr__(self) -> str:
+        return f"Diagnosis(findings={list(self.findings)!r}, " \
+               f"unexplained={list(self.unexplained)!r})"
+
+    def summary(self) -> str:
+        """The findings, what stays unexplained and the out-of-sample gain, one per line."""
+        lines = [f"{k}. {f}" for k, f in enumerate(self.findings, 1)]
+        if not self.findings and not self.unexplained:
+            lines.append("no significant discrepancy: the model explains the record")
+        elif not self.findings:
+            lines.append("no cause named")
+        lines += [str(u) for u in self.unexplained]
+        g = self.gain
+        lines.append(f"out-of-sample force residual RMS {g['residual_rms_before']:.4g} N -> "
+                     f"{g['residual_rms_after']:.4g} N "
+                     f"({-100 * g['residual_rms_reduction']:+.1f} %; the encoder's "
+                     f"quantization floor is {g['quantization_floor_n']:.2g} N)")
+        if "origin" in g:
+            o = g["origin"]
+            lines.append(f"with the validation record's encoder origin registered on the "
+                         f"{o['registered_on']}: shift {o['shift_m'] * 1e3:+.4g} mm modulo "
+                         f"{o['period_m'] * 1e3:.4g} mm; {o['residual_rms_before']:.4g} N -> "
+                         f"{o['residual_rms_after']:.4g} N on the rest "
+                         f"({-100 * o['residual_rms_reduction']:+.1f} %; fixed origin "
+                         f"{o['residual_rms_after_fixed_origin']:.4g} N)")
+        return "\n".join(lines)
 
     def to_json(self) -> dict:
         plant = self.extended
         return {
-            "findings": self.findings,
+            "findings": [f.to_json() for f in self.findings],
+            "unexplained": [u.to_json() for u in self.unexplained],
             "gain": self.gain,
             "model": {"name": self.model.name, **{k: float(getattr(self.model.plant, k)) for k in
                                                   ("mass", "viscous", "coulomb", "stiffness")},
@@ -66,9 +97,10 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
         raise UserError(f"{source_of(validation)}: sampled at {validation.ts:g} s, the record "
                         f"at {record.ts:g} s; they must match")
     res = Residual(est, model.plant, settings)
-    steps = forward_select(res)
+    selection = forward_select(res)
+    steps = list(selection.steps)
     findings, correction, effects = joint_fit(res, steps)
-    if any(f["effect"] == "parameter_mismatch" and not f["parameters"] for f in findings):
+    if any(f.effect == "parameter_mismatch" and not f.parameters for f in findings):
         # Significant at its step, but in the final joint fit no parameter passes the reporting
         # rule (later terms took its share): nothing to name, so it is not part of the model.
         steps = [s for s in steps if s.term.effect != "parameter_mismatch"]
@@ -90,4 +122,5 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
                 "min_folds": settings.min_folds,
                 "min_force_fraction": settings.min_force_fraction,
                 "p_value": settings.p_value, "max_findings": settings.max_findings}}
-    return Diagnosis(findings, gain, model, extended, effects, correction, res, signals, info)
+    return Diagnosis(tuple(findings), gain, model, extended, effects, correction, res, signals,
+                     info, selection.unexplained)

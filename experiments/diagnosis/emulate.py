@@ -49,10 +49,8 @@ def diagnose_emulated(tb: Testbed, *, record: Run, out, progress=print) -> dict:
     ``out/feedforward_gain.json``).
     """
     result = diagnose(record, simulation_model(tb, tb.config.name))
-    for k, f in enumerate(result.findings, 1):
-        progress(f"diagnosis {k}. {f['effect']}: " + ", ".join(
-            f"{n} {v:.4g}" if isinstance(v, float) else f"{n} {v['model']:.4g} -> {v['data']:.4g}"
-            for n, v in f["parameters"].items()))
+    for line in result.summary().splitlines():
+        progress(f"diagnosis: {line}")
     features = tb.config.features
     lips = {"before": LIPFeedforward(features=features).fit(y=record.y, u=record.u, ts=tb.ts),
             "after": fit_lip(features, result.effects, record)}

@@ -14,9 +14,10 @@ import numpy as np
 from experiments.diagnosis.model import Controller
 from experiments.diagnosis.origin import registered_gain
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
-from experiments.diagnosis.search import (SmoothTerm, Step, coefficient_std, fit_cv,
-                                          reportable)
-from clm_sim.effects import Effect, Presliding, Stribeck
+from experiments.diagnosis.families import REGISTRY
+from experiments.diagnosis.finding import Finding
+from experiments.diagnosis.fitting import coefficient_std, cv_of, fit_cv
+from clm_sim.effects import Effect, Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force
 from clm_sim.loop import simulate
@@ -25,13 +26,10 @@ from clm_sim.record import Run
 from controllers.lip import LIPFeedforward
 
 
-def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple[Effect, ...]]:
-    """Fit all accepted terms together; returns ``(findings, theta_correction, effects)``, the
-    effects ranked like the findings.
-
-    Each finding is ``{"effect", "parameters", "explained_fraction", ...}``; findings are
-    ordered by the explained fraction.
-    """
+def joint_fit(res: Residual, steps) -> tuple[list[Finding], dict, tuple[Effect, ...]]:
+    """Fit all accepted terms together; returns ``(findings, theta_correction, effects)``: the
+    findings ordered by their explained fraction, the effects ranked like them. Each family makes
+    its own finding and correction (:meth:`Family.finding`)."""
     st = res.settings
     if not steps:
         return [], {}, ()
@@ -40,62 +38,26 @@ def joint_fit(res: Residual, steps: list[Step]) -> tuple[list[dict], dict, tuple
     # Explained fraction: the held-out MSE drop when the term joined (in selection order), over
     # the held-out MSE of the model's residual; the fractions add up to the total explained.
     # ``unique_fraction``: the rise when it alone is left out of the final model.
-    cv = [fit_cv(np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps[:j]]),
-                 res.z, res.fold, st.folds).cv_mse for j in range(len(steps) + 1)]
+    cv = [cv_of(res, *[s.cols for s in steps[:j]]).cv_mse for j in range(len(steps) + 1)]
     base = cv[0]
     std = coefficient_std(res, x, full.coef)
-    findings, correction, effects = [], {}, []
+    findings, correction = [], {}
     start = 0
     for i, step in enumerate(steps):
         k = step.cols.shape[1]
-        coef = dict(zip(step.term.keys, full.coef[start:start + k]))
-        sd = dict(zip(step.term.keys, std[start:start + k]))
-        rest = [j for j in range(len(steps)) if j != i]
-        x_rest = np.column_stack([np.zeros((len(res.z), 0))] + [steps[j].cols for j in rest])
-        unique = (fit_cv(x_rest, res.z, res.fold, st.folds).cv_mse - full.cv_mse) / base
-        explained = (cv[i] - cv[i + 1]) / base
-        stats = {"explained_fraction": float(explained), "unique_fraction": float(unique),
-                 "selection_gain": step.gain,
-                 "folds_improved": step.folds_improved, "p_value": step.p_value}
-        if step.term.effect == "not_supported":
-            support = 1.0 + float(coef["support"])
-            findings.append({"effect": "not_supported",
-                             "model_effect": step.term.template.as_config(),
-                             "parameters": {"support": support},
-                             "std": {"support": float(sd["support"])}, **stats})
-            correction.setdefault("drop", []).append(step.term.template)
-        elif step.term.effect == "parameter_mismatch":
-            params = {}
-            for j, name in enumerate(step.term.keys):
-                delta = float(coef[name])
-                correction[name] = correction.get(name, 0.0) + delta
-                if reportable(res, delta, sd[name], step.cols[:, j]):
-                    model = float(getattr(res.plant, name))
-                    params[name] = {"model": model, "data": model + delta,
-                                    "std": float(sd[name])}
-            findings.append({"effect": "parameter_mismatch", "parameters": params, **stats})
-        else:
-            effect = step.term.effect_from(coef)
-            effects.append((explained, effect))
-            params = {k: float(v) for k, v in effect.parameters().items()
-                      if isinstance(v, (int, float))}
-            if isinstance(effect, Presliding):
-                params["length"] = float(effect.length)
-            if step.term.replaces_coulomb:  # this much of the Coulomb friction is pre-sliding
-                shift = sum(float(v) for v in coef.values())
-                correction["coulomb"] = correction.get("coulomb", 0.0) - shift
-                params["coulomb_in_model"] = float(res.plant.coulomb)
-            if isinstance(step.term, SmoothTerm):
-                params["order"] = float(step.term.order)
-                f = effect.force(res.y[res.idx], 0.0, 0.0)
-                params["force_min"], params["force_max"] = float(np.min(f)), float(np.max(f))
-            findings.append({"effect": step.term.effect, "parameters": params,
-                             "effect_config": effect.as_config(),
-                             "std": {k: float(v) for k, v in sd.items()}, **stats})
+        coef = {key: float(c) for key, c in zip(step.term.keys, full.coef[start:start + k])}
+        sd = {key: float(c) for key, c in zip(step.term.keys, std[start:start + k])}
+        unique = (cv_of(res, *[s.cols for j, s in enumerate(steps) if j != i]).cv_mse
+                  - full.cv_mse) / base
+        stats = {"explained_fraction": float((cv[i] - cv[i + 1]) / base),
+                 "unique_fraction": float(unique), "selection_gain": float(step.gain),
+                 "folds_improved": int(step.folds_improved), "p_value": float(step.p_value)}
+        findings.append(REGISTRY[step.term.effect].finding(res, step.term, coef, sd, step.cols,
+                                                           stats, correction))
         start += k
-    order = np.argsort([-f["explained_fraction"] for f in findings], kind="stable")
-    ranked = tuple(e for _, e in sorted(effects, key=lambda p: -p[0]))
-    return [findings[j] for j in order], correction, ranked
+    ranked = sorted(findings, key=lambda f: -f.explained_fraction)
+    effects = tuple(f.effect_object for f in ranked if f.effect_object is not None)
+    return ranked, correction, effects
 
 
 def extended_plant(plant: Plant, correction: dict, effects: tuple[Effect, ...]) -> Plant:

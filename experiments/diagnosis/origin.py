@@ -15,19 +15,17 @@ from __future__ import annotations
 import numpy as np
 import scipy.optimize
 
-from clm_sim.effects import Cogging, ForceRipple
 from clm_sim.features import edge_force
 from clm_sim.plant import Plant
 from clm_sim.record import Run
+from experiments.diagnosis.families import periodic_effect_types
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
-
-PERIODIC_EFFECTS = (Cogging, ForceRipple)
 
 
 def dominant_period(plant: Plant, run: Run) -> float | None:
     """Period (m) of the position-periodic effect of ``plant`` with the largest force RMS on
     ``run``; None when the plant has none (then the origin does not matter)."""
-    periodic = [e for e in plant.effects if isinstance(e, PERIODIC_EFFECTS)]
+    periodic = [e for e in plant.effects if isinstance(e, periodic_effect_types())]
     if not periodic:
         return None
     y, u = np.asarray(run.y, dtype=float), edge_force(run.u)

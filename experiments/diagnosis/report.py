@@ -47,20 +47,17 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
              f"(the encoder's quantization alone makes {rec['quantization_floor_n']:.3g} N "
              f"there). "
              f"Residual RMS {rec['residual_rms_n']:.4g} N.", "", "## Findings", ""]
-    if not d.findings:
-        lines.append("Nothing is wrong: no candidate effect passes the significance rule; the "
-                     "model explains the record to within its noise.")
-    else:
-        lines += ["| rank | effect | parameters (SI) | explained fraction |", "|---|---|---|---|"]
-        for k, f in enumerate(d.findings, 1):
-            lines.append(f"| {k} | {f['effect']} | {_fmt(f['parameters'])} | "
-                         f"{f['explained_fraction']:.3g} |")
+    lines += ["```", d.summary(), "```"]
     rule = d.info["significance_rule"]
     lines += ["", f"Significance rule: {rule['cv']}; a candidate is accepted when it lowers the "
               f"held-out MSE by at least {100 * rule['min_gain']:g} % (and by "
               f"{100 * rule['min_explained']:g} % of the model's own residual), in at least "
-              f"{rule['min_folds']} of the folds, with an F-test p < {rule['p_value']:g}; "
-              f"explained fraction: held-out MSE drop when the cause joined, over the model's.",
+              f"{rule['min_folds']} of the folds, with an F-test p < {rule['p_value']:g}, and "
+              f"is admissible to its family (physical bounds, the family's law checked on the "
+              f"data); between two explanations that fit about equally the one with fewer "
+              f"parameters is named (docs/diagnosis.md). Explained fraction: held-out MSE drop "
+              f"when the cause joined, over the model's. Unexplained: a part of the residual "
+              f"that passes the significance rule but that no family may name.",
               "", "## Out-of-sample gain", "", f"Validation: {d.info['validation']}.", "",
               "| quantity | before | after |", "|---|---|---|",
               f"| force residual RMS (N) | {g['residual_rms_before']:.4g} | "
