@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
@@ -58,18 +59,29 @@ def _cmd_identify(args) -> int:
     from clm_sim.features import FeatureMap
     from clm_sim.outdir import atomic_write
     from controllers.lip import LIPFeedforward
+    from clm_sim.outdir import check_writable, write_error
     from experiments.table import THETA_UNITS
 
+    out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
+    check_writable(out)  # before the work: a result that cannot be written is not computed
     run = _load(args.data, args)
     features = FeatureMap(regression_lowpass_hz=None if args.lowpass_hz <= 0 else args.lowpass_hz)
     lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
-    out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
+    values = {**lip.theta_, **lip.std_}
+    bad = [name for name, value in values.items() if not math.isfinite(value)]
+    if bad or not math.isfinite(lip.residual_rms_):
+        raise UserError(f"{args.data}: the fit gives non-finite parameters "
+                        f"({', '.join(sorted(set(bad))) or 'residual'}); the record's values are "
+                        f"too large or degenerate for a least-squares fit")
     for name, value in lip.theta_.items():
         print(f"{name:10s} {value:12.6g} {THETA_UNITS[name]:6s} (std {lip.std_[name]:.2g})")
     print(f"residual rms {lip.residual_rms_:.4g} N over {len(run)} samples at "
           f"{1 / run.ts:g} Hz")
-    atomic_write(out / "lip.json", json.dumps({**lip.to_json(), "source": str(args.data)},
-                                              indent=1))
+    try:
+        atomic_write(out / "lip.json", json.dumps({**lip.to_json(), "source": str(args.data)},
+                                                  indent=1, allow_nan=False))
+    except OSError as exc:
+        raise write_error(out, exc) from None
     print(f"wrote {out / 'lip.json'} (a model for clm-sim diagnose --model)")
     return 0
 
@@ -149,13 +161,15 @@ def _cmd_study(args) -> int:
 
 def _cmd_diagnose(args) -> int:
     from experiments.diagnosis import diagnose
+    from clm_sim.outdir import check_output_folder
     from experiments.diagnosis.report import write
 
+    out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"
+    check_output_folder(out, marker="diagnosis.json", what="a diagnosis")  # before the work
     record = _load(args.data, args)
     validation = _load(args.validate, args) if args.validate else None
     model = _diagnosis_model(args.model, record.ts)
     result = diagnose(record, model, validation=validation)
-    out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"
     write(result, out)
     if not result.findings:
         print("no significant discrepancy: the model explains the record")
@@ -292,6 +306,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("clm-sim: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # the last net: a file the checks above did not foresee, one line
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"clm-sim: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import os
 import subprocess
 import sys
 import warnings
@@ -22,6 +23,7 @@ import scipy.io
 from clm_sim.record import Run, save_npz
 from experiments.cli import main, parser
 
+ROOT = Path(__file__).resolve().parents[1]  # subprocesses run this checkout's code
 TS = 1e-4
 N = 400
 
@@ -287,7 +289,8 @@ def test_real_process_prints_one_line_and_exits_2(command, case, tmp_path):
         argv = CONFIG_COMMANDS[command](str(path), str(tmp_path / "out"), "unused")
     _write(path, content)
     proc = subprocess.run([sys.executable, "-m", "experiments.cli", *argv], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and expected in lines[0], proc.stderr

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import numbers
+import os
 import signal
 import subprocess
 import sys
@@ -336,24 +337,108 @@ def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys
     assert sorted(p.name for p in tmp_path.iterdir()) == ["study.yaml"]
 
 
-def test_sigterm_during_run_cleans_up_like_ctrl_c(tmp_path):
-    """A real process: SIGTERM once the temporary result folder exists leaves nothing."""
+def _session_processes(sid: int) -> list[int]:
+    """Processes still alive in the session ``sid`` (a command started with
+    ``start_new_session``: its workers inherit the session even once orphaned)."""
+    alive = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[3]) == sid and fields[0] != "Z":  # fields: state ppid pgrp session
+            alive.append(int(stat.parent.name))
+    return alive
+
+
+def _clm(args, cwd) -> subprocess.Popen:
+    """``clm-sim ARGS`` in a real process of its own session, running this checkout's code."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, "-m", "experiments.cli", *map(str, args)],
+                            cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env=env)
+
+
+def _wait_for(proc, cond) -> bool:
+    while proc.poll() is None and not cond():
+        time.sleep(0.005)
+    return cond()
+
+
+def _partial(folder: Path) -> list[Path]:
+    return list(folder.glob(".*.partial*"))
+
+
+def _finish(proc) -> tuple[str, str]:
+    try:
+        return proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"),
+                                             (signal.SIGINT, 130, "interrupted")])
+def test_signal_during_run_cleans_up(sig, code, word, tmp_path):
+    """A real process: SIGTERM, or Ctrl-C (SIGINT to the whole process group, as a terminal
+    sends it), once the temporary result folder exists: the exit code, one stderr line, no
+    traceback, no temporary folder or lock, no process of the command left."""
     cfg = tmp_path / "small.yaml"
     cfg.write_text(SMALL)
-    out = tmp_path / "out"
-    partial = tmp_path / ".out.partial"
-    proc = subprocess.Popen([sys.executable, "-m", "experiments.cli", "run", str(cfg), "--out",
-                             str(out), "--quiet"], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        while proc.poll() is None and not partial.exists():
-            time.sleep(0.005)
-        seen = partial.exists()
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()
-    assert seen, "the run finished before it could be terminated"
-    assert proc.returncode == 128 + signal.SIGTERM, err
-    assert err.strip().splitlines()[-1] == "clm-sim: terminated"
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    seen = _wait_for(proc, lambda: bool(_partial(tmp_path)))
+    os.killpg(proc.pid, sig)
+    _, err = _finish(proc)
+    assert seen, "the run finished before it could be interrupted"
+    assert proc.returncode == code, err
+    assert err.strip().splitlines() == [f"clm-sim: {word}"], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.yaml"]
+    assert _session_processes(proc.pid) == []
+
+
+def _one_run(out: Path) -> int:
+    """The seed of the one run that ``out`` describes; fails if its files disagree."""
+    seeds = {int(line.split(":")[1]) for line in (out / "config.resolved.yaml").read_text()
+             .splitlines() if line.startswith("seed:")}
+    seeds.add(load_record(out / "runs" / "training.npz").meta["seed"])
+    assert len(seeds) == 1, f"{out} mixes the runs of seeds {seeds}"
+    return seeds.pop()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_two_runs_into_one_out_never_mix(tmp_path):
+    """Two runs (seeds 1 and 2) into one --out at once: the second is refused in one line
+    (exit 2) while the first writes, or it replaces the first's folder as a whole; either way
+    the folder describes exactly one run and nothing temporary stays."""
+    for seed in (1, 2):
+        (tmp_path / f"s{seed}.yaml").write_text(SMALL.replace("seed: 1", f"seed: {seed}"))
+    out = tmp_path / "same"
+    a = _clm(["run", tmp_path / "s1.yaml", "--out", out, "--quiet"], tmp_path)
+    b = _clm(["run", tmp_path / "s2.yaml", "--out", out, "--quiet"], tmp_path)
+    _, err_b = _finish(b)
+    _, err_a = _finish(a)
+    codes = sorted((a.returncode, b.returncode))
+    assert codes in ([0, 0], [0, 2]), (err_a, err_b)
+    for proc, err in ((a, err_a), (b, err_b)):
+        if proc.returncode == 2:
+            assert err.strip().splitlines() == [
+                f"clm-sim: error: {out}: another clm-sim command is writing this folder; wait "
+                f"for it to finish or choose another --out"]
+    _one_run(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s1.yaml", "s2.yaml", "same"]
+
+
+def test_a_run_into_an_out_being_written_is_refused(tmp_path, capsys):
+    """While another command holds the lock of --out (here: this test), a run is refused at once
+    in one line and writes nothing."""
+    import fcntl
+
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL)
+    with open(tmp_path / ".out.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        code, stdout, err = _cli(["run", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and stdout == "" and len(err) == 1, err
+    assert "another clm-sim command is writing" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".out.lock", "small.yaml"]
