@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
+import scipy.sparse
 
 from clm_sim.record import Run, save_npz
 from experiments.cli import main, parser
@@ -98,6 +99,23 @@ BAD_DATA = {
     "matrix instead of a column": ("rec.mat", _mat_bytes(**{**_signals(), "y": np.ones((N, 2))}),
                                    "must be a vector"),
     "unknown format": ("rec.txt", _csv(_signals()), "unknown record format"),
+    "scalar signal in npz": ("rec.npz", _npz_bytes(**{**_signals(), "y": np.array(0.1)}),
+                             "single number"),
+    "structured npz array": ("rec.npz", _npz_bytes(**{**_signals(), "u": np.zeros(
+        N, dtype=[("a", float), ("b", int)])}), "struct or record"),
+    "text signal in npz": ("rec.npz", _npz_bytes(**{**_signals(), "u": np.array(["x"] * N)}),
+                           "holds text"),
+    "complex force": ("rec.npz", _npz_bytes(**{**_signals(), "u": _signals()["u"] * (1 + 1j)}),
+                      "complex"),
+    "MAT char signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": "volts"}), "holds text"),
+    "MAT cell signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": np.array(
+        [[np.ones(3)], [np.zeros(2)]], dtype=object)}), "cells"),
+    "MAT struct signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": {"a": 1.0, "b": 2.0}}),
+                          "struct"),
+    "MAT sparse signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": scipy.sparse.csc_matrix(
+        _signals()["u"][:, None])}), "dense numeric"),
+    "time step of 1e-12 s": ("rec.csv", _with(t=lambda t: t * 1e-8), "faster than any servo"),
+    "force of 1e308": ("rec.csv", _with(u=_set(7, 1e308)), "must be a force in N"),
     "missing file": ("rec.csv", None, "not found"),
 }
 
@@ -296,3 +314,32 @@ def test_real_process_prints_one_line_and_exits_2(command, case, tmp_path):
     assert len(lines) == 1 and expected in lines[0], proc.stderr
     assert proc.stdout == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]
+
+
+@pytest.mark.parametrize("variable, content", [
+    ("gtau", "volts"), ("gtau", np.array([[np.ones(2)]], dtype=object)),
+    ("gtau", {"k": 35.0}), ("gtau", np.ones(3)), ("missing", None)])
+def test_scale_by_a_variable_that_is_not_a_number_is_refused(variable, content, tmp_path,
+                                                             capsys):
+    """``--scale u=VAR`` naming text, a cell, a struct, a vector or nothing in a MAT file."""
+    data = tmp_path / "rec.mat"
+    extra = {} if content is None else {"gtau": content}
+    data.write_bytes(_mat_bytes(**_signals(), **extra))
+    _check_refused(["identify", str(data), "--scale", f"u={variable}", "--out",
+                    str(tmp_path / "out")], tmp_path, capsys, "not a scalar number", str(data))
+
+
+@pytest.mark.parametrize("name, content", [
+    ("bom.csv", "\ufeff" + _csv(_signals())),  # Excel's "CSV UTF-8"
+    ("meta_list.npz", _npz_bytes(**_signals(), meta=np.array("[1, 2]"))),
+    ("meta_bad.npz", _npz_bytes(**_signals(), meta=np.array("{not json"))),
+    ("real_complex.npz", _npz_bytes(**{**_signals(), "u": _signals()["u"] + 0j})),
+])
+def test_odd_but_valid_records_are_read(name, content, tmp_path):
+    """Records that are unusual but hold what is needed are read, not refused."""
+    from clm_sim.record import load_record
+
+    path = tmp_path / name
+    _write(path, content)
+    run = load_record(path)
+    np.testing.assert_array_equal(run.u, _signals()["u"])  # exact: a copy, no arithmetic
