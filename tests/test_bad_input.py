@@ -343,3 +343,29 @@ def test_odd_but_valid_records_are_read(name, content, tmp_path):
     _write(path, content)
     run = load_record(path)
     np.testing.assert_array_equal(run.u, _signals()["u"])  # exact: a copy, no arithmetic
+
+
+# An --out that cannot take the results: refused in one line before any work.
+BAD_OUT = {
+    "an existing file": (lambda tmp: tmp / "afile", "is a file, not a folder"),
+    "the current folder": (lambda tmp: Path("."), "is the current folder"),
+    "below a file": (lambda tmp: tmp / "afile" / "sub", "is a file, not a folder"),
+}
+
+
+@pytest.mark.parametrize("command", ["run", "sweep", "identify", "diagnose"])
+@pytest.mark.parametrize("case", list(BAD_OUT))
+def test_unusable_out_is_refused_before_the_work(case, command, tmp_path, capsys, monkeypatch,
+                                                 valid_record):
+    from small_config import SMALL_CONFIG
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("not a folder")
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL_CONFIG + ("sweep:\n  grid:\n    seed: [1, 2]\n"
+                                   if command == "sweep" else ""))
+    make, expected = BAD_OUT[case]
+    out = str(make(tmp_path))
+    argv = (CONFIG_COMMANDS[command](str(cfg), out, str(valid_record)) if command in
+            ("run", "sweep") else DATA_COMMANDS[command](str(valid_record), out))
+    _check_refused(argv, tmp_path, capsys, expected, out)

@@ -21,7 +21,7 @@ from pathlib import Path
 import yaml
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_write
+from clm_sim.outdir import atomic_write, check_writable
 from clm_sim.schema import build
 from experiments import table
 from experiments.config import ExperimentConfig
@@ -71,6 +71,7 @@ def execute(config_plain: dict) -> dict:
 
 def check_output(out: Path) -> None:
     """Refuse an output folder that exists and is not a sweep's (before anything is written)."""
+    check_writable(out)
     out = Path(out)
     # A sweep killed right after it started may have left only its lock and task folder.
     mine = {"sweep.resolved.yaml", "tasks"}
