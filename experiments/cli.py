@@ -9,6 +9,7 @@ Ctrl-C (exit 130) and SIGTERM (exit 143) stop a command the same way: nothing ha
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -282,37 +283,98 @@ class Terminated(KeyboardInterrupt):
     workers) runs the same way."""
 
 
-def _terminate(signum, frame):
-    raise Terminated
+_CODES = {signal.SIGINT: 130, signal.SIGTERM: 128 + signal.SIGTERM}
+_WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+
+
+def _end_now(signum, frame):
+    """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
+    clean-up was doing (workers exit with their parent: :func:`experiments.workers.watch_parent`)."""
+    os.write(2, f"clm-sim: {_WORDS[signum]}\n".encode())
+    os._exit(_CODES[signum])
+
+
+def _signalled(signum, frame):
+    """The first Ctrl-C or SIGTERM: unwind (every ``finally`` removes what it was writing); a
+    second signal ends the process at once."""
+    signal.signal(signal.SIGINT, _end_now)
+    signal.signal(signal.SIGTERM, _end_now)
+    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
 def main(argv=None) -> int:
+    """The command line; ``argv=None`` means a real process (``sys.argv``), which after an
+    interruption ends at once, without waiting at interpreter exit for anything."""
     # Before numpy, scipy or torch load: their AVX2 kernels on every x86-64 CPU that has them, so
     # a fit sums in the same order on another CPU (clm_sim.numerics; CLM_SIM_NATIVE_KERNELS=1 opts out).
     pin_portable_kernels()
+    program = argv is None
     args = parser().parse_args(argv)
     # Files only, never a window: the one place where clm-sim picks matplotlib's backend.
     os.environ["MPLBACKEND"] = "Agg"
-    previous = signal.signal(signal.SIGTERM, _terminate) \
-        if threading.current_thread() is threading.main_thread() else None
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = {sig: signal.signal(sig, _signalled) for sig in _CODES} if main_thread else {}
+    code = None
     try:
-        return args.func(args)
+        code = args.func(args)
+        return code
     except UserError as exc:
-        print(f"clm-sim: error: {exc}", file=sys.stderr)
-        return 2
-    except Terminated:
-        print("clm-sim: terminated", file=sys.stderr)
-        return 128 + signal.SIGTERM
-    except KeyboardInterrupt:
-        print("clm-sim: interrupted", file=sys.stderr)
-        return 130
+        code = 2
+        print(f"clm-sim: error: {_one_line(str(exc))}", file=sys.stderr)
+        return code
+    except KeyboardInterrupt as exc:
+        sig = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
+        code = _CODES[sig]
+        _stop_workers()
+        print(f"clm-sim: {_WORDS[sig]}", file=sys.stderr)
+        return code
     except OSError as exc:  # the last net: a file the checks above did not foresee, one line
+        code = 2
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"clm-sim: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
+        return code
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        if program and code in (130, 143):
+            _exit_now(code)
+        if program and main_thread:
+            # Done: a late signal (results written, interpreter exiting) ends with its code.
+            signal.signal(signal.SIGINT, _end_now)
+            signal.signal(signal.SIGTERM, _end_now)
+        else:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
+def _exit_now(code: int) -> None:
+    """End an interrupted process without interpreter shutdown, which may wait on pool threads
+    (and so hang, or print a late traceback): only multiprocessing's own exit clean-up runs
+    (it releases the pools' semaphores; the workers are already ended), under a one-second
+    guard."""
+    import multiprocessing.util
+
+    guard = threading.Timer(1.0, os._exit, (code,))
+    guard.daemon = True
+    guard.start()
+    with contextlib.suppress(Exception):
+        multiprocessing.util._exit_function()
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        sys.stderr.flush()
+    os._exit(code)
+
+
+def _stop_workers() -> None:
+    """End the PGNN fit pool, if this command started one (sweep workers end in
+    :func:`experiments.workers.run_local`)."""
+    workers = sys.modules.get("experiments.workers")
+    if workers is not None:
+        workers.stop_fits()
+
+
+def _one_line(text: str, limit: int = 1000) -> str:
+    """A message as one line of at most ``limit`` characters (a value quoted in it is cut)."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[:limit] + " ..."
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ import atexit
 import contextlib
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -46,9 +47,50 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
+@contextlib.contextmanager
+def _spawning():
+    """Around every call that may start a worker: child processes start with one thread each
+    and with Ctrl-C blocked, so a Ctrl-C while a worker imports its modules cannot print a
+    traceback in it; :func:`watch_parent` then ignores it for good (the parent alone handles
+    Ctrl-C, and ends its workers). A Ctrl-C meanwhile reaches the parent when the block ends."""
+    blocked = (hasattr(signal, "pthread_sigmask")
+               and threading.current_thread() is threading.main_thread())
+    if blocked:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        with single_threaded_children():
+            yield
+    finally:
+        if blocked:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def stop(pool: ProcessPoolExecutor) -> None:
+    """End ``pool`` now: its workers terminated (killed if they do not exit within a second),
+    queued work cancelled, without waiting for running tasks."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.terminate()
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + 1.0
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.join(max(0.0, deadline - time.monotonic()))
+            if proc.is_alive():
+                proc.kill()
+                proc.join(1.0)
+
+
 def watch_parent(parent_pid: int) -> None:
-    """Worker initializer: exit when the sweep process dies (even by SIGKILL), leaving no orphan
-    computing a result nobody will store."""
+    """Worker initializer: ignore Ctrl-C (the parent handles it and ends the workers) and exit
+    when the parent process dies (even by SIGKILL), leaving no orphan computing a result nobody
+    will store."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _spawning
+
     def watch():
         while True:
             if os.getppid() != parent_pid:
@@ -65,11 +107,11 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
     if not payloads:
         return
     ctx = multiprocessing.get_context("spawn")
-    with single_threaded_children():
+    with _spawning():
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                    initializer=watch_parent, initargs=(os.getpid(),))
     try:
-        with single_threaded_children():
+        with _spawning():
             # Keep at most two tasks per worker queued: an interrupted sweep then has little
             # submitted-but-unstarted work to cancel, and memory stays bounded on huge grids.
             pending = {}
@@ -86,13 +128,11 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
                 yield index, fut.result()
                 item = next(todo, None)
                 if item is not None:
-                    with single_threaded_children():
+                    with _spawning():
                         pending[pool.submit(fn, item[1])] = item[0]
     except BaseException:
         # Interrupted or broken: stop the workers now instead of waiting for running tasks.
-        for proc in list((pool._processes or {}).values()):
-            proc.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        stop(pool)
         raise
     pool.shutdown(wait=True)
 
@@ -117,8 +157,16 @@ def _pool() -> ProcessPoolExecutor:
         _POOL = ProcessPoolExecutor(max_workers=cores(),
                                     mp_context=multiprocessing.get_context("spawn"),
                                     initializer=watch_parent, initargs=(os.getpid(),))
-        atexit.register(_POOL.shutdown)
+        atexit.register(stop_fits)
     return _POOL
+
+
+def stop_fits() -> None:
+    """End the PGNN fit pool, if one was started (at exit, and on an interruption)."""
+    global _POOL
+    pool, _POOL = _POOL, None
+    if pool is not None:
+        stop(pool)
 
 
 def fit_pgnn(payload: tuple):
@@ -137,5 +185,10 @@ def map_fits(payloads: list) -> list:
     more than one core and this is not already a pool's worker."""
     if len(payloads) < 2 or cores() < 2 or multiprocessing.parent_process() is not None:
         return [fit_pgnn(p) for p in payloads]
-    with single_threaded_children():  # workers are spawned on submit and inherit this
-        return list(_pool().map(fit_pgnn, payloads))
+    try:
+        with _spawning():  # workers are spawned on submit and inherit this
+            futures = [_pool().submit(fit_pgnn, p) for p in payloads]
+        return [f.result() for f in futures]
+    except BaseException:  # interrupted (or a worker died): no waiting for the running fits
+        stop_fits()
+        raise

@@ -442,3 +442,57 @@ def test_a_run_into_an_out_being_written_is_refused(tmp_path, capsys):
     assert code == 2 and stdout == "" and len(err) == 1, err
     assert "another clm-sim command is writing" in err[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == [".out.lock", "small.yaml"]
+
+
+PGNN_ROWS = ("  - {kind: pgnn, training: sequential, hidden: 4, seeds: 2, "
+             "pgnn: {max_iter: 50}}\n")
+
+
+def _interrupted_cleanly(proc, err: str, sig, folder: Path, keep: list[str]) -> None:
+    code, word = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}[sig]
+    assert proc.returncode == code, err
+    assert err.strip().splitlines() == [f"clm-sim: {word}"], err
+    assert sorted(p.name for p in folder.iterdir()) == keep
+    assert _session_processes(proc.pid) == [], "a worker outlived the command"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("moment", ["pool starting", "fits running"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_pgnn_fits_ends_workers_without_tracebacks(sig, moment, tmp_path):
+    """Ctrl-C (to the whole process group, workers included) or SIGTERM while the PGNN fit pool
+    starts or fits: one line, the exit code, no worker traceback, no worker left, nothing
+    written."""
+    cfg = tmp_path / "pgnn.yaml"
+    cfg.write_text(SMALL + PGNN_ROWS)
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 1)
+    if moment == "fits running":
+        time.sleep(3.0)  # workers have imported torch and fit
+    os.killpg(proc.pid, sig)
+    _, err = _finish(proc)
+    assert started, "the run ended before its fit pool started"
+    _interrupted_cleanly(proc, err, sig, tmp_path, ["pgnn.yaml"])
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_sweep_ends_workers_and_keeps_finished_tasks(sig, tmp_path):
+    """A sweep interrupted while its workers compute: one line, the exit code, no worker left,
+    only whole task files kept (a re-run resumes from them)."""
+    cfg = tmp_path / "grid.yaml"
+    cfg.write_text(SMALL + "sweep:\n  grid:\n    seed: [1, 2, 3, 4]\n")
+    out = tmp_path / "out"
+    proc = _clm(["sweep", cfg, "--out", out, "--quiet", "--workers", "2"], tmp_path)
+    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 2)
+    time.sleep(1.0)
+    os.killpg(proc.pid, sig)
+    _, err = _finish(proc)
+    assert started, "the sweep ended before its workers started"
+    _interrupted_cleanly(proc, err, sig, tmp_path, ["grid.yaml", "out"])
+    for task in (out / "tasks").iterdir():
+        assert not task.name.startswith("."), task
+        json.loads(task.read_text())
+    assert not (out / "table.json").exists()
