@@ -171,6 +171,38 @@ BAD_CONFIGS = {
     "open training reference repeated": ("references:\n  r1: {points_m: [0.0, 0.1]}\n"
                                          "  r2: {points_m: [0.0, 0.2]}\n",
                                          "must end where it starts", "experiment"),
+    "negative seed": ("seed: -1\n", "non-negative", "all"),
+    "dither held for 1e12 samples": ("training:\n  dither: {hold_samples: 1000000000000}\n",
+                                     "hold_samples", "experiment"),
+    "crawling reference": ("references:\n  r1: {points_m: [0.0, 0.1, 0.0], max_velocity: "
+                           "1.0e-9}\n  r2: {points_m: [0.0, 0.1]}\n", "training",
+                           "experiment"),
+    "dwell of 1e9 s": ("references:\n  r1: {points_m: [0.0, 0.1, 0.0], dwell_s: 1.0e+9}\n"
+                       "  r2: {points_m: [0.0, 0.1]}\n", "exceeds the limit", "experiment"),
+    "jerk of 1e-12": ("references:\n  r1: {points_m: [0.0, 0.1, 0.0]}\n  r2: {points_m: "
+                      "[0.0, 0.1, 0.0], max_jerk: 1.0e-12}\n", "references.r2",
+                      "experiment"),
+    "1000 repeats of a long reference": ("training: {repeats: 1000}\n", "training",
+                                         "experiment"),
+    "100000 seeds": ("feedforwards:\n  - {kind: lip, seeds: 100000}\n", "seeds",
+                     "experiment"),
+    "1e9 iterations": ("feedforwards:\n  - {kind: pgnn, training: sequential, hidden: 4, "
+                       "pgnn: {max_iter: 1000000000}}\n", "max_iter", "experiment"),
+    "1e6 restarts": ("feedforwards:\n  - {kind: pgnn, training: sequential, hidden: 4, "
+                     "pgnn: {restarts: 1000000}}\n", "restarts", "experiment"),
+    "100000 neurons": ("feedforwards:\n  - {kind: pgnn, training: sequential, "
+                       "hidden: 100000}\n", "hidden", "experiment"),
+    "20000 nested brackets": ("name: " + "[" * 20000 + "]" * 20000 + "\n", "nesting deeper",
+                              "all"),
+    "alias bomb under a known key": (
+        "a: &a [x, x, x, x, x, x, x, x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\n"
+        "c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b]\nd: &d [*c, *c, *c, *c, *c, *c, *c, *c, *c]\n"
+        "e: &e [*d, *d, *d, *d, *d, *d, *d, *d, *d]\nf: &f [*e, *e, *e, *e, *e, *e, *e, *e, *e]\n"
+        "g: &g [*f, *f, *f, *f, *f, *f, *f, *f, *f]\nh: &h [*g, *g, *g, *g, *g, *g, *g, *g, *g]\n"
+        "name: *h\n", "aliases are expanded", "all"),
+    "long wrong value": ("name: x\nplant:\n  mass: [" + ", ".join(["1.0"] * 50000) + "]\n",
+                         "plant.mass: expected a number, got list [1.0, 1.0, 1.0, 1.0, ...]",
+                         "all"),
     "huge grid": (SHORT + "sweep:\n  grid:\n    seed: {linspace: [1, 100000, 100000]}\n"
                   "    plant.mass: {linspace: [1, 10, 1000]}\n", "exceed the limit", "sweep"),
     "unknown grid key": (SHORT + "sweep:\n  grid:\n    plant.mas: [1.0, 2.0]\n",
