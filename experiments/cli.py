@@ -34,6 +34,10 @@ def _cmd_run(args) -> int:
             raise UserError(f"{args.config}: has a '{section}:' section; run it with "
                             f"'clm-sim {command} {args.config}'")
     config = load_config(args.config)
+    from experiments.suspicions import plant_warnings
+    for where, plant in (("plant", config.plant), ("truth", config.truth)):
+        if plant is not None:
+            _warn(args.config, plant_warnings(plant, where))
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
     print(to_markdown(rows), end="")
@@ -66,8 +70,16 @@ def _cmd_identify(args) -> int:
     out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
     check_writable(out)  # before the work: a result that cannot be written is not computed
     run = _load(args.data, args)
-    features = FeatureMap(regression_lowpass_hz=None if args.lowpass_hz <= 0 else args.lowpass_hz)
-    lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
+    from experiments.suspicions import record_warnings
+
+    try:
+        features = FeatureMap(regression_lowpass_hz=None if args.lowpass_hz <= 0
+                              else args.lowpass_hz)
+        lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
+    except UserError as exc:  # name the file and the option
+        raise UserError(f"{args.data}: {exc}"
+                        + (" (--lowpass-hz)" if "lowpass" in str(exc) else "")) from None
+    _warn(args.data, record_warnings(run, lip))
     values = {**lip.theta_, **lip.std_}
     bad = [name for name, value in values.items() if not math.isfinite(value)]
     if bad or not math.isfinite(lip.residual_rms_):
@@ -121,6 +133,25 @@ def _cmd_sweep(args) -> int:
     return outcome.exit_code
 
 
+def _warn(path, lines: list[str]) -> None:
+    """Data that look wrong but may be right: one stderr line each; the command goes on."""
+    for line in lines:
+        print(f"clm-sim: warning: {path}: {line}", file=sys.stderr)
+
+
+def _record_warnings(record, model) -> list[str]:
+    """:func:`experiments.suspicions.record_warnings` of a record against a diagnosis model."""
+    from controllers.lip import LIPFeedforward
+    from experiments.suspicions import record_warnings
+
+    try:
+        lip = LIPFeedforward().fit(y=record.y, u=record.u, ts=record.ts)
+    except UserError:  # the diagnosis says why the record cannot be fitted
+        lip = None
+    plant = getattr(model, "plant", None)
+    return record_warnings(record, lip, model_mass=getattr(plant, "mass", None))
+
+
 def _pairs(text: str | None, option: str, number: bool) -> dict:
     """``"y=qm,u=vir"`` -> ``{"y": "qm", "u": "vir"}`` (values as numbers where they parse)."""
     out = {}
@@ -170,7 +201,14 @@ def _cmd_diagnose(args) -> int:
     record = _load(args.data, args)
     validation = _load(args.validate, args) if args.validate else None
     model = _diagnosis_model(args.model, record.ts)
-    result = diagnose(record, model, validation=validation)
+    _warn(args.data, _record_warnings(record, model))
+    try:
+        result = diagnose(record, model, validation=validation)
+    except UserError as exc:  # name the file the error is about
+        text = str(exc)
+        raise UserError(text if text.startswith(str(args.data)) or (
+            args.validate and text.startswith(str(args.validate))) else f"{args.data}: {text}") \
+            from None
     write(result, out)
     if not result.findings:
         print("no significant discrepancy: the model explains the record")

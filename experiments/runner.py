@@ -40,7 +40,13 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
         raise UserError(f"{config_path}: {exc}" if config_path else str(exc)) from None
     with atomic_folder(out, marker="config.resolved.yaml", what="clm-sim results",
                        subdirs=("runs", "params", "figures")) as tmp:
-        rows = _run(config, tmp, progress, config_path)
+        try:
+            rows = _run(config, tmp, progress, config_path)
+        except UserError as exc:  # a diverged loop, a record too short: name the config
+            text = str(exc)
+            if config_path and not text.startswith(config_path):
+                text = f"{config_path}: {text}"
+            raise UserError(text) from None
     progress(f"results in {out}/ (table.md, table.json, figures/)")
     return rows
 

@@ -239,6 +239,15 @@ DATA_COMMANDS = {
 }
 
 
+# Commands that write nothing: given bad files they must still answer in one line.
+COMPARE_CASES = {
+    "missing files": (None, None, "cannot read"),
+    "garbage table.json": ("| a |\n", bytes(range(256)), "cannot read"),
+    "json that is not a table": ("| a |\n", "[1, 2]", "not a clm-sim table.json"),
+}
+OTHER_COMMANDS = {"compare"}
+
+
 def _parser_commands() -> set[str]:
     action = next(a for a in parser()._actions if isinstance(a, argparse._SubParsersAction))
     return set(action.choices)
@@ -248,7 +257,7 @@ PRESENT = _parser_commands()
 
 
 def test_every_command_is_covered():
-    assert PRESENT <= set(CONFIG_COMMANDS) | set(DATA_COMMANDS), \
+    assert PRESENT <= set(CONFIG_COMMANDS) | set(DATA_COMMANDS) | OTHER_COMMANDS, \
         "a new CLI command: say how it reads configs or data files in this module"
 
 
@@ -319,6 +328,15 @@ def test_run_refuses_a_sweep_config_and_points_to_sweep(case, tmp_path, capsys):
     cfg.write_text(BAD_CONFIGS[case][0])
     _check_refused(["run", str(cfg), "--out", str(tmp_path / "out")], tmp_path, capsys,
                    "clm-sim sweep", str(cfg))
+
+
+@pytest.mark.parametrize("case", list(COMPARE_CASES))
+def test_compare_answers_bad_files_in_one_line(case, tmp_path, capsys):
+    expected_md, fresh, text = COMPARE_CASES[case]
+    _write(tmp_path / "expected.md", expected_md)
+    _write(tmp_path / "table.json", fresh)
+    _check_refused(["compare", str(tmp_path / "expected.md"), str(tmp_path / "table.json")],
+                   tmp_path, capsys, text, str(tmp_path))
 
 
 def test_suite_is_large_enough():

@@ -496,3 +496,79 @@ def test_signal_during_sweep_ends_workers_and_keeps_finished_tasks(sig, tmp_path
         assert not task.name.startswith("."), task
         json.loads(task.read_text())
     assert not (out / "table.json").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# data that look wrong but may be right: one warning line each, the command goes on
+# --------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_training_run(tmp_path_factory):
+    from experiments.testbed import Testbed
+
+    cfg = tmp_path_factory.mktemp("small") / "small.yaml"
+    cfg.write_text(SMALL)
+    return Testbed(load_config(cfg)).training_run()
+
+
+def _variant(run, **changes) -> dict:
+    s = {k: run.signals()[k] for k in ("t", "r", "y", "u")}
+    return {**s, **{k: edit(s) for k, edit in changes.items()}}
+
+
+@pytest.mark.parametrize("case, changes, warning", [
+    ("as logged", {}, None),
+    ("y and r swapped", {"y": lambda s: s["r"], "r": lambda s: s["y"]}, "swapped"),
+    ("force of the wrong sign", {"u": lambda s: -s["u"]}, "does not push y as a force should"),
+])
+def test_identify_warns_about_suspicious_records(case, changes, warning, small_training_run,
+                                                 tmp_path, capsys):
+    from clm_sim.record import Run, save_csv
+
+    data = tmp_path / "rec.csv"
+    save_csv(Run(**_variant(small_training_run, **changes)), data)
+    code, out, err = _cli(["identify", data, "--out", tmp_path / "id"], capsys)
+    assert code == 0, err
+    warnings = [line for line in err if line.startswith("clm-sim: warning: ")]
+    assert err == warnings
+    if warning is None:
+        assert warnings == []
+    else:
+        assert len(warnings) == 1 and str(data) in warnings[0] and warning in warnings[0], err
+
+
+@pytest.mark.parametrize("scale, model_mass, warned", [(1.0, 18.8, False),
+                                                       (1 / 35.15, 18.8, True),  # volts
+                                                       (1.0, 18800.0, True)])  # grams
+def test_a_mass_far_from_the_records_is_a_warning(scale, model_mass, warned,
+                                                  small_training_run):
+    from clm_sim.record import Run
+    from controllers.lip import LIPFeedforward
+    from experiments.suspicions import record_warnings
+
+    run = Run(**_variant(small_training_run, u=lambda s: s["u"] * scale))
+    lip = LIPFeedforward().fit(y=run.y, u=run.u, ts=run.ts)
+    lines = record_warnings(run, lip, model_mass=model_mass)
+    assert [("forgotten --scale" in line) for line in lines] == ([True] if warned else [])
+
+
+def test_identify_names_the_file_and_option_of_a_filter_above_nyquist(small_training_run,
+                                                                     tmp_path, capsys):
+    from clm_sim.record import save_npz
+
+    data = tmp_path / "rec.npz"
+    save_npz(small_training_run, data)
+    code, out, err = _cli(["identify", data, "--lowpass-hz", 6000, "--out", tmp_path / "id"],
+                          capsys)
+    assert code == 2 and out == "" and len(err) == 1, err
+    assert str(data) in err[0] and "--lowpass-hz" in err[0] and "Nyquist" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
+
+
+def test_a_plant_mass_outside_any_carriage_is_a_warning():
+    from clm_sim.plant import Plant
+    from experiments.suspicions import plant_warnings
+
+    assert plant_warnings(Plant(), "plant") == []
+    (line,) = plant_warnings(Plant(mass=18800.0), "plant")
+    assert line.startswith("plant.mass: 18800 kg")
