@@ -79,13 +79,13 @@ def _cmd_identify(args) -> int:
     except UserError as exc:  # name the file and the option
         raise UserError(f"{args.data}: {exc}"
                         + (" (--lowpass-hz)" if "lowpass" in str(exc) else "")) from None
-    _warn(args.data, record_warnings(run, lip))
     values = {**lip.theta_, **lip.std_}
     bad = [name for name, value in values.items() if not math.isfinite(value)]
     if bad or not math.isfinite(lip.residual_rms_):
         raise UserError(f"{args.data}: the fit gives non-finite parameters "
                         f"({', '.join(sorted(set(bad))) or 'residual'}); the record's values are "
                         f"too large or degenerate for a least-squares fit")
+    _warn(args.data, record_warnings(run, lip))
     for name, value in lip.theta_.items():
         print(f"{name:10s} {value:12.6g} {THETA_UNITS[name]:6s} (std {lip.std_[name]:.2g})")
     print(f"residual rms {lip.residual_rms_:.4g} N over {len(run)} samples at "
