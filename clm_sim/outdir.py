@@ -118,7 +118,7 @@ def check_output_folder(out, *, marker: str, what: str) -> None:
 
 
 @contextlib.contextmanager
-def _lock(out: Path, given):
+def output_lock(out: Path, given):
     """Hold an exclusive lock for writing ``out``: the file ``.<name>.lock`` beside it, removed on
     release. Refuses at once (``UserError``) when another process holds it."""
     try:
@@ -169,7 +169,7 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
     out = Path(out).resolve()
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        lock = _lock(out, given)
+        lock = output_lock(out, given)
         lock.__enter__()
     except OSError as exc:
         raise write_error(given, exc) from None
@@ -184,6 +184,7 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
         for sub in subdirs:
             (tmp / sub).mkdir(parents=True)
         yield tmp
+        _check_kind(out, given, marker, what)  # again: a writer without our lock may have come
         old = None
         if out.exists():  # moved aside, not deleted first: the result is never a mix
             old = out.with_name(f".{out.name}.old-{tmp.name.rsplit('-', 1)[-1]}")

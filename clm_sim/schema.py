@@ -23,7 +23,7 @@ from clm_sim.errors import UserError
 
 
 MAX_DEPTH = 64  # nesting levels: a config has fewer than ten; deeper is a generated file
-MAX_NODES = 100_000  # values after alias expansion: a config has hundreds (an alias bomb, billions)
+MAX_NODES = 100_000  # values after alias expansion: configs have hundreds, alias bombs billions
 
 
 class _StrictLoader(yaml.SafeLoader):

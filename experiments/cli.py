@@ -327,7 +327,7 @@ _WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
 
 def _end_now(signum, frame):
     """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
-    clean-up was doing (workers exit with their parent: :func:`experiments.workers.watch_parent`)."""
+    clean-up was doing (workers exit with their parent: :func:`.workers.watch_parent`)."""
     os.write(2, f"clm-sim: {_WORDS[signum]}\n".encode())
     os._exit(_CODES[signum])
 

@@ -56,8 +56,9 @@ def preflight(config: ExperimentConfig) -> None:
 
     Raises ``UserError`` for PID design parameters out of range, a filter at or above the
     Nyquist frequency or a training reference that cannot be repeated (sizes, counts and time
-    spans are checked when the config is built: :data:`experiments.config.LIMITS`). The design itself (0.3 s)
-    is not made here: an unstable design is a result (a sweep records it as a failed task).
+    spans are checked when the config is built: :data:`experiments.config.LIMITS`). The design
+    itself (0.3 s) is not made here: an unstable design is a result (a sweep records it as a
+    failed task).
     """
     from controllers.pid import _check as check_pid_design
 

@@ -88,13 +88,13 @@ def _odd(kind: str, x: np.ndarray) -> np.ndarray:
 def records(draw) -> tuple[str, bytes]:
     """A record file (name, bytes): valid signals mutated, written as CSV, NPZ or MAT, maybe
     truncated."""
-    base = _signals(draw(st.sampled_from([N, 50, 250, 3])))
+    base = _signals(draw(st.sampled_from([N, N, N, 250, 3])))
     sig = dict(base)
-    for name in draw(st.lists(st.sampled_from(["t", "r", "y", "u"]), max_size=3)):
+    for name in draw(st.lists(st.sampled_from(["t", "r", "y", "u"]), max_size=2)):
         sig[name] = _odd(draw(ODD_VALUES), base[name])
-    if draw(st.booleans()):
+    if draw(st.integers(0, 3)) == 0:
         sig["t"] = base["t"] * draw(st.sampled_from([1e-12, 1e-6, 1e3, -1.0, 0.0]))
-    if draw(st.booleans()):
+    if draw(st.integers(0, 3)) == 0:
         sig.pop(draw(st.sampled_from(sorted(sig))))
     fmt = draw(st.sampled_from(["csv", "npz", "mat"]))
     if fmt == "csv":
@@ -129,7 +129,7 @@ def records(draw) -> tuple[str, bytes]:
             except (ValueError, TypeError):
                 buf = io.BytesIO(b"MATLAB 5.0 MAT-file")
         content = buf.getvalue()
-    if draw(st.integers(0, 4)) == 0:
+    if draw(st.integers(0, 5)) == 0:
         content = content[: draw(st.integers(0, len(content)))]
     return f"rec.{fmt}", content
 
@@ -167,6 +167,7 @@ def test_generated_records_end_in_success_or_one_line(record, scale, command, ca
         else:
             argv = ["export", str(data), "--to", "csv", "--out", str(out) + ".csv"]
         code, err = _outcome(argv, capsys)
+        hypothesis.event(f"{command} exit {code}")
         assert code in (0, 2), err
         if code == 2:
             assert len(err) == 1 and err[0].startswith("clm-sim: error: "), err
@@ -221,6 +222,7 @@ def test_generated_configs_are_read_or_refused_in_one_line(edits, tail):
         cfg.write_text(yaml.safe_dump(data) + tail)
         try:
             config = load_config(cfg)
+            hypothesis.event("config read")
         except UserError as exc:
             text = str(exc)
             assert "\n" not in text and len(text) < 2000 and text.startswith(str(cfg)), text
