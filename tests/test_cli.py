@@ -429,16 +429,17 @@ def test_two_runs_into_one_out_never_mix(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s1.yaml", "s2.yaml", "same"]
 
 
-def test_a_run_into_an_out_being_written_is_refused(tmp_path, capsys):
-    """While another command holds the lock of --out (here: this test), a run is refused at once
-    in one line and writes nothing."""
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_a_command_into_an_out_being_written_is_refused(command, tmp_path, capsys):
+    """While another command holds the lock of --out (here: this test), a run or a sweep is
+    refused at once in one line and writes nothing."""
     import fcntl
 
     cfg = tmp_path / "small.yaml"
-    cfg.write_text(SMALL)
+    cfg.write_text(SMALL + ("sweep:\n  grid:\n    seed: [1, 2]\n" if command == "sweep" else ""))
     with open(tmp_path / ".out.lock", "w") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
-        code, stdout, err = _cli(["run", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+        code, stdout, err = _cli([command, cfg, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 2 and stdout == "" and len(err) == 1, err
     assert "another clm-sim command is writing" in err[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == [".out.lock", "small.yaml"]
