@@ -101,6 +101,29 @@ def check_writable(out, *, folder: bool = True) -> None:
         raise write_error(given, exc) from None
 
 
+@contextlib.contextmanager
+def _signals_held():
+    """Ctrl-C and SIGTERM wait until the block ends (main thread, POSIX; elsewhere a no-op)."""
+    import signal
+    import threading
+
+    hold = (hasattr(signal, "pthread_sigmask")
+            and threading.current_thread() is threading.main_thread())
+    signals = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, signals) if hold else None
+    try:
+        yield
+    finally:
+        if hold:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def _check_kind(out: Path, given, marker: str, what: str) -> None:
     if out.is_dir() and any(out.iterdir()) and not (out / marker).exists():
         raise UserError(f"{given}: output folder exists and does not hold {what}; "
@@ -181,19 +204,26 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
             shutil.rmtree(stale, ignore_errors=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-",
                                     dir=out.parent))
+        tmp.chmod(0o777 & ~_umask())  # mkdtemp's 0700 would hide the result from others
         for sub in subdirs:
             (tmp / sub).mkdir(parents=True)
         yield tmp
         _check_kind(out, given, marker, what)  # again: a writer without our lock may have come
-        old = None
-        if out.exists():  # moved aside, not deleted first: the result is never a mix
-            old = out.with_name(f".{out.name}.old-{tmp.name.rsplit('-', 1)[-1]}")
-            out.rename(old)
-        tmp.rename(out)
-        tmp = None
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-        _fsync_dir(out.parent)
+        with _signals_held():  # a Ctrl-C now takes effect once the result is in place
+            old = None
+            if out.exists():  # moved aside, not deleted first: the result is never a mix
+                old = out.with_name(f".{out.name}.partial-replaced-{os.getpid()}")
+                out.rename(old)
+            try:
+                tmp.rename(out)
+            except OSError:
+                if old is not None:
+                    old.rename(out)  # the earlier result stays
+                raise
+            tmp = None
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+            _fsync_dir(out.parent)
     except OSError as exc:
         if exc.errno not in _WRITE_ERRNOS:
             raise
