@@ -573,3 +573,23 @@ def test_a_plant_mass_outside_any_carriage_is_a_warning():
     assert plant_warnings(Plant(), "plant") == []
     (line,) = plant_warnings(Plant(mass=18800.0), "plant")
     assert line.startswith("plant.mass: 18800 kg")
+
+
+def test_a_full_disk_during_a_run_is_one_line_and_leaves_nothing(tmp_path, capsys,
+                                                                  monkeypatch):
+    """The disk fills up while the run writes (simulated: the first record write fails with
+    ENOSPC, as np.savez then raises it without a file name)."""
+    import errno
+
+    import experiments.runner
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(experiments.runner, "save_npz", full)
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL)
+    code, out, err = _cli(["run", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and out == "", err
+    assert err == [f"clm-sim: error: {tmp_path / 'out'}: cannot write: No space left on device"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.yaml"]
