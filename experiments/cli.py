@@ -4,6 +4,7 @@ a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run.
 User mistakes (``UserError``) print one line on stderr and exit with code 2, never a traceback.
 ``sweep`` exits with 1 when some tasks failed (the table is still written and lists them).
 Ctrl-C (exit 130) and SIGTERM (exit 143) stop a command the same way: nothing half-written stays.
+Data that look wrong but may be right give one warning line each. docs/cli.md states it all.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ def _cmd_run(args) -> int:
     from clm_sim.schema import load_yaml
     from experiments.config import load_config
     from experiments.runner import run_experiment
+    from experiments.suspicions import plant_warnings
     from experiments.table import to_markdown
 
     data = load_yaml(args.config)
@@ -34,7 +36,6 @@ def _cmd_run(args) -> int:
             raise UserError(f"{args.config}: has a '{section}:' section; run it with "
                             f"'clm-sim {command} {args.config}'")
     config = load_config(args.config)
-    from experiments.suspicions import plant_warnings
     for where, plant in (("plant", config.plant), ("truth", config.truth)):
         if plant is not None:
             _warn(args.config, plant_warnings(plant, where))
@@ -62,16 +63,14 @@ def _load(path, args):
 
 def _cmd_identify(args) -> int:
     from clm_sim.features import FeatureMap
-    from clm_sim.outdir import atomic_write
+    from clm_sim.outdir import atomic_write, check_writable, write_error
     from controllers.lip import LIPFeedforward
-    from clm_sim.outdir import check_writable, write_error
+    from experiments.suspicions import record_warnings
     from experiments.table import THETA_UNITS
 
     out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
     check_writable(out)  # before the work: a result that cannot be written is not computed
     run = _load(args.data, args)
-    from experiments.suspicions import record_warnings
-
     try:
         features = FeatureMap(regression_lowpass_hz=None if args.lowpass_hz <= 0
                               else args.lowpass_hz)
@@ -192,8 +191,8 @@ def _cmd_study(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    from experiments.diagnosis import diagnose
     from clm_sim.outdir import check_output_folder
+    from experiments.diagnosis import diagnose
     from experiments.diagnosis.report import write
 
     out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"

@@ -47,49 +47,51 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
 @contextlib.contextmanager
 def _spawning():
     """Around every call that may start a worker: child processes start with one thread each
-    and with Ctrl-C blocked, so a Ctrl-C while a worker imports its modules cannot print a
-    traceback in it; :func:`watch_parent` then ignores it for good (the parent alone handles
-    Ctrl-C, and ends its workers). A Ctrl-C meanwhile reaches the parent when the block ends."""
+    and with Ctrl-C and SIGTERM blocked, so a signal to the process group while a worker imports
+    its modules cannot print a traceback in it; :func:`watch_parent` then ignores them for good
+    (the parent alone handles them, and ends its workers). A signal meanwhile reaches the parent
+    when the block ends."""
     blocked = (hasattr(signal, "pthread_sigmask")
                and threading.current_thread() is threading.main_thread())
     if blocked:
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
     try:
         with single_threaded_children():
             yield
     finally:
         if blocked:
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def stop(pool: ProcessPoolExecutor) -> None:
-    """End ``pool`` now: its workers terminated (killed if they do not exit within a second),
-    queued work cancelled, without waiting for running tasks."""
+    """End ``pool`` now: its workers killed (they write no file and ignore SIGTERM), queued
+    work cancelled, without waiting for running tasks."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
     for proc in procs:
         with contextlib.suppress(Exception):
-            proc.terminate()
+            proc.kill()
     with contextlib.suppress(Exception):
         pool.shutdown(wait=False, cancel_futures=True)
     deadline = time.monotonic() + 1.0
     for proc in procs:
         with contextlib.suppress(Exception):
             proc.join(max(0.0, deadline - time.monotonic()))
-            if proc.is_alive():
-                proc.kill()
-                proc.join(1.0)
 
 
 def watch_parent(parent_pid: int) -> None:
-    """Worker initializer: ignore Ctrl-C (the parent handles it and ends the workers) and exit
-    when the parent process dies (even by SIGKILL), leaving no orphan computing a result nobody
-    will store."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    """Worker initializer: ignore Ctrl-C and SIGTERM (the parent handles them and ends the
+    workers) and exit when the parent process dies (even by SIGKILL), leaving no orphan
+    computing a result nobody will store."""
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _spawning
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)  # blocked by _spawning
 
     def watch():
         while True:
