@@ -394,6 +394,9 @@ def _exit_now(code: int) -> None:
     guard.start()
     with contextlib.suppress(Exception):
         multiprocessing.util._exit_function()
+    with contextlib.suppress(Exception):  # its helper process, which would outlive us briefly
+        import multiprocessing.resource_tracker
+        multiprocessing.resource_tracker._resource_tracker._stop()
     with contextlib.suppress(Exception):
         sys.stdout.flush()
         sys.stderr.flush()
