@@ -118,6 +118,22 @@ def _signals_held():
             signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
+# Temporary folders and lock files this process is writing now: removed by abandon().
+_IN_PROGRESS: set[Path] = set()
+
+
+def abandon() -> None:
+    """Remove every temporary folder and lock file this process is writing now. For a process
+    about to end at once (a second Ctrl-C during the clean-up of the first), where no ``finally``
+    runs any more; best effort, never raises."""
+    for path in list(_IN_PROGRESS):
+        with contextlib.suppress(OSError):
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+
+
 def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
@@ -165,12 +181,14 @@ def output_lock(out: Path, given):
         if same:
             break
         os.close(fd)
+    _IN_PROGRESS.add(path)
     try:
         yield
     finally:
         try:
             path.unlink(missing_ok=True)  # while still locked: a waiting opener re-checks
         finally:
+            _IN_PROGRESS.discard(path)
             os.close(fd)
 
 
@@ -204,6 +222,7 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
             shutil.rmtree(stale, ignore_errors=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-",
                                     dir=out.parent))
+        _IN_PROGRESS.add(tmp)
         tmp.chmod(0o777 & ~_umask())  # mkdtemp's 0700 would hide the result from others
         for sub in subdirs:
             (tmp / sub).mkdir(parents=True)
@@ -220,6 +239,7 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
                 if old is not None:
                     old.rename(out)  # the earlier result stays
                 raise
+            _IN_PROGRESS.discard(tmp)
             tmp = None
             if old is not None:
                 shutil.rmtree(old, ignore_errors=True)
@@ -231,4 +251,5 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+            _IN_PROGRESS.discard(tmp)
         lock.__exit__(None, None, None)

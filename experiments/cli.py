@@ -320,14 +320,22 @@ class Terminated(KeyboardInterrupt):
     workers) runs the same way."""
 
 
+_said = False  # the line of an interruption is printed (a second signal prints no other)
 _CODES = {signal.SIGINT: 130, signal.SIGTERM: 128 + signal.SIGTERM}
 _WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
 
 
 def _end_now(signum, frame):
     """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
-    clean-up was doing (workers exit with their parent: :func:`.workers.watch_parent`)."""
-    os.write(2, f"clm-sim: {_WORDS[signum]}\n".encode())
+    clean-up was doing; the workers are killed, the temporary folder and lock removed first."""
+    workers = sys.modules.get("experiments.workers")
+    if workers is not None:
+        workers.kill_all()
+    outdir = sys.modules.get("clm_sim.outdir")
+    if outdir is not None:
+        outdir.abandon()
+    if not _said:
+        os.write(2, f"clm-sim: {_WORDS[signum]}\n".encode())
     os._exit(_CODES[signum])
 
 
@@ -342,6 +350,8 @@ def _signalled(signum, frame):
 def main(argv=None) -> int:
     """The command line; ``argv=None`` means a real process (``sys.argv``), which after an
     interruption ends at once, without waiting at interpreter exit for anything."""
+    global _said
+    _said = False
     # Before numpy, scipy or torch load: their AVX2 kernels on every x86-64 CPU that has them, so
     # a fit sums in the same order on another CPU (clm_sim.numerics; CLM_SIM_NATIVE_KERNELS=1 opts out).
     pin_portable_kernels()
@@ -363,7 +373,8 @@ def main(argv=None) -> int:
         sig = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
         code = _CODES[sig]
         _stop_workers()
-        print(f"clm-sim: {_WORDS[sig]}", file=sys.stderr)
+        print(f"clm-sim: {_WORDS[sig]}", file=sys.stderr, flush=True)
+        _said = True
         return code
     except OSError as exc:  # the last net: a file the checks above did not foresee, one line
         code = 2

@@ -84,6 +84,18 @@ def stop(pool: ProcessPoolExecutor) -> None:
             proc.join(max(0.0, deadline - time.monotonic()))
 
 
+_POOLS: set = set()  # the pools of this process that are running now
+
+
+def kill_all() -> None:
+    """Kill every worker of this process's pools at once, without waiting (for a process about
+    to end at once)."""
+    for pool in list(_POOLS):
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(Exception):
+                proc.kill()
+
+
 def watch_parent(parent_pid: int) -> None:
     """Worker initializer: ignore Ctrl-C and SIGTERM (the parent handles them and ends the
     workers) and exit when the parent process dies (even by SIGKILL), leaving no orphan
@@ -112,6 +124,7 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
     with _spawning():
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                    initializer=watch_parent, initargs=(os.getpid(),))
+    _POOLS.add(pool)
     try:
         with _spawning():
             # Keep at most two tasks per worker queued: an interrupted sweep then has little
@@ -136,6 +149,8 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
         # Interrupted or broken: stop the workers now instead of waiting for running tasks.
         stop(pool)
         raise
+    finally:
+        _POOLS.discard(pool)
     pool.shutdown(wait=True)
 
 
@@ -159,6 +174,7 @@ def _pool() -> ProcessPoolExecutor:
         _POOL = ProcessPoolExecutor(max_workers=cores(),
                                     mp_context=multiprocessing.get_context("spawn"),
                                     initializer=watch_parent, initargs=(os.getpid(),))
+        _POOLS.add(_POOL)
         atexit.register(stop_fits)
     return _POOL
 
@@ -168,6 +184,7 @@ def stop_fits() -> None:
     global _POOL
     pool, _POOL = _POOL, None
     if pool is not None:
+        _POOLS.discard(pool)
         stop(pool)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import numbers
 import os
@@ -604,3 +605,22 @@ def test_a_full_disk_during_a_run_is_one_line_and_leaves_nothing(tmp_path, capsy
     assert code == 2 and out == "", err
     assert err == [f"clm-sim: error: {tmp_path / 'out'}: cannot write: No space left on device"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.yaml"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("gap_s", [0.0, 0.002, 0.05])
+def test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly(gap_s, tmp_path):
+    """Two Ctrl-C in a row while the PGNN fit pool works (the second may land in the clean-up
+    of the first): still exit 130, one line, nothing written, no process left."""
+    cfg = tmp_path / "pgnn.yaml"
+    cfg.write_text(SMALL + PGNN_ROWS)
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 1)
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(gap_s)
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGINT)
+    _, err = _finish(proc)
+    assert started, "the run ended before its fit pool started"
+    _interrupted_cleanly(proc, err, signal.SIGINT, tmp_path, ["pgnn.yaml"])
