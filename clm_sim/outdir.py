@@ -3,7 +3,9 @@
 One rule for every writer (records, sweep task results, tables, figures, result folders): build
 the result under a temporary dot-name beside its target and rename it into place when complete,
 so a reader, or a command resumed after a crash (``SIGKILL`` included), sees either the whole
-result or none of it.
+result or none of it. A result folder is built in a temporary folder of its own run, under a lock
+beside it that refuses a second writer, so it always holds exactly one run's files; an output
+that cannot be written is one ``UserError`` line, checked before the work where it can be.
 """
 
 from __future__ import annotations
@@ -75,7 +77,7 @@ def write_error(path, exc: OSError) -> UserError:
     return UserError(f"{path}: cannot write{where}: {what}")
 
 
-def check_writable(out, *, folder: bool = True) -> None:
+def check_writable(out) -> None:
     """Refuse, before any work, an output ``out`` that cannot be written: an existing file where a
     folder is needed, the current folder or one of its parents, a parent that is a file, or a
     place where nothing can be created (read-only, no permission, full disk). Writes nothing
@@ -84,10 +86,9 @@ def check_writable(out, *, folder: bool = True) -> None:
     out = Path(out)
     try:
         resolved = out.resolve()
-        if folder and out.exists() and not out.is_dir():
+        if out.exists() and not out.is_dir():
             raise UserError(f"{given}: exists and is a file, not a folder; choose another --out")
-        if folder and (resolved == Path.cwd().resolve()
-                       or resolved in Path.cwd().resolve().parents):
+        if resolved == Path.cwd().resolve() or resolved in Path.cwd().resolve().parents:
             raise UserError(f"{given}: is the current folder or contains it; results go into a "
                             f"folder of their own; choose another --out")
         anchor = resolved.parent

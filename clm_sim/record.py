@@ -171,7 +171,7 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
         raise
     except FileNotFoundError:
         raise UserError(f"{path}: file not found") from None
-    except (Exception, RecursionError) as exc:  # a truncated or foreign file: say so in one line
+    except Exception as exc:  # a truncated or foreign file (any error), said in one line
         raise UserError(f"{path}: cannot read as {suffix[1:].upper()} ({_first_line(exc)})") \
             from None
     raise UserError(f"{path}: unknown record format {suffix!r}; expected .csv, .npz or .mat")
@@ -225,8 +225,10 @@ def load_record(path, columns: dict[str, str] | None = None,
 
     Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
     inf, time stamps that are not strictly increasing and uniform, or a record that is too short,
-    and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or a
-    position beyond ``MAX_POSITION_M`` (y in mm).
+    and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
+    ``MIN_TS``, a position beyond ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``;
+    a variable that is not numbers (text, MATLAB cells, structs, sparse matrices, complex values
+    with an imaginary part) is refused by name.
     """
     path = Path(path)
     if not path.exists():

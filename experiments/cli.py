@@ -327,7 +327,10 @@ _WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
 
 def _end_now(signum, frame):
     """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
-    clean-up was doing; the workers are killed, the temporary folder and lock removed first."""
+    clean-up was doing; the workers are killed, the temporary folder and lock removed first.
+    Does nothing if the process is already being ended (:func:`_exit_now`)."""
+    if not _ENDING.acquire(blocking=False):
+        return
     workers = sys.modules.get("experiments.workers")
     if workers is not None:
         workers.kill_all()
@@ -342,20 +345,64 @@ def _end_now(signum, frame):
 def _signalled(signum, frame):
     """The first Ctrl-C or SIGTERM: unwind (every ``finally`` removes what it was writing); a
     second signal ends the process at once."""
+    _unwinding.set()
     signal.signal(signal.SIGINT, _end_now)
     signal.signal(signal.SIGTERM, _end_now)
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
+def _receive_signals() -> None:
+    """A real process takes Ctrl-C and SIGTERM in a thread of its own: they are blocked in every
+    other thread (blocked here before any library starts one), so none is lost to a library's
+    thread or while workers start (:data:`experiments.workers.SPAWNING`). The first is passed
+    to the main thread as if it had come there (it unwinds the command); if the main thread has
+    not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
+    after the command ended, this thread ends the process at once (:func:`_end_now`)."""
+    stops = set(_CODES)
+    signal.pthread_sigmask(signal.SIG_BLOCK, stops)
+    # The main thread is poked with a signal of its own (a real one: it also ends a blocking
+    # wait there), and takes it as the signal received.
+    signal.signal(_POKE, lambda _, frame: _signalled(_state["signum"], frame))
+    main = threading.main_thread().ident
+
+    def receive():
+        while True:
+            signum = signal.sigwait(stops)
+            if _state["exiting"]:
+                continue  # the main thread is ending the process (under its own guard)
+            if _state["signalled"] or _state["done"]:
+                _end_now(signum, None)
+            _state["signalled"], _state["signum"] = True, signum
+            workers = sys.modules.get("experiments.workers")
+            with workers.SPAWNING if workers is not None else contextlib.nullcontext():
+                signal.pthread_kill(main, _POKE)
+            if not _unwinding.wait(ANSWER_S):
+                # The main thread is inside a long call that releases the GIL (a simulation
+                # kernel, a fit) and writes no file meanwhile: end from here.
+                _end_now(signum, None)
+
+    threading.Thread(target=receive, daemon=True, name="clm-sim-signals").start()
+
+
+_state = {"signalled": False, "done": False, "exiting": False, "signum": signal.SIGINT}
+_POKE = getattr(signal, "SIGUSR1", None)  # thread-directed, from the signal thread to main
+_unwinding = threading.Event()  # set when the main thread has taken the first signal
+ANSWER_S = 0.5  # s: how long the main thread may take to start unwinding after a signal
+_ENDING = threading.Lock()  # held by whoever ends the process: _exit_now or _end_now
+
+
 def main(argv=None) -> int:
-    """The command line; ``argv=None`` means a real process (``sys.argv``), which after an
-    interruption ends at once, without waiting at interpreter exit for anything."""
+    """The command line; ``argv=None`` means a real process (``sys.argv``), which receives its
+    signals in a thread of its own and after an interruption ends at once, without waiting at
+    interpreter exit for anything."""
     global _said
     _said = False
+    program = argv is None
+    if program and hasattr(signal, "pthread_sigmask") and _POKE is not None:
+        _receive_signals()
     # Before numpy, scipy or torch load: their AVX2 kernels on every x86-64 CPU that has them, so
     # a fit sums in the same order on another CPU (clm_sim.numerics; CLM_SIM_NATIVE_KERNELS=1 opts out).
     pin_portable_kernels()
-    program = argv is None
     args = parser().parse_args(argv)
     # Files only, never a window: the one place where clm-sim picks matplotlib's backend.
     os.environ["MPLBACKEND"] = "Agg"
@@ -386,6 +433,7 @@ def main(argv=None) -> int:
             _exit_now(code)
         if program and main_thread:
             # Done: a late signal (results written, interpreter exiting) ends with its code.
+            _state["done"] = True
             signal.signal(signal.SIGINT, _end_now)
             signal.signal(signal.SIGTERM, _end_now)
         else:
@@ -400,18 +448,30 @@ def _exit_now(code: int) -> None:
     guard."""
     import multiprocessing.util
 
+    _ENDING.acquire()  # not both this and a second signal's _end_now
+    _state["exiting"] = True
     guard = threading.Timer(1.0, os._exit, (code,))
     guard.daemon = True
     guard.start()
     with contextlib.suppress(Exception):
         multiprocessing.util._exit_function()
-    with contextlib.suppress(Exception):  # its helper process, which would outlive us briefly
-        import multiprocessing.resource_tracker
-        multiprocessing.resource_tracker._resource_tracker._stop()
+    _release_semaphores()
     with contextlib.suppress(Exception):
         sys.stdout.flush()
         sys.stderr.flush()
     os._exit(code)
+
+
+def _release_semaphores() -> None:
+    """Unlink the pools' semaphores and stop multiprocessing's resource tracker, which would
+    otherwise outlive the process and warn about them."""
+    import multiprocessing.util
+
+    with contextlib.suppress(Exception):
+        multiprocessing.util._run_finalizers(0)
+    with contextlib.suppress(Exception):
+        import multiprocessing.resource_tracker
+        multiprocessing.resource_tracker._resource_tracker._stop()
 
 
 def _stop_workers() -> None:

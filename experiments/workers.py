@@ -48,25 +48,35 @@ def single_threaded_children():
 
 
 _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+# Held while workers are being started (their signals set to "ignore"): a signal that comes
+# meanwhile is handed to the main thread once it is released (experiments.cli).
+SPAWNING = threading.Lock()
 
 
 @contextlib.contextmanager
 def _spawning():
     """Around every call that may start a worker: child processes start with one thread each
-    and with Ctrl-C and SIGTERM blocked, so a signal to the process group while a worker imports
-    its modules cannot print a traceback in it; :func:`watch_parent` then ignores them for good
-    (the parent alone handles them, and ends its workers). A signal meanwhile reaches the parent
-    when the block ends."""
-    blocked = (hasattr(signal, "pthread_sigmask")
-               and threading.current_thread() is threading.main_thread())
-    if blocked:
-        previous = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-    try:
-        with single_threaded_children():
-            yield
-    finally:
-        if blocked:
-            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+    and with Ctrl-C and SIGTERM ignored (a disposition a new process inherits; a blocked mask
+    it does not), so a signal to the process group while a worker starts its interpreter and
+    imports its modules cannot print a traceback in it (the parent alone answers, and ends its
+    workers). A command line process receives its signals in a thread of its own
+    (:func:`experiments.cli.main`), which waits for :data:`SPAWNING` before it passes one on,
+    so none is lost."""
+    main = threading.current_thread() is threading.main_thread()
+    mask = main and hasattr(signal, "pthread_sigmask")
+    with SPAWNING:
+        if mask:
+            previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+        handlers = ({sig: signal.signal(sig, signal.SIG_IGN) for sig in _STOP_SIGNALS}
+                    if main else {})
+        try:
+            with single_threaded_children():
+                yield
+        finally:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+            if mask:
+                signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
 
 
 def stop(pool: ProcessPoolExecutor) -> None:
@@ -100,10 +110,8 @@ def watch_parent(parent_pid: int) -> None:
     """Worker initializer: ignore Ctrl-C and SIGTERM (the parent handles them and ends the
     workers) and exit when the parent process dies (even by SIGKILL), leaving no orphan
     computing a result nobody will store."""
-    for sig in _STOP_SIGNALS:
+    for sig in _STOP_SIGNALS:  # already ignored since the start (see _spawning), for good
         signal.signal(sig, signal.SIG_IGN)
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)  # blocked by _spawning
 
     def watch():
         while True:
