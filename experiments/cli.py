@@ -372,6 +372,7 @@ def _receive_signals() -> None:
                 continue  # the main thread is ending the process (under its own guard)
             if _state["signalled"] or _state["done"]:
                 _end_now(signum, None)
+                continue  # (only if the main thread is already ending the process)
             _state["signalled"], _state["signum"] = True, signum
             workers = sys.modules.get("experiments.workers")
             with workers.SPAWNING if workers is not None else contextlib.nullcontext():

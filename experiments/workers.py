@@ -66,7 +66,13 @@ def _spawning():
     mask = main and hasattr(signal, "pthread_sigmask")
     with SPAWNING:
         if mask:
-            previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+            previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+            # multiprocessing's resource tracker unblocks both signals in this thread once it
+            # has started it: start it before they are ignored, then block them again.
+            import multiprocessing.resource_tracker
+            with contextlib.suppress(Exception):
+                multiprocessing.resource_tracker.ensure_running()
+            signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         handlers = ({sig: signal.signal(sig, signal.SIG_IGN) for sig in _STOP_SIGNALS}
                     if main else {})
         try:

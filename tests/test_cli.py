@@ -623,4 +623,8 @@ def test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly(gap_s, tmp_path):
         os.killpg(proc.pid, signal.SIGINT)
     _, err = _finish(proc)
     assert started, "the run ended before its fit pool started"
-    _interrupted_cleanly(proc, err, signal.SIGINT, tmp_path, ["pgnn.yaml"])
+    # A second signal in the clean-up may leave the pools' semaphores to multiprocessing's
+    # resource tracker, which removes them and says so (docs/cli.md); nothing else may print.
+    lines = [line for line in err.splitlines() if "resource_tracker" not in line]
+    _interrupted_cleanly(proc, "\n".join(lines), signal.SIGINT, tmp_path, ["pgnn.yaml"])
+    assert "Traceback" not in err, err
