@@ -3,14 +3,19 @@
 One rule for every writer (records, sweep task results, tables, figures, result folders): build
 the result under a temporary dot-name beside its target and rename it into place when complete,
 so a reader, or a command resumed after a crash (``SIGKILL`` included), sees either the whole
-result or none of it.
+result or none of it. A result folder is built in a temporary folder of its own run, under a lock
+beside it that refuses a second writer, so it always holds exactly one run's files; an output
+that cannot be written is one ``UserError`` line, checked before the work where it can be.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import glob
 import os
 import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -58,30 +63,194 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+# errno values that mean "this place cannot take the output", whatever file was being written
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT,
+                 errno.ENAMETOOLONG, errno.ENOTDIR, errno.EISDIR, errno.EEXIST, errno.EFBIG,
+                 errno.EMLINK}
+
+
+def write_error(path, exc: OSError) -> UserError:
+    """``exc`` (raised while writing the output ``path``) as one line naming the path and the
+    cause, e.g. ``results/x: cannot write results/x/table.json: No space left on device``."""
+    what = exc.strerror or type(exc).__name__
+    where = f" {exc.filename}" if exc.filename else ""
+    return UserError(f"{path}: cannot write{where}: {what}")
+
+
+def check_writable(out) -> None:
+    """Refuse, before any work, an output ``out`` that cannot be written: an existing file where a
+    folder is needed, the current folder or one of its parents, a parent that is a file, or a
+    place where nothing can be created (read-only, no permission, full disk). Writes nothing
+    that stays: the probe is a temporary folder, removed at once."""
+    given = out
+    out = Path(out)
+    try:
+        resolved = out.resolve()
+        if out.exists() and not out.is_dir():
+            raise UserError(f"{given}: exists and is a file, not a folder; choose another --out")
+        if resolved == Path.cwd().resolve() or resolved in Path.cwd().resolve().parents:
+            raise UserError(f"{given}: is the current folder or contains it; results go into a "
+                            f"folder of their own; choose another --out")
+        anchor = resolved.parent
+        while not anchor.exists():
+            anchor = anchor.parent
+        if not anchor.is_dir():
+            raise UserError(f"{given}: {anchor} is a file, not a folder")
+        probe = tempfile.mkdtemp(prefix=".clm-sim-probe-", dir=anchor)
+        os.rmdir(probe)
+    except OSError as exc:
+        raise write_error(given, exc) from None
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """Ctrl-C and SIGTERM wait until the block ends (main thread, POSIX; elsewhere a no-op)."""
+    import signal
+    import threading
+
+    hold = (hasattr(signal, "pthread_sigmask")
+            and threading.current_thread() is threading.main_thread())
+    signals = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, signals) if hold else None
+    try:
+        yield
+    finally:
+        if hold:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+# Temporary folders and lock files this process is writing now: removed by abandon().
+_IN_PROGRESS: set[Path] = set()
+
+
+def abandon() -> None:
+    """Remove every temporary folder and lock file this process is writing now. For a process
+    about to end at once (a second Ctrl-C during the clean-up of the first), where no ``finally``
+    runs any more; best effort, never raises."""
+    for path in list(_IN_PROGRESS):
+        with contextlib.suppress(OSError):
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _check_kind(out: Path, given, marker: str, what: str) -> None:
+    if out.is_dir() and any(out.iterdir()) and not (out / marker).exists():
+        raise UserError(f"{given}: output folder exists and does not hold {what}; "
+                        f"choose another --out")
+
+
+def check_output_folder(out, *, marker: str, what: str) -> None:
+    """What :func:`atomic_folder` will refuse, checked before the work: call it first so that a
+    command never computes a result it cannot write."""
+    check_writable(out)
+    try:
+        _check_kind(Path(out), out, marker, what)
+    except OSError as exc:
+        raise write_error(out, exc) from None
+
+
+@contextlib.contextmanager
+def output_lock(out: Path, given):
+    """Hold an exclusive lock for writing ``out``: the file ``.<name>.lock`` beside it, removed on
+    release. Refuses at once (``UserError``) when another process holds it."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: no advisory lock; the unique temporary folder still applies
+        yield
+        return
+    path = out.with_name(f".{out.name}.lock")
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise UserError(f"{given}: another clm-sim command is writing this folder; wait "
+                            f"for it to finish or choose another --out") from None
+        try:  # the holder before us may have removed the file after we opened it: lock anew
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    _IN_PROGRESS.add(path)
+    try:
+        yield
+    finally:
+        try:
+            path.unlink(missing_ok=True)  # while still locked: a waiting opener re-checks
+        finally:
+            _IN_PROGRESS.discard(path)
+            os.close(fd)
+
+
 @contextlib.contextmanager
 def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("figures",)):
     """Build a result folder in a temporary sibling and move it into place on success.
 
     ``out`` may already exist only if it holds ``marker`` (an earlier result of the same kind,
-    which is replaced); ``what`` names that kind in the error. On any exception (``SIGTERM``
-    included: the CLI turns it into one) the temporary folder is removed, so an interrupted or
-    failed run leaves nothing half-written.
+    which is replaced); ``what`` names that kind in the error. One command at a time writes a
+    given ``out``: the others are refused (``.<name>.lock`` beside it). The temporary folder
+    ``.<name>.partial-<pid>-<random>`` is this run's alone; the final rename is the only moment
+    the result appears, so ``out`` always holds exactly one run's files. On any exception
+    (``SIGTERM`` included: the CLI turns it into one) the temporary folder is removed, so an
+    interrupted or failed run leaves nothing half-written; an ``OSError`` while writing becomes
+    one ``UserError`` line naming the path.
     """
-    out = Path(out)
-    if out.exists() and any(out.iterdir()) and not (out / marker).exists():
-        raise UserError(f"{out}: output folder exists and does not hold {what}; "
-                        f"choose another --out")
-    tmp = out.with_name(f".{out.name}.partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    given = out
+    check_writable(out)
+    out = Path(out).resolve()
     try:
-        tmp.mkdir(parents=True)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        lock = output_lock(out, given)
+        lock.__enter__()
+    except OSError as exc:
+        raise write_error(given, exc) from None
+    tmp = None
+    try:
+        _check_kind(out, given, marker, what)
+        # Under the lock every other temporary folder of this output is a killed run's.
+        for stale in out.parent.glob(f".{glob.escape(out.name)}.partial*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-",
+                                    dir=out.parent))
+        _IN_PROGRESS.add(tmp)
+        tmp.chmod(0o777 & ~_umask())  # mkdtemp's 0700 would hide the result from others
         for sub in subdirs:
             (tmp / sub).mkdir(parents=True)
         yield tmp
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        _check_kind(out, given, marker, what)  # again: a writer without our lock may have come
+        with _signals_held():  # a Ctrl-C now takes effect once the result is in place
+            old = None
+            if out.exists():  # moved aside, not deleted first: the result is never a mix
+                old = out.with_name(f".{out.name}.partial-replaced-{os.getpid()}")
+                out.rename(old)
+            try:
+                tmp.rename(out)
+            except OSError:
+                if old is not None:
+                    old.rename(out)  # the earlier result stays
+                raise
+            _IN_PROGRESS.discard(tmp)
+            tmp = None
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+            _fsync_dir(out.parent)
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        raise write_error(given, exc) from None
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+            _IN_PROGRESS.discard(tmp)
+        lock.__exit__(None, None, None)

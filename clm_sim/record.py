@@ -27,7 +27,9 @@ SIGNALS = ("t", "r", "y", "y_true", "u", "u_fb", "u_ff", "dither", "e")
 REQUIRED = ("t", "r", "y", "u")
 MIN_SAMPLES = 200
 MAX_TS = 0.01  # s: a servo record sampled slower than 100 Hz has its time stamps in ms
+MIN_TS = 1e-7  # s: no servo samples faster than 10 MHz; such time stamps are in other units
 MAX_POSITION_M = 10.0  # m: longer than any linear-motor stroke; larger values are in mm or counts
+MAX_FORCE_N = 1e6  # N: 50 times the peak force of the largest linear motors; larger is not N
 
 
 @dataclass(frozen=True)
@@ -138,44 +140,82 @@ def save_mat(run: Run, path: Path) -> None:
     atomic_write(path, write)
 
 
-def _read_columns(path: Path) -> dict[str, np.ndarray]:
+def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
+    """The file's variables (arrays as stored, checked by :func:`_numbers` when used) and its
+    ``meta`` (a JSON object, else empty). Every failure is one ``UserError`` line."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".csv":
-            with open(path, encoding="utf-8") as fh:
+            # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark
+            with open(path, encoding="utf-8-sig") as fh:
                 header = fh.readline().strip()
             if not header:
                 raise UserError(f"{path}: empty file, expected a CSV header such as 't,r,y,u'")
-            names = [h.strip().lstrip("#").strip() for h in header.split(",")]
+            names = [h.strip().lstrip("#").strip().strip('"').strip() for h in header.split(",")]
             if any(n and n[0] in "0123456789-+." for n in names):
                 raise UserError(f"{path}: the first line must be a header of column names "
                                 f"(t, r, y, u), got numbers")
             with warnings.catch_warnings():  # "empty input" is reported below, in one line
                 warnings.simplefilter("ignore", UserWarning)
                 data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
-                                     invalid_raise=True, ndmin=2)
+                                     invalid_raise=True, ndmin=2, encoding="utf-8")
             if data.size == 0:
                 raise UserError(f"{path}: no data rows after the header")
             if data.shape[1] != len(names):
                 raise UserError(f"{path}: header has {len(names)} columns, rows have "
                                 f"{data.shape[1]}")
-            return {n: data[:, i] for i, n in enumerate(names)}
+            return {n: data[:, i] for i, n in enumerate(names)}, {}
         if suffix == ".npz":
             # Our own handle, closed even when a truncated archive makes np.load raise.
             with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-                return {k: np.asarray(z[k]) for k in z.files if k != "meta"}
+                raw = {k: np.asarray(z[k]) for k in z.files}
+            return raw, _meta(raw.pop("meta", None))
         if suffix == ".mat":
             import scipy.io
             d = scipy.io.loadmat(path)
-            return {k: np.asarray(v) for k, v in d.items() if not k.startswith("__")}
+            return {k: v for k, v in d.items() if not k.startswith("__")}, {}
     except UserError:
         raise
     except FileNotFoundError:
         raise UserError(f"{path}: file not found") from None
-    except Exception as exc:  # a truncated or foreign file: say so in one line
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise UserError(f"{path}: cannot read as {suffix[1:].upper()} ({first})") from None
+    except Exception as exc:  # a truncated or foreign file (any error), said in one line
+        raise UserError(f"{path}: cannot read as {suffix[1:].upper()} ({_first_line(exc)})") \
+            from None
     raise UserError(f"{path}: unknown record format {suffix!r}; expected .csv, .npz or .mat")
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return text if len(text) <= 200 else text[:200] + "..."
+
+
+def _meta(value) -> dict:
+    """An NPZ ``meta`` entry: a JSON object, else nothing (a record's meta is informative)."""
+    try:
+        meta = json.loads(str(value)) if value is not None and np.ndim(value) == 0 else {}
+    except (ValueError, RecursionError):
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+_KINDS = {"U": "text", "S": "bytes", "O": "cells or objects", "V": "a struct or record",
+          "M": "dates", "m": "time spans"}
+
+
+def _numbers(value, path: Path, key: str) -> np.ndarray:
+    """``value`` as a float64 array, or one line saying what the variable ``key`` holds
+    instead (text, a MATLAB cell, struct or sparse matrix, complex numbers)."""
+    if not isinstance(value, np.ndarray):  # scipy.sparse from a MATLAB sparse matrix
+        raise UserError(f"{path}: variable {key!r} is {type(value).__name__}, expected a "
+                        f"dense numeric array (store it with full(...) in MATLAB)")
+    kind = value.dtype.kind
+    if kind in _KINDS:
+        raise UserError(f"{path}: variable {key!r} holds {_KINDS[kind]}, expected numbers")
+    if kind == "c":
+        if np.any(value.imag != 0):
+            raise UserError(f"{path}: variable {key!r} is complex; expected real numbers")
+        value = value.real
+    return np.asarray(value, dtype=np.float64)
 
 
 def load_record(path, columns: dict[str, str] | None = None,
@@ -192,13 +232,15 @@ def load_record(path, columns: dict[str, str] | None = None,
 
     Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
     inf, time stamps that are not strictly increasing and uniform, or a record that is too short,
-    and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or a
-    position beyond ``MAX_POSITION_M`` (y in mm).
+    and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
+    ``MIN_TS``, a position beyond ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``;
+    a variable that is not numbers (text, MATLAB cells, structs, sparse matrices, complex values
+    with an imaginary part) is refused by name.
     """
     path = Path(path)
     if not path.exists():
         raise UserError(f"{path}: file not found")
-    raw = _read_columns(path)
+    raw, file_meta = _read_columns(path)
     columns = dict(columns or {})
     out = {}
     for name in SIGNALS:
@@ -209,7 +251,10 @@ def load_record(path, columns: dict[str, str] | None = None,
                 raise UserError(f"{path}: missing column {key!r} (signal {name}); "
                                 f"columns present: {have}")
             continue
-        value = np.asarray(raw[key], dtype=float)
+        value = _numbers(raw[key], path, key)
+        if value.ndim == 0:
+            raise UserError(f"{path}: column {key!r} is a single number, expected a column "
+                            f"of samples")
         if value.ndim > 1:
             if min(value.shape) != 1:
                 raise UserError(f"{path}: column {key!r} must be a vector, got shape "
@@ -220,11 +265,16 @@ def load_record(path, columns: dict[str, str] | None = None,
         if name not in out:
             raise UserError(f"{path}: cannot scale {name!r}: no such signal")
         if isinstance(factor, str):
-            if factor not in raw or np.size(raw[factor]) != 1:
+            if factor not in raw or not isinstance(raw[factor], np.ndarray) \
+                    or raw[factor].dtype.kind not in "biufc" or np.size(raw[factor]) != 1:
                 raise UserError(f"{path}: scale for {name!r} names {factor!r}, which is not a "
-                                f"scalar in the file")
-            factor = float(np.asarray(raw[factor], dtype=float).ravel()[0])
-        out[name] = out[name] * float(factor)
+                                f"scalar number in the file")
+            factor = float(_numbers(raw[factor], path, factor).ravel()[0])
+        if not (np.isfinite(factor) and factor != 0):
+            raise UserError(f"{path}: scale for {name!r} is {factor:g}; expected a finite, "
+                            f"non-zero factor")
+        with np.errstate(over="ignore"):  # an overflow is reported as inf just below
+            out[name] = out[name] * float(factor)
     n = len(out["t"])
     for name, value in out.items():
         if len(value) != n:
@@ -249,18 +299,17 @@ def load_record(path, columns: dict[str, str] | None = None,
         raise UserError(f"{path}: column {columns.get('t', 't')!r} steps by {ts:.6g} s, slower "
                         f"than a servo log ({1 / MAX_TS:g} Hz at least); are the time stamps "
                         f"in ms? (t must be in s)")
+    if ts < MIN_TS:
+        raise UserError(f"{path}: column {columns.get('t', 't')!r} steps by {ts:.6g} s, faster "
+                        f"than any servo log ({1 / MIN_TS:g} Hz at most); t must be in s")
     for name in ("r", "y"):
         peak = float(np.max(np.abs(out[name])))
         if peak > MAX_POSITION_M:
             raise UserError(f"{path}: column {columns.get(name, name)!r} reaches {peak:.6g}, "
                             f"beyond {MAX_POSITION_M:g} m; positions must be in m (for a record "
                             f"in mm, scale {name} by 0.001)")
-    meta = {"source": str(path)}
-    if path.suffix.lower() == ".npz":
-        with np.load(path, allow_pickle=False) as z:
-            if "meta" in z.files:
-                try:
-                    meta = {**json.loads(str(z["meta"])), "source": str(path)}
-                except ValueError:
-                    pass
-    return Run(**out, meta=meta)
+    peak = float(np.max(np.abs(out["u"])))
+    if peak > MAX_FORCE_N:
+        raise UserError(f"{path}: column {columns.get('u', 'u')!r} reaches {peak:.6g}, beyond "
+                        f"{MAX_FORCE_N:g} N of any linear motor; u must be a force in N")
+    return Run(**out, meta={**file_meta, "source": str(path)})

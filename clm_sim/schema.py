@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import reprlib
 import types
 import typing
 from pathlib import Path
@@ -21,9 +22,27 @@ from clm_sim.effects import EFFECTS, Effect
 from clm_sim.errors import UserError
 
 
+MAX_DEPTH = 64  # nesting levels: a config has fewer than ten; deeper is a generated file
+MAX_NODES = 100_000  # values after alias expansion: configs have hundreds, alias bombs billions
+
+
 class _StrictLoader(yaml.SafeLoader):
     """``yaml.SafeLoader`` (no Python tags, no code) that also refuses a duplicated key, which
-    plain YAML resolves silently by keeping the last value."""
+    plain YAML resolves silently by keeping the last value, nesting deeper than ``MAX_DEPTH``
+    and documents of more than ``MAX_NODES`` values once aliases are expanded."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        self._depth += 1
+        try:
+            if self._depth > MAX_DEPTH:
+                raise yaml.composer.ComposerError(
+                    None, None, f"nesting deeper than {MAX_DEPTH} levels",
+                    self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
     def construct_mapping(self, node, deep=False):
         seen = set()
@@ -48,16 +67,57 @@ def load_yaml(path) -> dict:
         raise UserError(f"{path}: file not found") from None
     except (IsADirectoryError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: cannot read ({type(exc).__name__})") from None
+    loader = _StrictLoader(text)
     try:
-        data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
+        node = loader.get_single_node()
+        if node is not None:
+            size = _expanded_size(node, {})
+            if size > MAX_NODES:
+                raise UserError(f"{path}: more than {MAX_NODES} values once its aliases are "
+                                f"expanded; a config is far smaller")
+        data = None if node is None else loader.construct_document(node)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark else ""
         raise UserError(f"{path}: invalid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+    except RecursionError:
+        raise UserError(f"{path}: invalid YAML: nested too deeply") from None
+    finally:
+        loader.dispose()
     if not isinstance(data, dict):
         raise UserError(f"{path}: expected a mapping of keys at the top level, "
                         f"got {type(data).__name__}")
     return data
+
+
+def _expanded_size(node, memo: dict) -> int:
+    """Values in ``node`` with every alias expanded (memoized: an alias bomb is counted, never
+    built); capped just above ``MAX_NODES``."""
+    key = id(node)
+    if key not in memo:
+        memo[key] = MAX_NODES + 1  # a node that contains itself counts as too large
+        if isinstance(node, yaml.SequenceNode):
+            total = 1 + sum(_expanded_size(n, memo) for n in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            total = 1 + sum(_expanded_size(k, memo) + _expanded_size(v, memo)
+                            for k, v in node.value)
+        else:
+            total = 1
+        memo[key] = min(total, MAX_NODES + 1)
+    return memo[key]
+
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = _SHORT.maxother = 60
+_SHORT.maxlist = _SHORT.maxtuple = _SHORT.maxdict = _SHORT.maxset = 4
+_SHORT.maxlevel = 2
+
+
+def show(value) -> str:
+    """A value in an error message: its type and a short excerpt, never the whole value."""
+    if value is None or isinstance(value, bool):
+        return repr(value)
+    return f"{type(value).__name__} {_SHORT.repr(value)}"
 
 
 def _type_name(tp) -> str:
@@ -80,37 +140,37 @@ def _convert(tp, value, key: str):
                 errors.append(str(exc))
         raise UserError(errors[0] if len(errors) == 1 else
                         f"{key}: expected {' or '.join(_type_name(a) for a in args)}, "
-                        f"got {value!r}")
+                        f"got {show(value)}")
     if origin is typing.Literal:
         if value not in args:
-            raise UserError(f"{key}: expected one of {', '.join(map(repr, args))}, got {value!r}")
+            raise UserError(f"{key}: expected one of {', '.join(map(repr, args))}, got {show(value)}")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise UserError(f"{key}: expected a number, got {value!r}")
+            raise UserError(f"{key}: expected a number, got {show(value)}")
         if not math.isfinite(value):
-            raise UserError(f"{key}: expected a finite number, got {value!r}")
+            raise UserError(f"{key}: expected a finite number, got {show(value)}")
         return float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise UserError(f"{key}: expected an integer, got {value!r}")
+            raise UserError(f"{key}: expected an integer, got {show(value)}")
         return value
     if tp is bool:
         if not isinstance(value, bool):
-            raise UserError(f"{key}: expected true or false, got {value!r}")
+            raise UserError(f"{key}: expected true or false, got {show(value)}")
         return value
     if tp is str:
         if not isinstance(value, str):
-            raise UserError(f"{key}: expected a string, got {value!r}")
+            raise UserError(f"{key}: expected a string, got {show(value)}")
         return value
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
-            raise UserError(f"{key}: expected a list, got {value!r}")
+            raise UserError(f"{key}: expected a list, got {show(value)}")
         item = args[0]
         return tuple(_convert(item, v, f"{key}[{i}]") for i, v in enumerate(value))
     if origin is dict:
         if not isinstance(value, dict):
-            raise UserError(f"{key}: expected a mapping, got {value!r}")
+            raise UserError(f"{key}: expected a mapping, got {show(value)}")
         kt, vt = args
         return {_convert(kt, k, f"{key}"): _convert(vt, v, f"{key}.{k}") for k, v in value.items()}
     if isinstance(tp, type) and issubclass(tp, Effect):
@@ -131,7 +191,7 @@ def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
     if mapping is None:
         mapping = {}
     if not isinstance(mapping, dict):
-        raise UserError(f"{key}: expected a mapping, got {mapping!r}")
+        raise UserError(f"{key}: expected a mapping, got {show(mapping)}")
     aliases = dict(aliases or {}, **getattr(cls, "aliases", {}))
     hints = _type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}

@@ -17,6 +17,77 @@ from controllers.pgnn_settings import PGNNSettings, check_settings
 from controllers.pid import PIDDesign
 
 
+@dataclass(frozen=True)
+class Limit:
+    """A plausibility bound: beyond ``most`` (in ``unit``) a value means runaway work, not an
+    experiment; ``reason`` says why, in the refusal."""
+
+    most: float
+    unit: str
+    reason: str
+
+
+# Bounds on sizes, counts and time spans, refused upfront (one line) before any work.
+LIMITS = {
+    "seed": Limit(2 ** 63 - 1, "", "seeds are non-negative integers below 2**63 (numpy "
+                  "SeedSequence)"),
+    "run_samples": Limit(2e7, "samples", "one simulated run (the training run with its repeats, "
+                         "or a replay) holds 9 signals of 8 bytes per sample: 2e7 samples are "
+                         "1.4 GB and 33 minutes of motion at 10 kHz"),
+    "stroke": Limit(10.0, "m", "beyond any linear-motor stroke: points are in m (are they in "
+                    "mm?)"),
+    "points": Limit(10_000, "points", "a reference of more points is not a point-to-point test"),
+    "seeds": Limit(100, "seeds", "100 seeds estimate a mean to a tenth of the seed-to-seed "
+                   "spread; more only multiply the fits"),
+    "hidden": Limit(1024, "neurons", "a hidden layer this wide is beyond what a few seconds of "
+                    "force data can identify"),
+    "layers": Limit(8, "layers", "deeper networks are beyond what a force record identifies"),
+    "max_iter": Limit(100_000, "iterations", "a fit that has not converged in 1e5 iterations "
+                      "will not"),
+    "restarts": Limit(100, "restarts", "each restart is a full fit"),
+    "fits": Limit(1000, "fits", "seeds times restarts summed over the rows: minutes each"),
+}
+
+
+def _limit(key: str, name: str, value, detail: str = "") -> None:
+    limit = LIMITS[name]
+    if value > limit.most:
+        raise UserError(f"{key}: {value:.6g}{' ' + limit.unit if limit.unit else ''}{detail} "
+                        f"exceeds the limit of {limit.most:.6g}: {limit.reason}")
+
+
+def check_limits(config: "ExperimentConfig") -> None:
+    """Refuse a config whose sizes, counts or time spans exceed :data:`LIMITS` (without
+    sampling anything: durations come from the references' closed form)."""
+    if config.seed < 0:
+        raise UserError(f"seed: expected a non-negative integer, got {config.seed}")
+    _limit("seed", "seed", config.seed)
+    for name, ref in config.references.items():
+        _limit(f"references.{name}.points_m", "stroke", max(abs(p) for p in ref.points_m))
+        _limit(f"references.{name}.points_m", "points", len(ref.points_m))
+    training = config.references[config.training.reference]
+    runs = [("training", training.duration_s() * config.training.repeats)]
+    runs += [(f"references.{name}", config.references[name].duration_s())
+             for name in config.replay]
+    for key, duration in runs:
+        _limit(key, "run_samples", duration / config.ts,
+               f" ({duration:.6g} s at ts = {config.ts:g} s)")
+    _limit("training.dither.hold_samples", "run_samples", config.training.dither.hold_samples)
+    fits = 0
+    for i, spec in enumerate(config.feedforwards):
+        key = f"feedforwards[{i}]"
+        _limit(f"{key}.seeds", "seeds", spec.seeds)
+        if spec.kind != "pgnn":
+            continue
+        widths = (spec.hidden,) if isinstance(spec.hidden, int) else spec.hidden
+        _limit(f"{key}.hidden", "layers", len(widths))
+        _limit(f"{key}.hidden", "hidden", max(widths))
+        _limit(f"{key}.pgnn.max_iter", "max_iter", spec.pgnn.max_iter)
+        _limit(f"{key}.pgnn.restarts", "restarts", spec.pgnn.restarts)
+        fits += spec.seeds * spec.pgnn.restarts
+    _limit("feedforwards", "fits", fits)
+
+
 def _default_references() -> dict[str, PointToPoint]:
     return {
         # r1: the training range, back and forth between -0.1 and 0.1 m.
@@ -223,6 +294,7 @@ class ExperimentConfig:
                 if spec.kind == "none":
                     raise UserError(f"feedforwards[{i}]: kind none has nothing to identify "
                                     f"from a record (data:)")
+        check_limits(self)
 
 
 def in_file(path, exc: Exception, where: str = "") -> UserError:

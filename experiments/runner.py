@@ -40,7 +40,13 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
         raise UserError(f"{config_path}: {exc}" if config_path else str(exc)) from None
     with atomic_folder(out, marker="config.resolved.yaml", what="clm-sim results",
                        subdirs=("runs", "params", "figures")) as tmp:
-        rows = _run(config, tmp, progress, config_path)
+        try:
+            rows = _run(config, tmp, progress, config_path)
+        except UserError as exc:  # a diverged loop, a record too short: name the config
+            text = str(exc)
+            if config_path and not text.startswith(config_path):
+                text = f"{config_path}: {text}"
+            raise UserError(text) from None
     progress(f"results in {out}/ (table.md, table.json, figures/)")
     return rows
 
@@ -49,8 +55,10 @@ def preflight(config: ExperimentConfig) -> None:
     """Cheap cross-field checks that would otherwise fail only after the training run.
 
     Raises ``UserError`` for PID design parameters out of range, a filter at or above the
-    Nyquist frequency or a training reference that cannot be repeated. The design itself (0.3 s)
-    is not made here: an unstable design is a result (a sweep records it as a failed task).
+    Nyquist frequency or a training reference that cannot be repeated (sizes, counts and time
+    spans are checked when the config is built: :data:`experiments.config.LIMITS`). The design
+    itself (0.3 s) is not made here: an unstable design is a result (a sweep records it as a
+    failed task).
     """
     from controllers.pid import _check as check_pid_design
 
@@ -69,11 +77,6 @@ def preflight(config: ExperimentConfig) -> None:
         if value is not None and value >= nyquist:
             raise UserError(f"features.{key}: {value:g} Hz is at or above the Nyquist frequency "
                             f"{nyquist:g} Hz of ts = {config.ts:g} s")
-    for name, ref in config.references.items():
-        peak = max(abs(p) for p in ref.points_m)
-        if peak > 10.0:  # m: beyond any linear-motor stroke, so the points are in mm
-            raise UserError(f"references.{name}.points_m: {peak:g} m is beyond any stroke; "
-                            f"points are in m (is it in mm?)")
     points = config.references[config.training.reference].points_m
     if config.training.repeats > 1 and points[0] != points[-1]:  # as training_reference, unsampled
         raise UserError(f"training.repeats: reference {config.training.reference!r} must end "

@@ -193,16 +193,14 @@ class Testbed:
                              decimation=settings["decimation"])
         payloads = [(settings, self.config.features, data, dict(lip.theta_),
                      stream(run_seed, STREAM_NETWORK, s)) for s in indices]
-        # One batch per core: map_fits reports nothing until its batch is done, so a row of ten
-        # seeds would otherwise be silent for a minute. A batch waits for its slowest fit.
-        batch = max(parallel.cores(), 1)
-        models = []
-        for start in range(0, len(payloads), batch):
-            for model in parallel.map_fits(payloads[start:start + batch]):
-                models.append(model)
-                self.progress(f"  {spec.label()}: fit {len(models)}/{len(payloads)} done "
-                              f"({model.fit_['stop']}, {model.fit_['iterations']} it)")
-        return models
+        done = []
+
+        def report(model):
+            done.append(model)
+            self.progress(f"  {spec.label()}: fit {len(done)}/{len(payloads)} done "
+                          f"({model.fit_['stop']}, {model.fit_['iterations']} it)")
+
+        return parallel.map_fits(payloads, on_done=report)
 
     def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:
         """The fitted models of one table row: one per seed; ``[None]`` for feedback only."""

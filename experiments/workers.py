@@ -21,10 +21,11 @@ import atexit
 import contextlib
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
@@ -46,9 +47,78 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+# Held while workers are being started (their signals set to "ignore"): a signal that comes
+# meanwhile is handed to the main thread once it is released (experiments.cli).
+SPAWNING = threading.Lock()
+
+
+@contextlib.contextmanager
+def _spawning():
+    """Around every call that may start a worker: child processes start with one thread each
+    and with Ctrl-C and SIGTERM ignored (a disposition a new process inherits; a blocked mask
+    it does not), so a signal to the process group while a worker starts its interpreter and
+    imports its modules cannot print a traceback in it (the parent alone answers, and ends its
+    workers). A command line process receives its signals in a thread of its own
+    (:func:`experiments.cli.main`), which waits for :data:`SPAWNING` before it passes one on,
+    so none is lost."""
+    main = threading.current_thread() is threading.main_thread()
+    mask = main and hasattr(signal, "pthread_sigmask")
+    with SPAWNING:
+        if mask:
+            previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+            # multiprocessing's resource tracker unblocks both signals in this thread once it
+            # has started it: start it before they are ignored, then block them again.
+            import multiprocessing.resource_tracker
+            with contextlib.suppress(Exception):
+                multiprocessing.resource_tracker.ensure_running()
+            signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+        handlers = ({sig: signal.signal(sig, signal.SIG_IGN) for sig in _STOP_SIGNALS}
+                    if main else {})
+        try:
+            with single_threaded_children():
+                yield
+        finally:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+            if mask:
+                signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+
+
+def stop(pool: ProcessPoolExecutor) -> None:
+    """End ``pool`` now: its workers killed (they write no file and ignore SIGTERM), queued
+    work cancelled, without waiting for running tasks."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.kill()
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + 1.0
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.join(max(0.0, deadline - time.monotonic()))
+
+
+_POOLS: set = set()  # the pools of this process that are running now
+
+
+def kill_all() -> None:
+    """Kill every worker of this process's pools at once, without waiting (for a process about
+    to end at once)."""
+    for pool in list(_POOLS):
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(Exception):
+                proc.kill()
+
+
 def watch_parent(parent_pid: int) -> None:
-    """Worker initializer: exit when the sweep process dies (even by SIGKILL), leaving no orphan
+    """Worker initializer: ignore Ctrl-C and SIGTERM (the parent handles them and ends the
+    workers) and exit when the parent process dies (even by SIGKILL), leaving no orphan
     computing a result nobody will store."""
+    for sig in _STOP_SIGNALS:  # already ignored since the start (see _spawning), for good
+        signal.signal(sig, signal.SIG_IGN)
+
     def watch():
         while True:
             if os.getppid() != parent_pid:
@@ -65,11 +135,12 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
     if not payloads:
         return
     ctx = multiprocessing.get_context("spawn")
-    with single_threaded_children():
+    with _spawning():
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                    initializer=watch_parent, initargs=(os.getpid(),))
+    _POOLS.add(pool)
     try:
-        with single_threaded_children():
+        with _spawning():
             # Keep at most two tasks per worker queued: an interrupted sweep then has little
             # submitted-but-unstarted work to cancel, and memory stays bounded on huge grids.
             pending = {}
@@ -86,14 +157,14 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
                 yield index, fut.result()
                 item = next(todo, None)
                 if item is not None:
-                    with single_threaded_children():
+                    with _spawning():
                         pending[pool.submit(fn, item[1])] = item[0]
     except BaseException:
         # Interrupted or broken: stop the workers now instead of waiting for running tasks.
-        for proc in list((pool._processes or {}).values()):
-            proc.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        stop(pool)
         raise
+    finally:
+        _POOLS.discard(pool)
     pool.shutdown(wait=True)
 
 
@@ -117,8 +188,18 @@ def _pool() -> ProcessPoolExecutor:
         _POOL = ProcessPoolExecutor(max_workers=cores(),
                                     mp_context=multiprocessing.get_context("spawn"),
                                     initializer=watch_parent, initargs=(os.getpid(),))
-        atexit.register(_POOL.shutdown)
+        _POOLS.add(_POOL)
+        atexit.register(stop_fits)
     return _POOL
+
+
+def stop_fits() -> None:
+    """End the PGNN fit pool, if one was started (at exit, and on an interruption)."""
+    global _POOL
+    pool, _POOL = _POOL, None
+    if pool is not None:
+        _POOLS.discard(pool)
+        stop(pool)
 
 
 def fit_pgnn(payload: tuple):
@@ -142,11 +223,25 @@ def fit_pinned(payload: tuple):
     return model.fit_pinned(data=data, theta_lip=theta_lip, beta0=beta0, pinned=pinned)
 
 
-def map_fits(payloads: list, fn: Callable = fit_pgnn) -> list:
+def map_fits(payloads: list, fn: Callable = fit_pgnn,
+             on_done: Callable | None = None) -> list:
     """``[fn(p) for p in payloads]`` (default :func:`fit_pgnn`; or :func:`fit_pinned`), on the
     worker pool when there is more than one fit, more than one core and this is not already a
-    pool's worker."""
+    pool's worker; ``on_done(result)`` is called as each one finishes (in completion order)."""
     if len(payloads) < 2 or cores() < 2 or multiprocessing.parent_process() is not None:
-        return [fn(p) for p in payloads]
-    with single_threaded_children():  # workers are spawned on submit and inherit this
-        return list(_pool().map(fn, payloads))
+        results = []
+        for p in payloads:
+            results.append(fn(p))
+            if on_done is not None:
+                on_done(results[-1])
+        return results
+    try:
+        with _spawning():  # workers are spawned on submit and inherit this
+            futures = [_pool().submit(fn, p) for p in payloads]
+        if on_done is not None:
+            for fut in as_completed(futures):
+                on_done(fut.result())
+        return [f.result() for f in futures]
+    except BaseException:  # interrupted (or a worker died): no waiting for the running fits
+        stop_fits()
+        raise

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import os
 import subprocess
 import sys
 import warnings
@@ -18,10 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
+import scipy.sparse
 
 from clm_sim.record import Run, save_npz
 from experiments.cli import main, parser
 
+ROOT = Path(__file__).resolve().parents[1]  # subprocesses run this checkout's code
 TS = 1e-4
 N = 400
 
@@ -96,6 +99,23 @@ BAD_DATA = {
     "matrix instead of a column": ("rec.mat", _mat_bytes(**{**_signals(), "y": np.ones((N, 2))}),
                                    "must be a vector"),
     "unknown format": ("rec.txt", _csv(_signals()), "unknown record format"),
+    "scalar signal in npz": ("rec.npz", _npz_bytes(**{**_signals(), "y": np.array(0.1)}),
+                             "single number"),
+    "structured npz array": ("rec.npz", _npz_bytes(**{**_signals(), "u": np.zeros(
+        N, dtype=[("a", float), ("b", int)])}), "struct or record"),
+    "text signal in npz": ("rec.npz", _npz_bytes(**{**_signals(), "u": np.array(["x"] * N)}),
+                           "holds text"),
+    "complex force": ("rec.npz", _npz_bytes(**{**_signals(), "u": _signals()["u"] * (1 + 1j)}),
+                      "complex"),
+    "MAT char signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": "volts"}), "holds text"),
+    "MAT cell signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": np.array(
+        [[np.ones(3)], [np.zeros(2)]], dtype=object)}), "cells"),
+    "MAT struct signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": {"a": 1.0, "b": 2.0}}),
+                          "struct"),
+    "MAT sparse signal": ("rec.mat", _mat_bytes(**{**_signals(), "u": scipy.sparse.csc_matrix(
+        _signals()["u"][:, None])}), "dense numeric"),
+    "time step of 1e-12 s": ("rec.csv", _with(t=lambda t: t * 1e-8), "faster than any servo"),
+    "force of 1e308": ("rec.csv", _with(u=_set(7, 1e308)), "must be a force in N"),
     "missing file": ("rec.csv", None, "not found"),
 }
 
@@ -151,6 +171,38 @@ BAD_CONFIGS = {
     "open training reference repeated": ("references:\n  r1: {points_m: [0.0, 0.1]}\n"
                                          "  r2: {points_m: [0.0, 0.2]}\n",
                                          "must end where it starts", "experiment"),
+    "negative seed": ("seed: -1\n", "non-negative", "all"),
+    "dither held for 1e12 samples": ("training:\n  dither: {hold_samples: 1000000000000}\n",
+                                     "hold_samples", "experiment"),
+    "crawling reference": ("references:\n  r1: {points_m: [0.0, 0.1, 0.0], max_velocity: "
+                           "1.0e-9}\n  r2: {points_m: [0.0, 0.1]}\n", "training",
+                           "experiment"),
+    "dwell of 1e9 s": ("references:\n  r1: {points_m: [0.0, 0.1, 0.0], dwell_s: 1.0e+9}\n"
+                       "  r2: {points_m: [0.0, 0.1]}\n", "exceeds the limit", "experiment"),
+    "jerk of 1e-12": ("references:\n  r1: {points_m: [0.0, 0.1, 0.0]}\n  r2: {points_m: "
+                      "[0.0, 0.1, 0.0], max_jerk: 1.0e-12}\n", "references.r2",
+                      "experiment"),
+    "1000 repeats of a long reference": ("training: {repeats: 1000}\n", "training",
+                                         "experiment"),
+    "100000 seeds": ("feedforwards:\n  - {kind: lip, seeds: 100000}\n", "seeds",
+                     "experiment"),
+    "1e9 iterations": ("feedforwards:\n  - {kind: pgnn, training: sequential, hidden: 4, "
+                       "pgnn: {max_iter: 1000000000}}\n", "max_iter", "experiment"),
+    "1e6 restarts": ("feedforwards:\n  - {kind: pgnn, training: sequential, hidden: 4, "
+                     "pgnn: {restarts: 1000000}}\n", "restarts", "experiment"),
+    "100000 neurons": ("feedforwards:\n  - {kind: pgnn, training: sequential, "
+                       "hidden: 100000}\n", "hidden", "experiment"),
+    "20000 nested brackets": ("name: " + "[" * 20000 + "]" * 20000 + "\n", "nesting deeper",
+                              "all"),
+    "alias bomb under a known key": (
+        "a: &a [x, x, x, x, x, x, x, x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\n"
+        "c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b]\nd: &d [*c, *c, *c, *c, *c, *c, *c, *c, *c]\n"
+        "e: &e [*d, *d, *d, *d, *d, *d, *d, *d, *d]\nf: &f [*e, *e, *e, *e, *e, *e, *e, *e, *e]\n"
+        "g: &g [*f, *f, *f, *f, *f, *f, *f, *f, *f]\nh: &h [*g, *g, *g, *g, *g, *g, *g, *g, *g]\n"
+        "name: *h\n", "aliases are expanded", "all"),
+    "long wrong value": ("name: x\nplant:\n  mass: [" + ", ".join(["1.0"] * 50000) + "]\n",
+                         "plant.mass: expected a number, got list [1.0, 1.0, 1.0, 1.0, ...]",
+                         "all"),
     "huge grid": (SHORT + "sweep:\n  grid:\n    seed: {linspace: [1, 100000, 100000]}\n"
                   "    plant.mass: {linspace: [1, 10, 1000]}\n", "exceed the limit", "sweep"),
     "unknown grid key": (SHORT + "sweep:\n  grid:\n    plant.mas: [1.0, 2.0]\n",
@@ -206,6 +258,12 @@ BAD_MODELS = {
     "sample time out of range": ("lip.json", "{" + _LIP + ', "ts": 5}', "sample time"),
     "no sample time": ("lip.json", "{" + _LIP + "}", "--ts"),
     "pt without json": ("net.pt", bytes(range(256)), "needs net.json"),
+}
+# Commands that write nothing: given bad files they must still answer in one line.
+COMPARE_CASES = {
+    "missing files": (None, None, "cannot read"),
+    "garbage table.json": ("| a |\n", bytes(range(256)), "cannot read"),
+    "json that is not a table": ("| a |\n", "[1, 2]", "not a clm-sim table.json"),
 }
 
 
@@ -309,6 +367,15 @@ def test_run_refuses_a_sweep_config_and_points_to_sweep(case, tmp_path, capsys):
                    "clm-sim sweep", str(cfg))
 
 
+@pytest.mark.parametrize("case", list(COMPARE_CASES))
+def test_compare_answers_bad_files_in_one_line(case, tmp_path, capsys):
+    expected_md, fresh, text = COMPARE_CASES[case]
+    _write(tmp_path / "expected.md", expected_md)
+    _write(tmp_path / "table.json", fresh)
+    _check_refused(["compare", str(tmp_path / "expected.md"), str(tmp_path / "table.json")],
+                   tmp_path, capsys, text, str(tmp_path))
+
+
 def test_suite_is_large_enough():
     assert len(BAD_CONFIGS) + len(BAD_DATA) >= 30
 
@@ -327,9 +394,65 @@ def test_real_process_prints_one_line_and_exits_2(command, case, tmp_path):
         argv = CONFIG_COMMANDS[command](str(path), str(tmp_path / "out"), "unused")
     _write(path, content)
     proc = subprocess.run([sys.executable, "-m", "experiments.cli", *argv], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and expected in lines[0], proc.stderr
     assert proc.stdout == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]
+
+
+@pytest.mark.parametrize("variable, content", [
+    ("gtau", "volts"), ("gtau", np.array([[np.ones(2)]], dtype=object)),
+    ("gtau", {"k": 35.0}), ("gtau", np.ones(3)), ("missing", None)])
+def test_scale_by_a_variable_that_is_not_a_number_is_refused(variable, content, tmp_path,
+                                                             capsys):
+    """``--scale u=VAR`` naming text, a cell, a struct, a vector or nothing in a MAT file."""
+    data = tmp_path / "rec.mat"
+    extra = {} if content is None else {"gtau": content}
+    data.write_bytes(_mat_bytes(**_signals(), **extra))
+    _check_refused(["identify", str(data), "--scale", f"u={variable}", "--out",
+                    str(tmp_path / "out")], tmp_path, capsys, "not a scalar number", str(data))
+
+
+@pytest.mark.parametrize("name, content", [
+    ("bom.csv", "\ufeff" + _csv(_signals())),  # Excel's "CSV UTF-8"
+    ("meta_list.npz", _npz_bytes(**_signals(), meta=np.array("[1, 2]"))),
+    ("meta_bad.npz", _npz_bytes(**_signals(), meta=np.array("{not json"))),
+    ("real_complex.npz", _npz_bytes(**{**_signals(), "u": _signals()["u"] + 0j})),
+])
+def test_odd_but_valid_records_are_read(name, content, tmp_path):
+    """Records that are unusual but hold what is needed are read, not refused."""
+    from clm_sim.record import load_record
+
+    path = tmp_path / name
+    _write(path, content)
+    run = load_record(path)
+    np.testing.assert_array_equal(run.u, _signals()["u"])  # exact: a copy, no arithmetic
+
+
+# An --out that cannot take the results: refused in one line before any work.
+BAD_OUT = {
+    "an existing file": (lambda tmp: tmp / "afile", "is a file, not a folder"),
+    "the current folder": (lambda tmp: Path("."), "is the current folder"),
+    "below a file": (lambda tmp: tmp / "afile" / "sub", "is a file, not a folder"),
+}
+
+
+@pytest.mark.parametrize("command", ["run", "sweep", "identify", "diagnose"])
+@pytest.mark.parametrize("case", list(BAD_OUT))
+def test_unusable_out_is_refused_before_the_work(case, command, tmp_path, capsys, monkeypatch,
+                                                 valid_record):
+    from small_config import SMALL_CONFIG
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("not a folder")
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL_CONFIG + ("sweep:\n  grid:\n    seed: [1, 2]\n"
+                                   if command == "sweep" else ""))
+    make, expected = BAD_OUT[case]
+    out = str(make(tmp_path))
+    argv = (CONFIG_COMMANDS[command](str(cfg), out, str(valid_record)) if command in
+            ("run", "sweep") else DATA_COMMANDS[command](str(valid_record), out))
+    _check_refused(argv, tmp_path, capsys, expected, out)

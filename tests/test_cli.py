@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import numbers
+import os
 import signal
 import subprocess
 import sys
@@ -337,24 +339,293 @@ def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys
     assert sorted(p.name for p in tmp_path.iterdir()) == ["study.yaml"]
 
 
-def test_sigterm_during_run_cleans_up_like_ctrl_c(tmp_path):
-    """A real process: SIGTERM once the temporary result folder exists leaves nothing."""
+def _session_processes(sid: int) -> list[int]:
+    """Processes still alive in the session ``sid`` (a command started with
+    ``start_new_session``: its workers inherit the session even once orphaned)."""
+    alive = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[3]) == sid and fields[0] != "Z":  # fields: state ppid pgrp session
+            alive.append(int(stat.parent.name))
+    return alive
+
+
+def _survivors(sid: int) -> dict[int, bytes]:
+    """The command lines of the processes left in session ``sid``."""
+    out = {}
+    for pid in _session_processes(sid):
+        try:
+            out[pid] = Path(f"/proc/{pid}/cmdline").read_bytes()[:300]
+        except OSError:
+            pass  # ended meanwhile
+    return out
+
+
+def _clm(args, cwd) -> subprocess.Popen:
+    """``clm-sim ARGS`` in a real process of its own session, running this checkout's code."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, "-m", "experiments.cli", *map(str, args)],
+                            cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env=env)
+
+
+def _wait_for(proc, cond) -> bool:
+    while proc.poll() is None and not cond():
+        time.sleep(0.005)
+    return cond()
+
+
+def _partial(folder: Path) -> list[Path]:
+    return list(folder.glob(".*.partial*"))
+
+
+def _finish(proc) -> tuple[str, str]:
+    try:
+        return proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"),
+                                             (signal.SIGINT, 130, "interrupted")])
+def test_signal_during_run_cleans_up(sig, code, word, tmp_path):
+    """A real process: SIGTERM, or Ctrl-C (SIGINT to the whole process group, as a terminal
+    sends it), once the temporary result folder exists: the exit code, one stderr line, no
+    traceback, no temporary folder or lock, no process of the command left."""
     cfg = tmp_path / "small.yaml"
     cfg.write_text(SMALL)
-    out = tmp_path / "out"
-    partial = tmp_path / ".out.partial"
-    proc = subprocess.Popen([sys.executable, "-m", "experiments.cli", "run", str(cfg), "--out",
-                             str(out), "--quiet"], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        while proc.poll() is None and not partial.exists():
-            time.sleep(0.005)
-        seen = partial.exists()
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()
-    assert seen, "the run finished before it could be terminated"
-    assert proc.returncode == 128 + signal.SIGTERM, err
-    assert err.strip().splitlines()[-1] == "clm-sim: terminated"
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    seen = _wait_for(proc, lambda: bool(_partial(tmp_path)))
+    os.killpg(proc.pid, sig)
+    _, err = _finish(proc)
+    assert seen, "the run finished before it could be interrupted"
+    assert proc.returncode == code, err
+    assert err.strip().splitlines() == [f"clm-sim: {word}"], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.yaml"]
+    assert _survivors(proc.pid) == {}
+
+
+def _one_run(out: Path) -> int:
+    """The seed of the one run that ``out`` describes; fails if its files disagree."""
+    seeds = {int(line.split(":")[1]) for line in (out / "config.resolved.yaml").read_text()
+             .splitlines() if line.startswith("seed:")}
+    seeds.add(load_record(out / "runs" / "training.npz").meta["seed"])
+    assert len(seeds) == 1, f"{out} mixes the runs of seeds {seeds}"
+    return seeds.pop()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_two_runs_into_one_out_never_mix(tmp_path):
+    """Two runs (seeds 1 and 2) into one --out at once: the second is refused in one line
+    (exit 2) while the first writes, or it replaces the first's folder as a whole; either way
+    the folder describes exactly one run and nothing temporary stays."""
+    for seed in (1, 2):
+        (tmp_path / f"s{seed}.yaml").write_text(SMALL.replace("seed: 1", f"seed: {seed}"))
+    out = tmp_path / "same"
+    a = _clm(["run", tmp_path / "s1.yaml", "--out", out, "--quiet"], tmp_path)
+    b = _clm(["run", tmp_path / "s2.yaml", "--out", out, "--quiet"], tmp_path)
+    _, err_b = _finish(b)
+    _, err_a = _finish(a)
+    codes = sorted((a.returncode, b.returncode))
+    assert codes in ([0, 0], [0, 2]), (err_a, err_b)
+    for proc, err in ((a, err_a), (b, err_b)):
+        if proc.returncode == 2:
+            assert err.strip().splitlines() == [
+                f"clm-sim: error: {out}: another clm-sim command is writing this folder; wait "
+                f"for it to finish or choose another --out"]
+    _one_run(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s1.yaml", "s2.yaml", "same"]
+
+
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_a_command_into_an_out_being_written_is_refused(command, tmp_path, capsys):
+    """While another command holds the lock of --out (here: this test), a run or a sweep is
+    refused at once in one line and writes nothing."""
+    import fcntl
+
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL + ("sweep:\n  grid:\n    seed: [1, 2]\n" if command == "sweep" else ""))
+    with open(tmp_path / ".out.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        code, stdout, err = _cli([command, cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and stdout == "" and len(err) == 1, err
+    assert "another clm-sim command is writing" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".out.lock", "small.yaml"]
+
+
+PGNN_ROWS = ("  - {kind: pgnn, training: sequential, hidden: 4, seeds: 2, "
+             "pgnn: {max_iter: 50}}\n")
+
+
+def _interrupted_cleanly(proc, err: str, sig, folder: Path, keep: list[str]) -> None:
+    code, word = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}[sig]
+    assert proc.returncode == code, err
+    assert err.strip().splitlines() == [f"clm-sim: {word}"], err
+    assert sorted(p.name for p in folder.iterdir()) == keep
+    assert _survivors(proc.pid) == {}, "a process of the command outlived it"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("moment", ["pool starting", "fits running"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_pgnn_fits_ends_workers_without_tracebacks(sig, moment, tmp_path):
+    """Ctrl-C (to the whole process group, workers included) or SIGTERM while the PGNN fit pool
+    starts or fits: one line, the exit code, no worker traceback, no worker left, nothing
+    written."""
+    cfg = tmp_path / "pgnn.yaml"
+    cfg.write_text(SMALL + PGNN_ROWS)
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 1)
+    if moment == "fits running":
+        time.sleep(3.0)  # workers have imported torch and fit
+    os.killpg(proc.pid, sig)
+    _, err = _finish(proc)
+    assert started, "the run ended before its fit pool started"
+    _interrupted_cleanly(proc, err, sig, tmp_path, ["pgnn.yaml"])
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_sweep_ends_workers_and_keeps_finished_tasks(sig, tmp_path):
+    """A sweep interrupted while its workers compute: one line, the exit code, no worker left,
+    only whole task files kept (a re-run resumes from them)."""
+    cfg = tmp_path / "grid.yaml"
+    cfg.write_text(SMALL + "sweep:\n  grid:\n    seed: [1, 2, 3, 4]\n")
+    out = tmp_path / "out"
+    proc = _clm(["sweep", cfg, "--out", out, "--quiet", "--workers", "2"], tmp_path)
+    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 2)
+    time.sleep(1.0)
+    os.killpg(proc.pid, sig)
+    _, err = _finish(proc)
+    assert started, "the sweep ended before its workers started"
+    _interrupted_cleanly(proc, err, sig, tmp_path, ["grid.yaml", "out"])
+    for task in (out / "tasks").iterdir():
+        assert not task.name.startswith("."), task
+        json.loads(task.read_text())
+    assert not (out / "table.json").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# data that look wrong but may be right: one warning line each, the command goes on
+# --------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_training_run(tmp_path_factory):
+    from experiments.testbed import Testbed
+
+    cfg = tmp_path_factory.mktemp("small") / "small.yaml"
+    cfg.write_text(SMALL)
+    return Testbed(load_config(cfg)).training_run()
+
+
+def _variant(run, **changes) -> dict:
+    s = {k: run.signals()[k] for k in ("t", "r", "y", "u")}
+    return {**s, **{k: edit(s) for k, edit in changes.items()}}
+
+
+@pytest.mark.parametrize("case, changes, warning", [
+    ("as logged", {}, None),
+    ("y and r swapped", {"y": lambda s: s["r"], "r": lambda s: s["y"]}, "swapped"),
+    ("force of the wrong sign", {"u": lambda s: -s["u"]}, "does not push y as a force should"),
+])
+def test_identify_warns_about_suspicious_records(case, changes, warning, small_training_run,
+                                                 tmp_path, capsys):
+    from clm_sim.record import Run, save_csv
+
+    data = tmp_path / "rec.csv"
+    save_csv(Run(**_variant(small_training_run, **changes)), data)
+    code, out, err = _cli(["identify", data, "--out", tmp_path / "id"], capsys)
+    assert code == 0, err
+    warnings = [line for line in err if line.startswith("clm-sim: warning: ")]
+    assert err == warnings
+    if warning is None:
+        assert warnings == []
+    else:
+        assert len(warnings) == 1 and str(data) in warnings[0] and warning in warnings[0], err
+
+
+@pytest.mark.parametrize("scale, model_mass, warned", [(1.0, 18.8, False),
+                                                       (1 / 35.15, 18.8, True),  # volts
+                                                       (1.0, 18800.0, True)])  # grams
+def test_a_mass_far_from_the_records_is_a_warning(scale, model_mass, warned,
+                                                  small_training_run):
+    from clm_sim.record import Run
+    from controllers.lip import LIPFeedforward
+    from experiments.suspicions import record_warnings
+
+    run = Run(**_variant(small_training_run, u=lambda s: s["u"] * scale))
+    lip = LIPFeedforward().fit(y=run.y, u=run.u, ts=run.ts)
+    lines = record_warnings(run, lip, model_mass=model_mass)
+    assert [("forgotten --scale" in line) for line in lines] == ([True] if warned else [])
+
+
+def test_identify_names_the_file_and_option_of_a_filter_above_nyquist(small_training_run,
+                                                                     tmp_path, capsys):
+    from clm_sim.record import save_npz
+
+    data = tmp_path / "rec.npz"
+    save_npz(small_training_run, data)
+    code, out, err = _cli(["identify", data, "--lowpass-hz", 6000, "--out", tmp_path / "id"],
+                          capsys)
+    assert code == 2 and out == "" and len(err) == 1, err
+    assert str(data) in err[0] and "--regression-lowpass-hz" in err[0] and "Nyquist" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
+
+
+def test_a_plant_mass_outside_any_carriage_is_a_warning():
+    from clm_sim.plant import Plant
+    from experiments.suspicions import plant_warnings
+
+    assert plant_warnings(Plant(), "plant") == []
+    (line,) = plant_warnings(Plant(mass=18800.0), "plant")
+    assert line.startswith("plant.mass: 18800 kg")
+
+
+def test_a_full_disk_during_a_run_is_one_line_and_leaves_nothing(tmp_path, capsys,
+                                                                  monkeypatch):
+    """The disk fills up while the run writes (simulated: the first record write fails with
+    ENOSPC, as np.savez then raises it without a file name)."""
+    import errno
+
+    import experiments.runner
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(experiments.runner, "save_npz", full)
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL)
+    code, out, err = _cli(["run", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and out == "", err
+    assert err == [f"clm-sim: error: {tmp_path / 'out'}: cannot write: No space left on device"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.yaml"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("gap_s", [0.0, 0.002, 0.05])
+def test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly(gap_s, tmp_path):
+    """Two Ctrl-C in a row while the PGNN fit pool works (the second may land in the clean-up
+    of the first): still exit 130, one line, nothing written, no process left."""
+    cfg = tmp_path / "pgnn.yaml"
+    cfg.write_text(SMALL + PGNN_ROWS)
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 1)
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(gap_s)
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGINT)
+    _, err = _finish(proc)
+    assert started, "the run ended before its fit pool started"
+    # A second signal in the clean-up may leave the pools' semaphores to multiprocessing's
+    # resource tracker, which removes them and says so (docs/cli.md); nothing else may print.
+    lines = [line for line in err.splitlines() if "resource_tracker" not in line]
+    _interrupted_cleanly(proc, "\n".join(lines), signal.SIGINT, tmp_path, ["pgnn.yaml"])
+    assert "Traceback" not in err, err

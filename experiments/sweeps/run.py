@@ -21,7 +21,7 @@ from pathlib import Path
 import yaml
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_write
+from clm_sim.outdir import atomic_write, check_writable, output_lock
 from clm_sim.schema import build
 from experiments import table
 from experiments.config import ExperimentConfig
@@ -71,6 +71,7 @@ def execute(config_plain: dict) -> dict:
 
 def check_output(out: Path) -> None:
     """Refuse an output folder that exists and is not a sweep's (before anything is written)."""
+    check_writable(out)
     out = Path(out)
     # A sweep killed right after it started may have left only its lock and task folder.
     mine = {"sweep.resolved.yaml", "tasks"}
@@ -99,8 +100,6 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
               scheduler: str | None = None, retry_failed: bool = False,
               quiet: bool = False) -> Outcome:
     """Run the unfinished tasks of ``sweep`` into ``out`` and aggregate all of them."""
-    from experiments.sweeps.backends import BACKENDS
-
     out = Path(out)
     check_output(out)
     if workers is None:
@@ -109,6 +108,17 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
     if workers < 1:
         raise UserError(f"--workers: expected an integer >= 1, got {workers}")
     say = Progress(quiet)
+    out.resolve().parent.mkdir(parents=True, exist_ok=True)
+    with output_lock(out.resolve(), out):  # beside --out, as run, study and diagnose take it
+        return _run_sweep(sweep, out, say, backend=backend, workers=workers,
+                          scheduler=scheduler, retry_failed=retry_failed)
+
+
+def _run_sweep(sweep: Sweep, out: Path, say, *, backend, workers, scheduler,
+               retry_failed) -> Outcome:
+    from experiments.sweeps.backends import BACKENDS
+
+    check_output(out)  # again, under the lock
     out.mkdir(parents=True, exist_ok=True)
     lock = _lock(out)
     try:
