@@ -484,15 +484,12 @@ def _exit_now(code: int) -> None:
 
 
 def _release_semaphores() -> None:
-    """Unlink the pools' semaphores and stop multiprocessing's resource tracker, which would
-    otherwise outlive the process and warn about them."""
+    """Unlink the pools' semaphores (multiprocessing's resource tracker, which exits by itself
+    when this process has ended, then has nothing left to remove)."""
     import multiprocessing.util
 
     with contextlib.suppress(Exception):
         multiprocessing.util._run_finalizers(0)
-    with contextlib.suppress(Exception):
-        import multiprocessing.resource_tracker
-        multiprocessing.resource_tracker._resource_tracker._stop()
 
 
 def _stop_workers() -> None:

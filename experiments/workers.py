@@ -69,9 +69,7 @@ def _spawning():
             previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
             # multiprocessing's resource tracker unblocks both signals in this thread once it
             # has started it: start it before they are ignored, then block them again.
-            import multiprocessing.resource_tracker
-            with contextlib.suppress(Exception):
-                multiprocessing.resource_tracker.ensure_running()
+            _start_resource_tracker()
             signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         handlers = ({sig: signal.signal(sig, signal.SIG_IGN) for sig in _STOP_SIGNALS}
                     if main else {})
@@ -83,6 +81,27 @@ def _spawning():
                 signal.signal(sig, handler)
             if mask:
                 signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+
+
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker with its stderr on the null device: after an
+    interrupted command it removes the pools' semaphores and would say so, in lines of its own
+    beside the command's one line."""
+    from multiprocessing import resource_tracker
+
+    tracker = resource_tracker._resource_tracker
+    if getattr(tracker, "_fd", None) is not None:
+        return
+    with contextlib.suppress(Exception):
+        saved = os.dup(2)
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 2)
+            os.close(null)
+            resource_tracker.ensure_running()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def stop(pool: ProcessPoolExecutor) -> None:

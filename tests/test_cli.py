@@ -354,13 +354,16 @@ def _session_processes(sid: int) -> list[int]:
 
 
 def _survivors(sid: int) -> dict[int, bytes]:
-    """The command lines of the processes left in session ``sid``."""
+    """The command lines of the processes left in session ``sid``, but for multiprocessing's
+    resource tracker: not a worker, it exits by itself once the command's end closes its pipe."""
     out = {}
     for pid in _session_processes(sid):
         try:
-            out[pid] = Path(f"/proc/{pid}/cmdline").read_bytes()[:300]
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
         except OSError:
-            pass  # ended meanwhile
+            continue  # ended meanwhile
+        if cmdline and b"resource_tracker" not in cmdline:  # empty: its memory is gone, exiting
+            out[pid] = cmdline[:300]
     return out
 
 
