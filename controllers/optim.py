@@ -10,31 +10,18 @@ Both minimize ``V(p) = ||r(p)||**2`` given ``fun(p, jacobian)`` that returns the
 
 ``callback(iteration, p, cost)`` is called on the initial point and on every accepted iterate.
 
-:func:`blas_threads` limits BLAS to one thread while they run: the products here are tall and
-thin (26k x 101), and on a 2-core machine that also runs simulations, OpenBLAS's spinning threads
+The PGNN runs them inside :func:`clm_sim.numerics.single_threaded` (one BLAS thread): the
+products here are tall and thin (26k x 101), and on a 2-core machine that also runs simulations, OpenBLAS's spinning threads
 made ``J.T @ J`` nine times slower (0.37 s against 0.04 s, measured) and the small forward
 products twenty times slower.
 """
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-
-from clm_sim.numerics import single_threaded
-
-
-@contextlib.contextmanager
-def blas_threads(n: int = 1):
-    """Run the block with one BLAS/OpenMP/torch thread (:func:`clm_sim.numerics.single_threaded`,
-    through threadpoolctl, whatever the BLAS); ``n`` other than 1 is not supported."""
-    if n != 1:
-        raise ValueError(f"blas_threads: only n = 1 is supported, got {n}")
-    with single_threaded():
-        yield
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ PGNN fits of independent seeds on worker processes, one thread each.
 
 The fits of one table row differ only in their seed, so they run in a pool of ``spawn`` worker
 processes (one per available core). Every fit pins torch and BLAS to one thread itself
-(:func:`controllers.pgnn.model.one_thread`), so a fit gives the same bits in a worker and in the
+(:func:`clm_sim.numerics.single_threaded`), so a fit gives the same bits in a worker and in the
 calling process, and the pool changes the wall time, never a result. Inside a worker process of
 another pool (a sweep task) the fits run in-process: pools do not nest.
 """

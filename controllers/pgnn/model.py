@@ -113,12 +113,6 @@ def _as_theta(theta) -> np.ndarray:
     return np.asarray(theta, dtype=np.float64)
 
 
-def one_thread():
-    """The block with one torch thread and one BLAS/OpenMP thread, restored afterwards; shared
-    by fits in threads of one process (:func:`clm_sim.numerics.single_threaded`)."""
-    return single_threaded()
-
-
 def lemma_condition(data: TrainingData, h: np.ndarray, theta_lip, lam_diag=None,
                     rtol: float = 1e-9) -> bool:
     """True when the regularized cost's gradient at ``(theta_LIP, w2 = 0, b2 = 0)`` is nonzero for
@@ -266,7 +260,7 @@ class PGNNFeedforward:
         theta_lip_v = _as_theta(theta_lip)
         fit, held_out = data.split(self.validation_fraction)
         best, starts = None, []
-        with one_thread():
+        with single_threaded():
             for _ in range(self.restarts):
                 beta0 = self.new_network(fit, rng).get_nonlinear()
                 tries = [("draw", self._one_start(fit, held_out, theta_lip_v, rng, beta0))]
@@ -323,7 +317,7 @@ class PGNNFeedforward:
         theta_lip_v = _as_theta(theta_lip)
         index = {THETA_NAMES.index(k): float(v) for k, v in pinned.items()}
         history = []
-        with one_thread():
+        with single_threaded():
             net = self.new_network(data, None, np.asarray(beta0, dtype=np.float64))
             cost = SeparableCost(net, data.phi, data.target, theta_lip_v, self._weights(),
                                  fit_theta=True, pinned=index)
@@ -424,7 +418,7 @@ class PGNNFeedforward:
     def network(self, phi_f: np.ndarray) -> np.ndarray:
         """The network's force (N) for filtered feature columns ``phi_f`` (N, 4)."""
         self._check_fitted()
-        with one_thread(), torch.no_grad():
+        with single_threaded(), torch.no_grad():
             return self.network_.mlp(torch.from_numpy(np.ascontiguousarray(phi_f))).numpy()
 
     def predict_parts(self, *, y: np.ndarray, ts: float | None = None
