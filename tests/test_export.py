@@ -102,7 +102,8 @@ def _rel(got, want) -> float:
 
 @pytest.fixture(scope="session")
 def compiled(fitted, effects_lip, tmp_path_factory):
-    """The C of each model compiled at -O2 (and with -DCLM_FF_FLOAT)."""
+    """The C of each model compiled at -O2, also with -DCLM_FF_PORTABLE (the portable C where the
+    default takes the AVX2 path) and with -DCLM_FF_FLOAT."""
     if compiler() is None:
         pytest.skip("no C compiler")
     out = {}
@@ -111,6 +112,7 @@ def compiled(fitted, effects_lip, tmp_path_factory):
         folder = tmp_path_factory.mktemp(name)
         c_source.write(wf, folder)
         out[name] = CompiledFeedforward(folder)
+        out[name + "_portable"] = CompiledFeedforward(folder, ("-O2", "-DCLM_FF_PORTABLE"))
         out[name + "_float"] = CompiledFeedforward(folder, ("-O2", "-DCLM_FF_FLOAT"))
     return out
 
@@ -147,16 +149,45 @@ def test_presliding_and_position_lowpass_are_refused(fitted):
 
 # -- C -----------------------------------------------------------------------------------------
 @needs_cc
+@pytest.mark.parametrize("build", ["", "_portable"])
 @pytest.mark.parametrize("name", ["lip", "pgnn", "lip_effects"])
-def test_compiled_c_is_the_product_feedforward(name, fitted, effects_lip, references, compiled):
+def test_compiled_c_is_the_product_feedforward(name, build, fitted, effects_lip, references,
+                                               compiled):
     model, wf = _model(name, fitted, effects_lip)
-    c = compiled[name]
+    c = compiled[name + build]
     assert (c.lag, c.lead) == (wf.lag, wf.lead)
     for key, r in references.items():
         want = model.feedforward(r, TS)
         assert _rel(c.stream(r), want) < REL, key  # every sample, through the ring buffer
         k = np.arange(0, len(r), 997)  # the stateless call on windows
         assert _rel(c(wf.windows(r)[k]), want[k]) < REL, key
+
+
+def _cpu_has_avx2_fma() -> bool:
+    try:
+        flags = Path("/proc/cpuinfo").read_text().split()
+    except OSError:
+        return False
+    return "avx2" in flags and "fma" in flags
+
+
+@needs_cc
+@pytest.mark.skipif(not _cpu_has_avx2_fma(), reason="the CPU has no AVX2 and FMA (or this is not "
+                    "Linux): only the portable path runs here")
+def test_avx2_path_runs_here_and_agrees_with_the_portable_c(fitted, effects_lip, references,
+                                                            compiled):
+    """On a CPU with AVX2 and FMA the default build takes its vector path: its sums are taken in
+    another order, so its forces differ from the portable build's in the last bits, and by no
+    more than rounding."""
+    _, wf = _model("pgnn", fitted, effects_lip)
+    r = references["random"]
+    w = wf.windows(r)[::53]
+    fast, portable = compiled["pgnn"](w), compiled["pgnn_portable"](w)
+    assert np.any(fast != portable)
+    assert _rel(fast, portable) < 1e-13
+    fast, portable = compiled["pgnn"].stream(r), compiled["pgnn_portable"].stream(r)
+    assert np.any(fast != portable)
+    assert _rel(fast, portable) < 1e-13
 
 
 @needs_cc
@@ -371,10 +402,11 @@ def test_network_variants_export(variant, training_run, fitted, tmp_path):
     want = model.feedforward(r, TS)
     if compiler() is not None:
         c_source.write(wf, tmp_path)
-        c = CompiledFeedforward(tmp_path)
         k = np.arange(0, len(r), 101)
-        assert _rel(c(wf.windows(r)[k]), want[k]) < REL
-        assert _rel(c.stream(r), want) < REL
+        for flags in (("-O2",), ("-O2", "-DCLM_FF_PORTABLE")):  # the AVX2 path and the portable
+            c = CompiledFeedforward(tmp_path, flags)
+            assert _rel(c(wf.windows(r)[k]), want[k]) < REL, flags
+            assert _rel(c.stream(r), want) < REL, flags
     pytest.importorskip("onnx")
     from controllers.export import onnx_graph
     if activation in ("softplus", "gelu"):
