@@ -2,9 +2,10 @@
 
 Input ``r_window`` (float64, ``[batch, lag+1+lead]``: ``r[k-lag] .. r[k+lead]``, m), output
 ``u_ff`` (float64, ``[batch]``, N): the same computation as the C and the numpy form. The two
-instants of the held average are stacked on the batch axis (``[2 batch, width-1]``), computed
-once and averaged. Differences are taken before any scaling, in the product's order (a scaled
-second difference of positions would lose digits). The model's ``metadata_props`` carry ``ts``
+instants of the held average are stacked on the batch axis (``[2 batch, ...]``) after the
+filter, computed once and averaged. Differences are taken before any scaling, in the product's
+order (a scaled second difference of positions would lose digits), once per instant of the
+window; the filter is then one MatMul per feature for both instants. The model's ``metadata_props`` carry ``ts``
 (s), ``lag`` and ``lead`` (samples), the units and the model's description.
 """
 
@@ -114,10 +115,12 @@ def model(wf: WindowFeedforward):
 
     g = _Graph()
     width = wf.width
-    # Both instants of the held average on the batch axis: rows r[j-M-1 .. j+M+1], j = k, k+1.
-    w = g.op("Concat", g.cols("r_window", 0, width - 1), g.cols("r_window", 1, width), axis=0)
-    c = wf.half + 1
-    xm, x0, xp = g.cols(w, c - 1, c), g.cols(w, c, c + 1), g.cols(w, c + 1, c + 2)
+    c = wf.half + 1  # column of r[k]
+    # The physical layer at both instants of the held average, stacked on the batch axis: rows
+    # j = k, then j = k+1, each with r[j-1], r[j], r[j+1].
+    near = g.cols("r_window", c - 1, c + 3)
+    pair = g.op("Concat", g.cols(near, 0, 3), g.cols(near, 1, 4), axis=0)
+    xm, x0, xp = g.cols(pair, 0, 1), g.cols(pair, 1, 2), g.cols(pair, 2, 3)
     v = g.op("Div", g.op("Sub", xp, xm), g.const(2.0 * wf.ts), base="v")
     a = g.op("Div", g.op("Add", g.op("Sub", xp, g.op("Mul", g.const(2.0), x0)), xm),
              g.const(wf.ts * wf.ts), base="a")
@@ -134,16 +137,23 @@ def model(wf: WindowFeedforward):
     if wf.network is not None and wf.half == 0:  # no feature filter: the raw features
         f = g.op("Concat", a, v, g.op("Sign", v), x0, axis=1, base="features")
     elif wf.network is not None:
-        # the features at every instant of the window, differenced first, then the filter's FIR
-        right, mid, left = g.cols(w, 2, width - 1), g.cols(w, 1, width - 2), g.cols(w, 0, width - 3)
-        va = g.op("Div", g.op("Sub", right, left), g.const(2.0 * wf.ts))
-        aa = g.op("Div", g.op("Add", g.op("Sub", right, g.op("Mul", g.const(2.0), mid)), left),
-                  g.const(wf.ts * wf.ts))
-        kernel = g.const(wf.kernel[:, None], "kernel")
-        av = g.op("Concat", g.op("MatMul", aa, kernel), g.op("MatMul", va, kernel), axis=1)
-        fs = g.op("MatMul", g.op("Sign", va), kernel)
-        fy = g.op("MatMul", mid, kernel)
-        f = g.op("Concat", av, fs, fy, axis=1, base="features")
+        # The differences at every instant of the window (r[k-M] .. r[k+M+1]) in the product's
+        # order, once; the filter's FIR at k and k+1 is one MatMul per feature with a [2M+2, 2]
+        # kernel (its constant factors 1/ts^2 and 1/(2 ts) folded in: a rounding apart).
+        right, mid, left = (g.cols("r_window", 2, width), g.cols("r_window", 1, width - 1),
+                            g.cols("r_window", 0, width - 2))
+        dv = g.op("Sub", right, left)
+        da = g.op("Add", g.op("Sub", right, g.op("Mul", g.const(2.0), mid)), left)
+        padded = np.concatenate([[0.0], wf.kernel, [0.0]])
+        both = np.column_stack([padded[1:], padded[:-1]])  # weights at k, at k+1
+        stacked = g.op("Concat", da, dv, g.op("Sign", dv), mid, axis=0)  # [4 batch, 2M+2]
+        filtered = g.op("Mul", g.op("Reshape", g.op("MatMul", stacked, g.const(both, "kernel")),
+                                    g.const(np.array([4, -1, 2], np.int64))),
+                        g.const(np.array([1.0 / (wf.ts * wf.ts), 1.0 / (2.0 * wf.ts), 1.0, 1.0])
+                                [:, None, None], "scale"))
+        # [4 (a, v, sign v, y), batch, 2 (k, k+1)] -> [2 batch, 4]: rows k, then rows k+1
+        f = g.op("Reshape", g.op("Transpose", filtered, perm=[2, 1, 0]),
+                 g.const(np.array([-1, 4], np.int64)), base="features")
     if wf.network is not None:
         h = g.op("Div", g.op("Sub", f, g.const(net.input_mean[None, :], "input_mean")),
                  g.const(net.input_std[None, :], "input_std"))
