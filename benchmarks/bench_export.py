@@ -2,15 +2,17 @@
 
 Fits a LIP and an n_l = 16 PGNN on one pass of r1 (quickly: ``max_iter`` 5; the weights' values
 do not change the work per call), exports both, compiles the C with the system compiler and
-times ``clm_ff`` over every sample of r2 (CPU time of the calling thread, so other work on a
-shared machine counts less; best of ``--repeats``). ONNX Runtime is timed per call (batch 1,
-``session.run`` included) and batched (``--batch`` windows per run). Also prints the error of the
-C against the product's Python feedforward, in float64 and with ``-DCLM_FF_FLOAT``.
+times ``clm_ff`` and the streaming form over every sample of r2 in blocks of ``--block`` calls
+(CPU time of the calling thread), ``--repeats`` passes: the best block is the cost of a call
+undisturbed, the median block what a shared machine gave while measuring. The default build
+takes the AVX2 path where the CPU has AVX2 and FMA; ``-DCLM_FF_PORTABLE`` is the portable C,
+``-DCLM_FF_FLOAT`` the single-precision build. ONNX Runtime is timed per call (batch 1,
+``session.run`` included) and batched (``--batch`` windows per run). Also prints the error of
+the C against the product's Python feedforward.
 
 Run from the repository root: ``python benchmarks/bench_export.py``. Last line on stdout:
-``lip_c_ns=<t> ... pgnn16_c_ns=<t> pgnn16_c_stream_ns=<t> pgnn16_c_portable_ns=<t>
-pgnn16_c_stream_portable_ns=<t> onnx_call_us=<t> onnx_batched_ns=<t>``. The default build takes
-the AVX2 path where the CPU has AVX2 and FMA; ``-DCLM_FF_PORTABLE`` is the portable C.
+``<model>_c[_stream][_portable|_float][_median]_ns=<t> ... onnx_call_us=<t> onnx_batched_ns=<t>``
+(``<model>``: lip, pgnn16; without ``_median``: the best block).
 """
 
 from __future__ import annotations
@@ -38,19 +40,12 @@ def _rel(got, want) -> float:
     return float(np.max(np.abs(got - want)) / np.max(np.abs(want)))
 
 
-def _stream_ns(lib, r, repeats: int) -> float:
-    """ns per sample of the streaming form over the record r, best of ``repeats``."""
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.process_time()
-        lib.stream(r)
-        best = min(best, (time.process_time() - t0) / len(r) * 1e9)
-    return best
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--repeats", type=int, default=3, help="passes over r2 (default 3)")
+    p.add_argument("--block", type=int, default=256,
+                   help="calls per timed block (default 256): the best block is the cost of a "
+                        "call undisturbed, the median what a shared machine gives")
     p.add_argument("--batch", type=int, default=1000)
     p.add_argument("--hidden", type=int, default=16)
     p.add_argument("--flags", default="-O2", help="C compiler flags (default -O2)")
@@ -79,19 +74,21 @@ def main(argv=None) -> int:
             w = wf.windows(r)[k]
             err_call = max(_rel(lib(w[i:i + 2048]), want[k][i:i + 2048]) for i in
                            range(0, len(k), 2048))
-            ns = min(lib.time_ns(r, 1) for _ in range(args.repeats))
-            ns_portable = min(portable.time_ns(r, 1) for _ in range(args.repeats))
-            ns32 = min(single.time_ns(r, 1) for _ in range(args.repeats))
-            t_stream = _stream_ns(lib, r, args.repeats)
-            t_stream_portable = _stream_ns(portable, r, args.repeats)
-        results[f"{name}_c_ns"] = ns
-        results[f"{name}_c_stream_ns"] = t_stream
-        results[f"{name}_c_portable_ns"] = ns_portable
-        results[f"{name}_c_stream_portable_ns"] = t_stream_portable
-        print(f"{name}: window {wf.lag}+1+{wf.lead} samples; C {args.flags}: clm_ff {ns:,.0f} ns "
-              f"per call ({100 * ns / CYCLE_NS:.2f} % of the 100 us cycle), streaming form "
-              f"{t_stream:,.0f} ns; -DCLM_FF_PORTABLE: {ns_portable:,.0f} ns, streaming "
-              f"{t_stream_portable:,.0f} ns; float32 build {ns32:,.0f} ns; error vs Python "
+            timed = {"": lib, "_portable": portable, "_float": single}
+            for build, compiled in timed.items():
+                for form, stream in (("", False), ("_stream", True)):
+                    ns = compiled.time_blocks(r, args.repeats, args.block, stream=stream)
+                    results[f"{name}_c{form}{build}_ns"] = float(np.min(ns))
+                    results[f"{name}_c{form}{build}_median_ns"] = float(np.median(ns))
+        t = {k[len(name) + 1:]: v for k, v in results.items() if k.startswith(name + "_")}
+        print(f"{name}: window {wf.lag}+1+{wf.lead} samples; C {args.flags}, ns per call, best "
+              f"block (median block): clm_ff {t['c_ns']:,.0f} ({t['c_median_ns']:,.0f}), "
+              f"streaming {t['c_stream_ns']:,.0f} ({t['c_stream_median_ns']:,.0f}); "
+              f"-DCLM_FF_PORTABLE clm_ff {t['c_portable_ns']:,.0f} "
+              f"({t['c_portable_median_ns']:,.0f}), streaming {t['c_stream_portable_ns']:,.0f} "
+              f"({t['c_stream_portable_median_ns']:,.0f}); -DCLM_FF_FLOAT clm_ff "
+              f"{t['c_float_ns']:,.0f}, streaming {t['c_stream_float_ns']:,.0f}; against the "
+              f"100 us cycle: clm_ff {100 * t['c_ns'] / CYCLE_NS:.2f} %. Error vs Python "
               f"{err_call:.1e} (clm_ff), {err:.1e} (streaming), {err_portable:.1e} (portable "
               f"streaming), {err32:.1e} (streaming, -DCLM_FF_FLOAT) of the peak force",
               file=sys.stderr)

@@ -54,6 +54,10 @@ class CompiledFeedforward:
         self.lib.clm_ff_record.argtypes = [dp, ctypes.c_long, dp]
         self.lib.clm_ff_time_ns.restype = ctypes.c_double
         self.lib.clm_ff_time_ns.argtypes = [dp, ctypes.c_long, ctypes.c_long]
+        for name in ("clm_ff_time_blocks", "clm_ff_stream_time_blocks"):
+            fn = getattr(self.lib, name)
+            fn.restype = ctypes.c_long
+            fn.argtypes = [dp, ctypes.c_long, ctypes.c_long, ctypes.c_long, dp, ctypes.c_long]
         self.lag = int(self.lib.clm_ff_lag())
         self.lead = int(self.lib.clm_ff_lead())
 
@@ -78,3 +82,13 @@ class CompiledFeedforward:
         """Mean ns per ``clm_ff`` call over every sample of ``r`` (padded), ``repeats`` times."""
         r = np.ascontiguousarray(r, dtype=np.float64)
         return float(self.lib.clm_ff_time_ns(self._ptr(r), len(r), repeats))
+
+    def time_blocks(self, r: np.ndarray, repeats: int, block: int = 256,
+                    stream: bool = False) -> np.ndarray:
+        """ns per call of ``clm_ff`` (or per push of the streaming form), one value per block of
+        ``block`` consecutive calls over ``r``, ``repeats`` times (CPU time of the thread)."""
+        r = np.ascontiguousarray(r, dtype=np.float64)
+        out = np.empty(repeats * (len(r) // block + 1))
+        fn = self.lib.clm_ff_stream_time_blocks if stream else self.lib.clm_ff_time_blocks
+        count = fn(self._ptr(r), len(r), repeats, block, self._ptr(out), len(out))
+        return out[:count]

@@ -54,3 +54,42 @@ double clm_ff_time_ns(const double *r, long n, long repeats)
     (void)sink;
     return calls ? 1e9 * (t1 - t0) / (double)calls : 0.0;
 }
+
+/* CPU time (ns per call) of blocks of `block` consecutive clm_ff calls over r[LAG .. n-LEAD-1],
+ * repeated `repeats` times: out_ns[0 .. return-1] (at most max_blocks). Short blocks let the
+ * caller see through the bursts of a shared machine (their minimum and median). */
+long clm_ff_time_blocks(const double *r, long n, long repeats, long block, double *out_ns,
+                        long max_blocks)
+{
+    volatile double sink = 0.0;
+    long k, j, rep, count = 0;
+    for (rep = 0; rep < repeats; ++rep)
+        for (k = CLM_FF_LAG; k + block + CLM_FF_LEAD < n && count < max_blocks; k += block) {
+            double t0 = now_s();
+            for (j = 0; j < block; ++j)
+                sink += clm_ff(r + k + j);
+            out_ns[count++] = 1e9 * (now_s() - t0) / (double)block;
+        }
+    (void)sink;
+    return count;
+}
+
+/* The same for the streaming form: one push per sample of r (held at its ends), timed in blocks. */
+long clm_ff_stream_time_blocks(const double *r, long n, long repeats, long block, double *out_ns,
+                               long max_blocks)
+{
+    clm_ff_stream s;
+    volatile double sink = 0.0;
+    long k, j, rep, count = 0;
+    for (rep = 0; rep < repeats; ++rep) {
+        clm_ff_stream_init(&s, r[0]);
+        for (k = 0; k + block <= n && count < max_blocks; k += block) {
+            double t0 = now_s();
+            for (j = 0; j < block; ++j)
+                sink += clm_ff_stream_push(&s, r[k + j]);
+            out_ns[count++] = 1e9 * (now_s() - t0) / (double)block;
+        }
+    }
+    (void)sink;
+    return count;
+}
