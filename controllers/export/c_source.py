@@ -7,10 +7,14 @@ the sample ``r[0]`` it is called for and returns the held force of that sample (
 
 The filtered features of a PGNN: ``clm_ff`` differences the window in the product's order and
 applies the filter's FIR at the two instants the held average needs (``k`` and ``k+1``) in one
-pass of eight accumulators, which a compiler vectorizes. The streaming form runs the forward half
-of the filter as its recursion and only the backward half as an FIR, and keeps ``p[k+1]`` for the
-next call (several times faster). ``-DCLM_FF_FLOAT`` makes the arithmetic single precision (the weights stay
-decimal literals rounded once to float) for a target without a double-precision FPU.
+pass of eight sums. The streaming form runs the forward half of the filter as its recursion and
+only the backward half as an FIR, and keeps ``p[k+1]`` for the next call (about half the work).
+Beside the portable C, the PGNN's sums and network have a second path with AVX2 and FMA
+intrinsics (GCC or Clang on x86-64), taken per call where the CPU has both, so that the ``-O2``
+build anyone compiles runs four doubles per instruction instead of SSE2's two
+(``-DCLM_FF_PORTABLE`` leaves it out). ``-DCLM_FF_FLOAT`` makes the arithmetic single precision
+(the weights stay decimal literals rounded once to float; portable path) for a target without a
+double-precision FPU.
 """
 
 from __future__ import annotations
@@ -141,14 +145,16 @@ def header(wf: WindowFeedforward) -> str:
  * m, CLM_FF_TS in s, the result in N. The streaming form (clm_ff_stream_*) keeps the window in
  * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k]. For a
  * PGNN it also keeps the forward half of the feature filter as a recursion and the force at
- * k+1 for the next call, which makes it several times faster than clm_ff; it equals clm_ff to
- * rounding once the window has been filled from rest (clm_ff_stream_init).
+ * k+1 for the next call, about half the work of clm_ff; it equals clm_ff to rounding once the
+ * window has been filled from rest (clm_ff_stream_init).
  *
  * Model:
 {model}
  *
- * Compile: C99, link -lm. -DCLM_FF_FLOAT computes in single precision (see docs/export.md for
- * the error that costs).
+ * Compile: C99, link -lm. With GCC or Clang on x86-64 a PGNN's clm_ff.c also holds an AVX2 and
+ * FMA path (intrinsics, target attributes), taken per call where the CPU has both: no flag
+ * needed, and the same results to rounding; -DCLM_FF_PORTABLE leaves it out. -DCLM_FF_FLOAT
+ * computes in single precision (see docs/export.md for the error that costs).
  */
 #ifndef CLM_FF_H
 #define CLM_FF_H
