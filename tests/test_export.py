@@ -279,6 +279,48 @@ def run_folder(tmp_path_factory):
     return tmp / "res"
 
 
+OWN_HARNESS = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "clm_ff.h"
+/* argv[1]: n doubles r[0..n-1] (m); argv[2]: n doubles u_ff (N). The reference is held at its
+ * ends: CLM_FF_LAG samples before, CLM_FF_LEAD after. */
+int main(int argc, char **argv)
+{
+    FILE *f = fopen(argv[1], "rb");
+    long n, k;
+    double *r, *u;
+    if (argc != 3 || !f) return 1;
+    fseek(f, 0, SEEK_END);
+    n = ftell(f) / (long)sizeof(double);
+    rewind(f);
+    r = malloc(sizeof(double) * (size_t)(n + CLM_FF_WINDOW));
+    u = malloc(sizeof(double) * (size_t)n);
+    if (fread(r + CLM_FF_LAG, sizeof(double), (size_t)n, f) != (size_t)n) return 1;
+    fclose(f);
+    for (k = 0; k < CLM_FF_LAG; ++k) r[k] = r[CLM_FF_LAG];
+    for (k = 0; k < CLM_FF_LEAD; ++k) r[CLM_FF_LAG + n + k] = r[CLM_FF_LAG + n - 1];
+    for (k = 0; k < n; ++k) u[k] = clm_ff(&r[CLM_FF_LAG + k]);
+    f = fopen(argv[2], "wb");
+    fwrite(u, sizeof(double), (size_t)n, f);
+    fclose(f);
+    return 0;
+}
+"""
+
+
+def _own_harness(folder: Path, r: np.ndarray) -> np.ndarray:
+    """u_ff of r through ``clm_ff`` called by a stand-alone program (``OWN_HARNESS``)."""
+    import subprocess
+    (folder / "main.c").write_text(OWN_HARNESS)
+    exe = folder / "own_harness"
+    subprocess.run([compiler(), "-O2", "-o", str(exe), str(folder / "main.c"),
+                    str(folder / "clm_ff.c"), "-I", str(folder), "-lm"], check=True)
+    np.asarray(r, dtype="<f8").tofile(folder / "r.bin")
+    subprocess.run([str(exe), str(folder / "r.bin"), str(folder / "u.bin")], check=True)
+    return np.fromfile(folder / "u.bin", dtype="<f8")
+
+
 @pytest.mark.slow
 def test_cli_exports_a_run_pgnn_that_matches_on_an_unseen_reference(run_folder, tmp_path,
                                                                      capsys):
@@ -297,6 +339,8 @@ def test_cli_exports_a_run_pgnn_that_matches_on_an_unseen_reference(run_folder, 
     assert main(["export-ff", str(pt), "--to", "c", "--out", str(tmp_path / "c")]) == 0
     c = CompiledFeedforward(tmp_path / "c")
     assert _rel(c.stream(r), want) < 1e-9
+    # a harness of its own, as a user writes it from the header: a program, plain cc -O2
+    assert _rel(_own_harness(tmp_path / "c", r), want) < 1e-9
     info = json.loads((tmp_path / "c" / "export.json").read_text())
     assert (info["kind"], info["lag"], info["lead"]) == ("pgnn", c.lag, c.lead)
     capsys.readouterr()
