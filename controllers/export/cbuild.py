@@ -52,8 +52,6 @@ class CompiledFeedforward:
         self.lib.clm_ff_windows.argtypes = [dp, ctypes.c_long, ctypes.c_long, dp]
         self.lib.clm_ff_record.restype = None
         self.lib.clm_ff_record.argtypes = [dp, ctypes.c_long, dp]
-        self.lib.clm_ff_time_ns.restype = ctypes.c_double
-        self.lib.clm_ff_time_ns.argtypes = [dp, ctypes.c_long, ctypes.c_long]
         for name in ("clm_ff_time_blocks", "clm_ff_stream_time_blocks"):
             fn = getattr(self.lib, name)
             fn.restype = ctypes.c_long
@@ -77,11 +75,6 @@ class CompiledFeedforward:
         out = np.empty(len(r))
         self.lib.clm_ff_record(self._ptr(r), len(r), self._ptr(out))
         return out
-
-    def time_ns(self, r: np.ndarray, repeats: int) -> float:
-        """Mean ns per ``clm_ff`` call over every sample of ``r`` (padded), ``repeats`` times."""
-        r = np.ascontiguousarray(r, dtype=np.float64)
-        return float(self.lib.clm_ff_time_ns(self._ptr(r), len(r), repeats))
 
     def time_blocks(self, r: np.ndarray, repeats: int, block: int = 256,
                     stream: bool = False) -> np.ndarray:

@@ -39,22 +39,6 @@ static double now_s(void)
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-/* Mean ns per clm_ff call over r[LAG .. n-LEAD-1], repeated. */
-double clm_ff_time_ns(const double *r, long n, long repeats)
-{
-    volatile double sink = 0.0;
-    long k, rep, calls = 0;
-    double t0 = now_s(), t1;
-    for (rep = 0; rep < repeats; ++rep)
-        for (k = CLM_FF_LAG; k + CLM_FF_LEAD < n; ++k) {
-            sink += clm_ff(r + k);
-            ++calls;
-        }
-    t1 = now_s();
-    (void)sink;
-    return calls ? 1e9 * (t1 - t0) / (double)calls : 0.0;
-}
-
 /* CPU time (ns per call) of blocks of `block` consecutive clm_ff calls over r[LAG .. n-LEAD-1],
  * repeated `repeats` times: out_ns[0 .. return-1] (at most max_blocks). Short blocks let the
  * caller see through the bursts of a shared machine (their minimum and median). */
