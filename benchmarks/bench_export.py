@@ -8,7 +8,8 @@ undisturbed, the median block what a shared machine gave while measuring. The de
 takes the AVX2 path where the CPU has AVX2 and FMA; ``-DCLM_FF_PORTABLE`` is the portable C,
 ``-DCLM_FF_FLOAT`` the single-precision build. ONNX Runtime is timed per call (batch 1,
 ``session.run`` included) and batched (``--batch`` windows per run). Also prints the error of
-the C against the product's Python feedforward.
+the C against the product's Python feedforward, and what ``export-ff --filter-tail`` trades
+(window, look-ahead, error, time) for the values of ``--filter-tails``.
 
 Run from the repository root: ``python benchmarks/bench_export.py``. Last line on stdout:
 ``<model>_c[_stream][_portable|_float][_median]_ns=<t> ... onnx_call_us=<t> onnx_batched_ns=<t>``
@@ -40,6 +41,26 @@ def _rel(got, want) -> float:
     return float(np.max(np.abs(got - want)) / np.max(np.abs(want)))
 
 
+def _filter_tails(pgnn, r, ts, args, results) -> None:
+    """The cut of the feature filter (``export-ff --filter-tail``) against the window, the
+    look-ahead, the error against the product and the time per call."""
+    want = pgnn.feedforward(r, ts)
+    print(f"pgnn{args.hidden}, --filter-tail: window, look-ahead, error vs Python (of the peak "
+          f"force, streaming form on r2), clm_ff and streaming ns (best block)", file=sys.stderr)
+    for tail in args.filter_tails:
+        wf = from_pgnn(pgnn, ts, "bench", tol=tail)
+        with tempfile.TemporaryDirectory() as tmp:
+            c_source.write(wf, tmp)
+            lib = CompiledFeedforward(tmp, tuple(args.flags.split()))
+            err = _rel(lib.stream(r), want)
+            ns = float(np.min(lib.time_blocks(r, args.repeats, args.block)))
+            ns_stream = float(np.min(lib.time_blocks(r, args.repeats, args.block, stream=True)))
+        results[f"tail_{tail:.0e}_err"] = err
+        print(f"  {tail:.0e}: {wf.lag}+1+{wf.lead} samples, look-ahead {1e3 * wf.lead * ts:.1f} "
+              f"ms, error {err:.1e}, clm_ff {ns:,.0f} ns, streaming {ns_stream:,.0f} ns",
+              file=sys.stderr)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeats", type=int, default=3, help="passes over r2 (default 3)")
@@ -49,6 +70,9 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=1000)
     p.add_argument("--hidden", type=int, default=16)
     p.add_argument("--flags", default="-O2", help="C compiler flags (default -O2)")
+    p.add_argument("--filter-tails", type=float, nargs="*",
+                   default=[1e-15, 1e-12, 1e-9, 1e-6, 1e-3],
+                   help="export-ff --filter-tail values to compare (none: skip)")
     args = p.parse_args(argv)
     tb = Testbed(ExperimentConfig(training=Training(repeats=1)))
     run = tb.training_run()
@@ -92,6 +116,8 @@ def main(argv=None) -> int:
               f"{err_call:.1e} (clm_ff), {err:.1e} (streaming), {err_portable:.1e} (portable "
               f"streaming), {err32:.1e} (streaming, -DCLM_FF_FLOAT) of the peak force",
               file=sys.stderr)
+    if compiler() is not None and args.filter_tails:
+        _filter_tails(pgnn, r, tb.ts, args, results)
     try:
         import onnxruntime as ort
 

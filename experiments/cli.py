@@ -119,7 +119,7 @@ def _cmd_export(args) -> int:
 def _cmd_export_ff(args) -> int:
     from experiments.export_ff import export
 
-    files = export(args.model, args.to, args.out, ts=args.ts)
+    files = export(args.model, args.to, args.out, ts=args.ts, filter_tail=args.filter_tail)
     print(f"wrote {', '.join(str(f) for f in files)} (see docs/export.md)")
     return 0
 
@@ -298,6 +298,10 @@ def parser() -> argparse.ArgumentParser:
     eff.add_argument("--to", required=True, help="c or onnx")
     eff.add_argument("--out", required=True, help="output folder (replaced as a whole)")
     eff.add_argument("--ts", type=float, help="sample time (s), where the file carries none")
+    eff.add_argument("--filter-tail", type=float, metavar="TOL",
+                     help="PGNN: cut the feature filter where its discarded tail is below TOL of "
+                          "its sum (default 1e-15, exact to rounding; larger: a shorter window "
+                          "and look-ahead, less exact; see docs/export.md)")
     eff.set_defaults(func=_cmd_export_ff)
     sweep = sub.add_parser("sweep", help="run a grid of experiments (a config with a 'sweep:' "
                            "section) in parallel, resumably")

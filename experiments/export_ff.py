@@ -21,10 +21,13 @@ from clm_sim.features import FeatureMap
 from clm_sim.outdir import atomic_folder
 from clm_sim.schema import build_effect
 from controllers.export import c_source
-from controllers.export.window import WindowFeedforward, from_lip, from_pgnn
+from controllers.export.window import DEFAULT_TOL, WindowFeedforward, from_lip, from_pgnn
 from controllers.lip import LIPFeedforward
 
 TARGETS = ("c", "onnx")
+# The largest --filter-tail: a tenth of a per cent of the filter's weight left out is already a
+# different filter (docs/export.md has the error it costs).
+MAX_FILTER_TAIL = 1e-3
 KNOWN = ("a run's params/lip.json or params/<row>_seed<k>.pt, identify's lip.json or a "
          "diagnosis.json")
 
@@ -93,7 +96,7 @@ def _diagnosis(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
     return from_lip(lip, _sample_time(path, stored, ts), f"{path} (extended model)")
 
 
-def _pgnn(path: Path, ts: float | None) -> WindowFeedforward:
+def _pgnn(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward:
     from controllers.pgnn import PGNNFeedforward  # torch only for a PGNN
 
     stem = path.with_suffix("")
@@ -105,29 +108,32 @@ def _pgnn(path: Path, ts: float | None) -> WindowFeedforward:
     except pickle.UnpicklingError as exc:  # a foreign .pt (load names only the errors it expects)
         raise UserError(f"{path}: cannot read PGNN model ({str(exc).splitlines()[0]})") from None
     data = _read_json(stem.with_suffix(".json"))
-    return from_pgnn(model, _sample_time(path, data.get("ts"), ts), str(stem.with_suffix(".pt")))
+    return from_pgnn(model, _sample_time(path, data.get("ts"), ts), str(stem.with_suffix(".pt")),
+                     tol=filter_tail)
 
 
-def load_feedforward(path, ts: float | None = None) -> WindowFeedforward:
-    """The window form of the feedforward saved at ``path`` (see the module docstring)."""
+def load_feedforward(path, ts: float | None = None,
+                     filter_tail: float = DEFAULT_TOL) -> WindowFeedforward:
+    """The window form of the feedforward saved at ``path`` (see the module docstring); a
+    PGNN's feature filter cut where its discarded tail is below ``filter_tail`` of its sum."""
     path = Path(path)
     try:
-        return _load(path, ts)
+        return _load(path, ts, filter_tail)
     except UserError as exc:  # every message names the file
         message = str(exc)
         raise UserError(message if str(path) in message else f"{path}: {message}") from None
 
 
-def _load(path: Path, ts: float | None) -> WindowFeedforward:
+def _load(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward:
     if not path.is_file():
         raise UserError(f"{path}: no such model file")
     if path.suffix == ".pt":
-        return _pgnn(path, ts)
+        return _pgnn(path, ts, filter_tail)
     if path.suffix != ".json":
         raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
     data = _read_json(path)
     if data.get("kind") == "pgnn":
-        return _pgnn(path, ts)
+        return _pgnn(path, ts, filter_tail)
     if data.get("kind") == "lip":
         return _lip(path, data, ts)
     if isinstance(data.get("extended_model"), dict):
@@ -135,11 +141,20 @@ def _load(path: Path, ts: float | None) -> WindowFeedforward:
     raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
 
 
-def export(model_path, to: str, out, *, ts: float | None = None) -> list[Path]:
+def export(model_path, to: str, out, *, ts: float | None = None,
+           filter_tail: float | None = None) -> list[Path]:
     """Export the feedforward at ``model_path`` as ``to`` (``c`` or ``onnx``) into folder
-    ``out`` (replaced as a whole; an earlier export there is replaced). Returns the files."""
+    ``out`` (replaced as a whole; an earlier export there is replaced). ``filter_tail``: where a
+    PGNN's feature filter is cut (the discarded tail's share of its sum; default 1e-15, i.e.
+    rounding): a larger value shortens the window and the look-ahead and costs accuracy
+    (docs/export.md). Returns the files."""
     if to not in TARGETS:
         raise UserError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
+    if filter_tail is None:
+        filter_tail = DEFAULT_TOL
+    if not (isinstance(filter_tail, (int, float)) and 0 < filter_tail <= MAX_FILTER_TAIL):
+        raise UserError(f"--filter-tail: expected a number in (0, {MAX_FILTER_TAIL:g}], got "
+                        f"{filter_tail!r}")
     writer = c_source.write
     if to == "onnx":
         try:
@@ -149,7 +164,7 @@ def export(model_path, to: str, out, *, ts: float | None = None) -> list[Path]:
             raise UserError("--to onnx needs the export extra: pip install 'clm-sim[export]'") \
                 from None
         writer = onnx_graph.write
-    wf = load_feedforward(model_path, ts)
+    wf = load_feedforward(model_path, ts, float(filter_tail))
     out = Path(out)
     try:
         with atomic_folder(out, marker="export.json", what="an exported feedforward",
@@ -157,7 +172,9 @@ def export(model_path, to: str, out, *, ts: float | None = None) -> list[Path]:
             names = [p.name for p in writer(wf, tmp)]
             (tmp / "export.json").write_text(json.dumps({
                 "model": str(model_path), "kind": wf.kind, "to": to, "ts": wf.ts,
-                "lag": wf.lag, "lead": wf.lead, "files": names, "description": wf.describe()},
+                "lag": wf.lag, "lead": wf.lead,
+                "filter_tail": wf.filter.get("tol") if wf.filter.get("cutoff_hz") else None,
+                "files": names, "description": wf.describe()},
                 indent=1))
     except OSError as exc:
         raise UserError(f"{out}: cannot write the export ({exc.strerror or exc})") from None

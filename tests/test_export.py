@@ -375,11 +375,12 @@ def test_identify_and_diagnosis_files_load(fitted, effects_lip, tmp_path):
 
 
 @pytest.mark.parametrize("case", ["missing", "foreign", "foreign_pt", "unknown_to",
-                                  "unwritable", "out_is_a_file", "foreign_folder"])
+                                  "unwritable", "out_is_a_file", "foreign_folder",
+                                  "filter_tail_zero", "filter_tail_large"])
 def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, capsys):
     lip_file = tmp_path / "lip.json"
     lip_file.write_text(json.dumps(fitted["lip"].to_json()))
-    model, to, out = lip_file, "c", tmp_path / "out"
+    model, to, out, extra = lip_file, "c", tmp_path / "out", []
     if case == "missing":
         model = tmp_path / "nope.json"
     elif case == "foreign":
@@ -402,8 +403,12 @@ def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, ca
     elif case == "foreign_folder":
         out.mkdir()
         (out / "notes.txt").write_text("mine")
+    elif case == "filter_tail_zero":
+        extra = ["--filter-tail", "0"]
+    elif case == "filter_tail_large":
+        extra = ["--filter-tail", "0.5"]
     before = sorted(p.name for p in tmp_path.rglob("*"))
-    code = main(["export-ff", str(model), "--to", to, "--out", str(out)])
+    code = main(["export-ff", str(model), "--to", to, "--out", str(out), *extra])
     err = capsys.readouterr().err.strip().splitlines()
     if case == "unwritable":
         (tmp_path / "locked").chmod(0o700)
@@ -412,6 +417,28 @@ def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, ca
             pytest.skip("running as root: no folder is unwritable")
     assert code == 2 and len(err) == 1 and err[0].startswith("clm-sim: error: "), err
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+@needs_cc
+def test_filter_tail_shortens_the_window_at_a_bounded_cost(fitted, references, tmp_path, capsys):
+    """``--filter-tail 1e-9``: the feature filter cut where a 1e-9 share of its weight is left
+    out. The window and the look-ahead shrink (569 -> 336 samples a side at 250 Hz), and the
+    force moves from the product's by that share amplified through the network: measured 1e-10
+    of the peak on r2, bounded here by 1000 times the share."""
+    model = fitted["pgnn"]
+    model.save(tmp_path / "pgnn")
+    out = tmp_path / "ff"
+    assert main(["export-ff", str(tmp_path / "pgnn.pt"), "--to", "c", "--out", str(out),
+                 "--ts", str(TS), "--filter-tail", "1e-9"]) == 0
+    capsys.readouterr()
+    info = json.loads((out / "export.json").read_text())
+    exact = from_pgnn(model, TS, "test")
+    assert info["filter_tail"] == 1e-9 and info["lead"] < exact.lead - 100
+    c = CompiledFeedforward(out)
+    assert (c.lag, c.lead) == (info["lag"], info["lead"])
+    r = references["r2"]
+    error = _rel(c.stream(r), model.feedforward(r, TS))
+    assert 1e-13 < error < 1e-6, error  # it does cut (not rounding), and within the bound
 
 
 def test_export_refuses_unknown_target_before_reading(tmp_path):
