@@ -28,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from clm_sim.loop import simulate  # noqa: E402
 from controllers.export import c_source  # noqa: E402
 from controllers.export.cbuild import CompiledFeedforward, compiler  # noqa: E402
 from controllers.export.window import from_lip, from_pgnn  # noqa: E402
@@ -41,24 +42,30 @@ def _rel(got, want) -> float:
     return float(np.max(np.abs(got - want)) / np.max(np.abs(want)))
 
 
-def _filter_tails(pgnn, r, ts, args, results) -> None:
+def _filter_tails(tb, pgnn, r, args, results) -> None:
     """The cut of the feature filter (``export-ff --filter-tail``) against the window, the
-    look-ahead, the error against the product and the time per call."""
+    look-ahead, the error against the product, the closed-loop MAE on r2 with the exported
+    feedforward, and the time per call."""
+    ts = tb.ts
     want = pgnn.feedforward(r, ts)
+    mae = tb.replay(pgnn, r).mae
     print(f"pgnn{args.hidden}, --filter-tail: window, look-ahead, error vs Python (of the peak "
-          f"force, streaming form on r2), clm_ff and streaming ns (best block)", file=sys.stderr)
+          f"force, streaming form on r2), r2 MAE in closed loop with it (Python's "
+          f"{1e6 * mae:.5f} um), clm_ff and streaming ns (best block)", file=sys.stderr)
     for tail in args.filter_tails:
         wf = from_pgnn(pgnn, ts, "bench", tol=tail)
         with tempfile.TemporaryDirectory() as tmp:
             c_source.write(wf, tmp)
             lib = CompiledFeedforward(tmp, tuple(args.flags.split()))
-            err = _rel(lib.stream(r), want)
+            u_ff = lib.stream(r)
+            err = _rel(u_ff, want)
+            mae_c = simulate(tb.machine, tb.pid, r, ts, u_ff=u_ff).mae
             ns = float(np.min(lib.time_blocks(r, args.repeats, args.block)))
             ns_stream = float(np.min(lib.time_blocks(r, args.repeats, args.block, stream=True)))
         results[f"tail_{tail:.0e}_err"] = err
         print(f"  {tail:.0e}: {wf.lag}+1+{wf.lead} samples, look-ahead {1e3 * wf.lead * ts:.1f} "
-              f"ms, error {err:.1e}, clm_ff {ns:,.0f} ns, streaming {ns_stream:,.0f} ns",
-              file=sys.stderr)
+              f"ms, error {err:.1e}, MAE {1e6 * mae_c:.5f} um ({(mae_c - mae) / mae:+.1e}), "
+              f"clm_ff {ns:,.0f} ns, streaming {ns_stream:,.0f} ns", file=sys.stderr)
 
 
 def main(argv=None) -> int:
@@ -117,7 +124,7 @@ def main(argv=None) -> int:
               f"streaming), {err32:.1e} (streaming, -DCLM_FF_FLOAT) of the peak force",
               file=sys.stderr)
     if compiler() is not None and args.filter_tails:
-        _filter_tails(pgnn, r, tb.ts, args, results)
+        _filter_tails(tb, pgnn, r, args, results)
     try:
         import onnxruntime as ort
 
