@@ -7,6 +7,7 @@ do not depend on the horizon, and a task then takes well under a second after it
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import signal
@@ -23,10 +24,12 @@ from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write
 from experiments import table
 from experiments.sweeps.grid import MAX_TASKS, load_sweep, parse_path, set_path
-from experiments.sweeps.store import ResultStore, code_version, task_key
+from experiments.sweeps.store import ResultStore, code_version, result_sources, task_key
 from experiments.sweeps.run import execute, run_sweep
 from experiments.sweeps.run import markdown as sweep_markdown
 from experiments.table import series
+
+ROOT = Path(__file__).resolve().parents[1]
 
 BASE = SMALL_CONFIG
 
@@ -126,6 +129,19 @@ def test_task_key_follows_config_and_code_version():
     assert key != task_key({**config, "seed": 2}, "0.1.0+aaaa")
     assert key != task_key(config, "0.1.0+bbbb")
     assert code_version().startswith("0.1.0+")
+
+
+def test_code_version_hashes_the_sources_that_compute_results():
+    """The hash must cover the physics, the controllers and the runner chain (once it covered
+    nothing: a moved module left it hashing an empty list, so an edited source did not
+    invalidate stored tasks)."""
+    files = {f.relative_to(ROOT).as_posix() for f in result_sources()}
+    for must in ("clm_sim/plant.py", "clm_sim/loop.py", "controllers/lip.py",
+                 "controllers/pgnn/model.py", "experiments/runner.py", "experiments/testbed.py",
+                 "experiments/table.py", "experiments/config.py"):
+        assert must in files, must
+    assert not any(f.startswith(("experiments/diagnosis", "experiments/sweeps")) for f in files)
+    assert code_version() != "0.1.0+" + hashlib.sha256().hexdigest()[:12]
 
 
 @pytest.mark.parametrize("grid, expected", [

@@ -16,26 +16,38 @@ from pathlib import Path
 from clm_sim import __version__
 from clm_sim.outdir import atomic_write
 
-_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
+# The repository root (this file is experiments/sweeps/store.py).
+_PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 # The sources a task result depends on: physics, controllers, and the runner chain that turns a
-# config into table rows. Sweep, CLI, figure and diagnosis code do not change a task's numbers.
+# config into table rows (testbed, fits on records, identifiability). Sweep, CLI, figure and
+# diagnosis code do not change a task's numbers.
 _RESULT_SOURCES = ("clm_sim", "controllers", "experiments/config.py", "experiments/runner.py",
-                   "experiments/table.py")
+                   "experiments/table.py", "experiments/testbed.py", "experiments/record_fit.py",
+                   "experiments/identifiability.py")
 _NOT_RESULT_SOURCES = ("experiments/diagnosis",)
+
+
+def result_sources() -> list[Path]:
+    """The files :func:`code_version` hashes, in the order it hashes them."""
+    files = []
+    for entry in _RESULT_SOURCES:
+        path = _PACKAGE_ROOT / entry
+        if not path.exists():
+            raise RuntimeError(f"code_version: {entry} is not in {_PACKAGE_ROOT} (moved? update "
+                               f"_RESULT_SOURCES)")
+        for f in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            if not f.relative_to(_PACKAGE_ROOT).as_posix().startswith(_NOT_RESULT_SOURCES):
+                files.append(f)
+    return files
 
 
 def code_version() -> str:
     """``<clm_sim.__version__>+<hash of the sources that compute task results>``, read from the
     files now (an edited source gives a new version, so its tasks are recomputed)."""
     digest = hashlib.sha256()
-    for entry in _RESULT_SOURCES:
-        path = _PACKAGE_ROOT / entry
-        files = sorted(path.rglob("*.py")) if path.is_dir() else [path]
-        for f in files:
-            rel = f.relative_to(_PACKAGE_ROOT).as_posix()
-            if f.exists() and not rel.startswith(_NOT_RESULT_SOURCES):
-                digest.update(rel.encode() + b"\0")
-                digest.update(f.read_bytes() + b"\0")
+    for f in result_sources():
+        digest.update(f.relative_to(_PACKAGE_ROOT).as_posix().encode() + b"\0")
+        digest.update(f.read_bytes() + b"\0")
     return f"{__version__}+{digest.hexdigest()[:12]}"
 
 
