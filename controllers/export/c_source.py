@@ -669,8 +669,7 @@ static void {name}({args})
 
 def _network_source(wf: WindowFeedforward) -> str:
     m = wf.half
-    h = wf.kernel
-    padded = np.concatenate([[0.0], h, [0.0]])
+    padded = np.concatenate([[0.0], wf.kernel, [0.0]])  # the FIR with a zero either side
     net = wf.network
     tables = [f"#define HALF {m}\n"]
     if m > 0:
