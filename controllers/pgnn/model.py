@@ -41,8 +41,10 @@ Data, and why it is consistent. The encoder counts (0.1 um) make raw second diff
 *same* zero-phase low-pass (the parallel regression filter, ``FeatureMap.regression_lowpass_hz``)
 and the fit uses the filtered columns ``phi_f`` and filtered force. For the physical part this is
 exact (a linear filter commutes with ``theta . T``). For the network it amounts to *defining* its
-input as the filtered features: the model is ``theta . T(phi) + f_NN(filter(phi))``, and replay
-applies the same filter to the reference's features, so training and use see the same inputs.
+input as the filtered features: the model is ``theta . filter(T) + f_NN(filter(T))``, and replay
+applies the same filter to the reference's features for both parts, so training and use evaluate
+the same function (replaying ``theta`` on raw features leaks ``delta_theta . (T - filter(T))`` of a
+drifted fit at every reversal, where the network cancels only the filtered part).
 This is accurate as long as the parasitic forces vary slowly compared with the filter, which holds
 for forces of position and velocity. After the filter the data carry nothing above its cut-off, so
 they are decimated (``decimation``, default one sample per 8 ms: 80 at 10 kHz, 8 at 1 kHz, so
@@ -423,14 +425,15 @@ class PGNNFeedforward:
 
     def predict_parts(self, *, y: np.ndarray, ts: float | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
-        """Physical part ``theta . T`` and network part (N) at the sample instants of ``y`` (m),
-        sampled at ``ts`` (s; default and only allowed rate: the fitted ``ts_``)."""
+        """Physical part ``theta . filt(T)`` and network part ``f(filt(T))`` (N) at the sample
+        instants of ``y`` (m), sampled at ``ts`` (s; default and only allowed rate: the fitted
+        ``ts_``). Both parts see the filtered features, as in the fit: the replayed function is the
+        fitted one (a drifted theta is cancelled by the network on exactly the columns it saw)."""
         self._check_fitted()
         ts = self._rate(ts)
         yf, v, a = self.features.motion(y, ts)
-        phi = lip_regressors(yf, v, a)
-        physical = phi @ _as_theta(self.theta_)
-        return physical, self.network(self.features.regression_filter(phi, ts))
+        phi_f = self.features.regression_filter(lip_regressors(yf, v, a), ts)
+        return phi_f @ _as_theta(self.theta_), self.network(phi_f)
 
     def predict(self, *, y: np.ndarray, ts: float | None = None) -> np.ndarray:
         """Force (N) at the sample instants for positions ``y`` (m) sampled at ``ts`` (s; default
