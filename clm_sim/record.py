@@ -140,6 +140,17 @@ def save_mat(run: Run, path: Path) -> None:
     atomic_write(path, write)
 
 
+def convert(path, to: str, out=None) -> tuple[Path, int]:
+    """``clm-sim export``: the record at ``path`` written as ``to`` (``csv`` or ``mat``) to
+    ``out`` (default: ``path`` with that suffix); returns the file and its sample count."""
+    run = load_record(path)
+    out = Path(out) if out else Path(path).with_suffix("." + to)
+    if out.suffix.lower() != "." + to:
+        raise UserError(f"{out}: --to {to} needs a .{to} file name")
+    (save_csv if to == "csv" else save_mat)(run, out)
+    return out, len(run)
+
+
 def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     """The file's variables (arrays as stored, checked by :func:`_numbers` when used) and its
     ``meta`` (a JSON object, else empty). Every failure is one ``UserError`` line."""
@@ -216,6 +227,25 @@ def _numbers(value, path: Path, key: str) -> np.ndarray:
             raise UserError(f"{path}: variable {key!r} is complex; expected real numbers")
         value = value.real
     return np.asarray(value, dtype=np.float64)
+
+
+def parse_pairs(text: str | None, option: str, number: bool) -> dict:
+    """``"y=qm,u=vir"`` -> ``{"y": "qm", "u": "vir"}``: the ``--columns`` and ``--scale`` of a
+    command (values as numbers where they parse and ``number``); ``option`` names it in errors."""
+    out = {}
+    for item in filter(None, (text or "").split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise UserError(f"{option}: expected NAME=VALUE pairs separated by commas, "
+                            f"got {item!r}")
+        value = value.strip()
+        if number:
+            try:
+                value = float(value)
+            except ValueError:
+                pass
+        out[key.strip()] = value
+    return out
 
 
 def load_record(path, columns: dict[str, str] | None = None,

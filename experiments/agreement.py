@@ -199,3 +199,14 @@ def compare_files(expected: Path, fresh: Path) -> list[Mismatch]:
         raise UserError(f"{fresh}: not a clm-sim table.json (no 'rows' list)")
     return compare(parse_markdown(text, str(expected)), doc)
 
+
+
+def verdict(expected: Path, fresh: Path) -> tuple[list[str], int]:
+    """What ``clm-sim compare`` prints and its exit code: 0 where ``fresh`` reproduces the
+    table in ``expected``, else 1 with one line per cell outside the tolerance."""
+    lines = [str(m) for m in compare_files(Path(expected), Path(fresh))]
+    if lines:
+        return lines + [f"{len(lines)} cell(s) outside the cross-machine tolerance "
+                        f"(docs/reproducibility.md)"], 1
+    return [f"{fresh} reproduces the table in {expected} within the cross-machine "
+            f"tolerance"], 0

@@ -2,45 +2,35 @@
 a LIP from a record, ``diagnose`` a model against it, ``export`` a logged run, ``export-ff`` a
 feedforward to C or ONNX, ``compare`` a fresh table with a published one.
 
-User mistakes (``UserError``) print one line on stderr and exit with code 2, never a traceback.
-``sweep`` exits with 1 when some tasks failed (the table is still written and lists them).
-Ctrl-C (exit 130) and SIGTERM (exit 143) stop a command the same way: nothing half-written stays.
-Data that look wrong but may be right give one warning line each. docs/cli.md states it all.
+This module only parses the command line and calls the library; how the process ends (user
+mistakes: one line, exit 2; Ctrl-C 130, SIGTERM 143; an internal error: one line, exit 1, the
+traceback with ``--debug``) is :mod:`experiments.process`. ``sweep`` exits with 1 when some tasks
+failed (the table is still written and lists them). Data that look wrong but may be right give
+one warning line each. docs/cli.md states it all.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
-import math
 import os
-import signal
 import sys
-import threading
 from pathlib import Path
 
 import clm_sim
-from clm_sim.errors import UserError
 from clm_sim.numerics import pin_portable_kernels
+from experiments import process
 
 
 def _cmd_run(args) -> int:
     from clm_sim.schema import load_yaml
-    from experiments.config import load_config
+    from experiments.config import load_config, refuse_other_commands
     from experiments.runner import run_experiment
-    from experiments.suspicions import plant_warnings
+    from experiments.suspicions import config_warnings
     from experiments.table import to_markdown
 
-    data = load_yaml(args.config)
-    for section, command in (("sweep", "sweep"), ("study", "study"), ("failure_map", "study")):
-        if section in data:
-            raise UserError(f"{args.config}: has a '{section}:' section; run it with "
-                            f"'clm-sim {command} {args.config}'")
+    refuse_other_commands(load_yaml(args.config), args.config)
     config = load_config(args.config)
-    for where, plant in (("plant", config.plant), ("truth", config.truth)):
-        if plant is not None:
-            _warn(args.config, plant_warnings(plant, where))
+    _warn(args.config, config_warnings(config))
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
     if config.identifiability is not None or config.data is not None:
@@ -60,59 +50,32 @@ def _record_arguments(p: argparse.ArgumentParser) -> None:
 
 def _load(path, args):
     """The record at ``path``, read with the command's ``--columns`` and ``--scale``."""
-    from clm_sim.record import load_record
+    from clm_sim.record import load_record, parse_pairs
 
-    return load_record(path, columns=_pairs(args.columns, "--columns", number=False),
-                       scale=_pairs(args.scale, "--scale", number=True))
+    return load_record(path, columns=parse_pairs(args.columns, "--columns", number=False),
+                       scale=parse_pairs(args.scale, "--scale", number=True))
 
 
 def _cmd_identify(args) -> int:
-    from clm_sim.features import FeatureMap
-    from clm_sim.outdir import atomic_write, check_writable, write_error
-    from controllers.lip import LIPFeedforward
-    from experiments.suspicions import record_warnings
-    from experiments.table import THETA_UNITS
+    from clm_sim.outdir import check_writable
+    from experiments.identify import identify
 
     out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
     check_writable(out)  # before the work: a result that cannot be written is not computed
-    run = _load(args.data, args)
-    cutoff = args.regression_lowpass_hz
-    try:
-        features = FeatureMap() if cutoff is None else \
-            FeatureMap(regression_lowpass_hz=None if cutoff <= 0 else cutoff)
-        lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
-    except UserError as exc:  # name the file and the option
-        raise UserError(f"{args.data}: {exc}" + (" (--regression-lowpass-hz)"
-                                                 if "lowpass" in str(exc) else "")) from None
-    values = {**lip.theta_, **lip.std_}
-    bad = [name for name, value in values.items() if not math.isfinite(value)]
-    if bad or not math.isfinite(lip.residual_rms_):
-        raise UserError(f"{args.data}: the fit gives non-finite parameters "
-                        f"({', '.join(sorted(set(bad))) or 'residual'}); the record's values are "
-                        f"too large or degenerate for a least-squares fit")
-    _warn(args.data, record_warnings(run, lip))
-    for name, value in lip.theta_.items():
-        print(f"{name:10s} {value:12.6g} {THETA_UNITS[name]:6s} (std {lip.std_[name]:.2g})")
-    print(f"residual rms {lip.residual_rms_:.4g} N over {len(run)} samples at "
-          f"{1 / run.ts:g} Hz")
-    try:
-        atomic_write(out / "lip.json", json.dumps({**lip.to_json(), "source": str(args.data)},
-                                                  indent=1, allow_nan=False))
-    except OSError as exc:
-        raise write_error(out, exc) from None
-    print(f"wrote {out / 'lip.json'} (a model for clm-sim diagnose --model)")
+    result = identify(_load(args.data, args), source=str(args.data),
+                      regression_lowpass_hz=args.regression_lowpass_hz)
+    _warn(args.data, list(result.warnings))
+    print("\n".join(result.lines()))
+    path = result.write(out)
+    print(f"wrote {path} (a model for clm-sim diagnose --model)")
     return 0
 
 
 def _cmd_export(args) -> int:
-    from clm_sim.record import load_record, save_csv, save_mat
+    from clm_sim.record import convert
 
-    run = load_record(args.run)
-    out = Path(args.out) if args.out else Path(args.run).with_suffix("." + args.to)
-    if out.suffix.lower() != "." + args.to:
-        raise UserError(f"{out}: --to {args.to} needs a .{args.to} file name")
-    (save_csv if args.to == "csv" else save_mat)(run, out)
-    print(f"wrote {out} ({len(run)} samples)")
+    out, samples = convert(args.run, args.to, args.out)
+    print(f"wrote {out} ({samples} samples)")
     return 0
 
 
@@ -134,125 +97,50 @@ def _cmd_sweep(args) -> int:
     outcome = run_sweep(sweep, out, backend=args.backend, workers=args.workers,
                         scheduler=args.scheduler, retry_failed=args.retry_failed,
                         quiet=args.quiet)
-    print(f"{outcome.total} tasks: {outcome.computed} run now, {outcome.reused} reused from "
-          f"{out}/tasks, {len(outcome.failures)} failed, {outcome.unfinished} unfinished")
-    for f in outcome.failures:
-        point = ", ".join(f"{k}={f[k]}" for k in sweep.grid) or "config"
-        print(f"  FAILED {point}: {f['error']}")
-    if outcome.stopped:
-        print(f"sweep stopped: {outcome.stopped}; run the same command again to resume")
-    if not outcome.unfinished:
-        print(f"results in {out}/ (table.md, table.json, figures/)")
+    print("\n".join(outcome.lines(sweep.grid, out)))
     return outcome.exit_code
 
 
 def _warn(path, lines: list[str]) -> None:
-    """Data that look wrong but may be right: one stderr line each; the command goes on."""
-    for line in lines:
-        print(f"clm-sim: warning: {path}: {line}", file=sys.stderr)
-
-
-def _record_warnings(record, model) -> list[str]:
-    """:func:`experiments.suspicions.record_warnings` of a record against a diagnosis model."""
-    from controllers.lip import LIPFeedforward
-    from experiments.suspicions import record_warnings
-
-    try:
-        lip = LIPFeedforward().fit(y=record.y, u=record.u, ts=record.ts)
-    except UserError:  # the diagnosis says why the record cannot be fitted
-        lip = None
-    plant = getattr(model, "plant", None)
-    return record_warnings(record, lip, model_mass=getattr(plant, "mass", None))
-
-
-def _pairs(text: str | None, option: str, number: bool) -> dict:
-    """``"y=qm,u=vir"`` -> ``{"y": "qm", "u": "vir"}`` (values as numbers where they parse)."""
-    out = {}
-    for item in filter(None, (text or "").split(",")):
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip() or not value.strip():
-            raise UserError(f"{option}: expected NAME=VALUE pairs separated by commas, "
-                            f"got {item!r}")
-        value = value.strip()
-        if number:
-            try:
-                value = float(value)
-            except ValueError:
-                pass
-        out[key.strip()] = value
-    return out
-
-
-def _diagnosis_model(path, ts: float):
-    """The simulation's model: the default CLM without a file, else ``load_model``'s reading."""
-    from experiments.diagnosis.model import SimulationModel, load_model
-
-    return SimulationModel() if path is None else load_model(path, ts)
+    from experiments.suspicions import warn
+    warn(path, lines)
 
 
 def _cmd_study(args) -> int:
     from clm_sim.schema import load_yaml
-    if "failure_map" in load_yaml(args.config):  # where lambda = 0 fails: its own study
-        from experiments.studies.failure_map import main
-        return main(args.config, args.out, workers=args.workers, quiet=args.quiet)
-    from experiments.studies.extrapolation import load_study, run_study
+    from experiments.studies import extrapolation, failure_map
+    from experiments.studies.kinds import kind_of
 
-    config, study = load_study(args.config)  # checked as clm-sim run checks, before any work
-    out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
-    run_study(config, study, out, quiet=args.quiet)
-    print((out / "report.md").read_text(), end="")
-    return 0
+    if kind_of(load_yaml(args.config), args.config) == "failure_map":  # where lambda = 0 fails
+        return failure_map.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
+    return extrapolation.main(args.config, args.out, quiet=args.quiet)
 
 
 def _cmd_diagnose(args) -> int:
-    from clm_sim.outdir import check_output_folder
-    from experiments.diagnosis import DiagnosisSettings, diagnose
-    from experiments.diagnosis.report import write
+    from experiments.diagnosis.checked import diagnose_files
 
     out = Path(args.out) if args.out else Path("results") / f"diagnosis_{Path(args.data).stem}"
-    check_output_folder(out, marker="diagnosis.json", what="a diagnosis")  # before the work
-    record = _load(args.data, args)
-    validation = _load(args.validate, args) if args.validate else None
-    model = _diagnosis_model(args.model, record.ts)
-    settings = DiagnosisSettings() if args.regression_lowpass_hz is None else \
-        DiagnosisSettings(regression_lowpass_hz=args.regression_lowpass_hz)
-    _warn(args.data, _record_warnings(record, model))
-    try:
-        result = diagnose(record, model, validation=validation, settings=settings)
-    except UserError as exc:  # name the file the error is about
-        text = str(exc)
-        raise UserError(text if text.startswith(str(args.data)) or (
-            args.validate and text.startswith(str(args.validate))) else f"{args.data}: {text}") \
-            from None
-    write(result, out)
+    result = diagnose_files(args.data, out=out, read=lambda path: _load(path, args),
+                            model_path=args.model, validate=args.validate,
+                            regression_lowpass_hz=args.regression_lowpass_hz,
+                            warn=lambda lines: _warn(args.data, lines))
     print(result.summary())
     print(f"report in {out}/report.md")
     return 0
 
 
 def _cmd_compare(args) -> int:
-    from experiments.agreement import compare_files
+    from experiments.agreement import verdict
 
-    mismatches = compare_files(Path(args.expected), Path(args.fresh))
-    for m in mismatches:
-        print(m)
-    if mismatches:
-        print(f"{len(mismatches)} cell(s) outside the cross-machine tolerance "
-              f"(docs/reproducibility.md)")
-        return 1
-    print(f"{args.fresh} reproduces the table in {args.expected} within the cross-machine "
-          f"tolerance")
-    return 0
+    lines, code = verdict(Path(args.expected), Path(args.fresh))
+    print("\n".join(lines))
+    return code
 
 
 def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
+    if not (text.strip().isdecimal() and int(text) >= 1):
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
+    return int(text)
 
 
 def _config_arguments(p: argparse.ArgumentParser, config: str, out: str = "") -> None:
@@ -277,6 +165,8 @@ def parser() -> argparse.ArgumentParser:
         prog="clm-sim", description="Simulate a coreless linear motor under PID feedback, "
         "identify its LIP and PGNN feedforwards, and diagnose a model against measured records.")
     p.add_argument("--version", action="version", version=f"clm-sim {clm_sim.__version__}")
+    p.add_argument("--debug", action="store_true",
+                   help="on an internal error, print the Python traceback too")
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run an experiment config and write table and figures")
     _config_arguments(run, "experiment YAML file")
@@ -339,175 +229,21 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so that every clean-up (temporary result folders, sweep
-    workers) runs the same way."""
-
-
-_said = False  # the line of an interruption is printed (a second signal prints no other)
-_CODES = {signal.SIGINT: 130, signal.SIGTERM: 128 + signal.SIGTERM}
-_WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
-
-
-def _end_now(signum, frame):
-    """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
-    clean-up was doing; the workers are killed, the temporary folder and lock removed first.
-    Does nothing if the process is already being ended (:func:`_exit_now`)."""
-    if not _ENDING.acquire(blocking=False):
-        return
-    workers = sys.modules.get("experiments.workers")
-    if workers is not None:
-        workers.kill_all()
-    outdir = sys.modules.get("clm_sim.outdir")
-    if outdir is not None:
-        outdir.abandon()
-    if not _said:
-        os.write(2, f"clm-sim: {_WORDS[signum]}\n".encode())
-    os._exit(_CODES[signum])
-
-
-def _signalled(signum, frame):
-    """The first Ctrl-C or SIGTERM: unwind (every ``finally`` removes what it was writing); a
-    second signal ends the process at once."""
-    _unwinding.set()
-    signal.signal(signal.SIGINT, _end_now)
-    signal.signal(signal.SIGTERM, _end_now)
-    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
-
-
-def _receive_signals() -> None:
-    """A real process takes Ctrl-C and SIGTERM in a thread of its own: they are blocked in every
-    other thread (blocked here before any library starts one), so none is lost to a library's
-    thread or while workers start (:data:`experiments.workers.SPAWNING`). The first is passed
-    to the main thread as if it had come there (it unwinds the command); if the main thread has
-    not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
-    after the command ended, this thread ends the process at once (:func:`_end_now`)."""
-    stops = set(_CODES)
-    signal.pthread_sigmask(signal.SIG_BLOCK, stops)
-    # The main thread is poked with a signal of its own (a real one: it also ends a blocking
-    # wait there), and takes it as the signal received.
-    signal.signal(_POKE, lambda _, frame: _signalled(_state["signum"], frame))
-    main = threading.main_thread().ident
-
-    def receive():
-        while True:
-            signum = signal.sigwait(stops)
-            if _state["exiting"]:
-                continue  # the main thread is ending the process (under its own guard)
-            if _state["signalled"] or _state["done"]:
-                _end_now(signum, None)
-                continue  # (only if the main thread is already ending the process)
-            _state["signalled"], _state["signum"] = True, signum
-            workers = sys.modules.get("experiments.workers")
-            with workers.SPAWNING if workers is not None else contextlib.nullcontext():
-                signal.pthread_kill(main, _POKE)
-            if not _unwinding.wait(ANSWER_S):
-                # The main thread is inside a long call that releases the GIL (a simulation
-                # kernel, a fit) and writes no file meanwhile: end from here.
-                _end_now(signum, None)
-
-    threading.Thread(target=receive, daemon=True, name="clm-sim-signals").start()
-
-
-_state = {"signalled": False, "done": False, "exiting": False, "signum": signal.SIGINT}
-_POKE = getattr(signal, "SIGUSR1", None)  # thread-directed, from the signal thread to main
-_unwinding = threading.Event()  # set when the main thread has taken the first signal
-ANSWER_S = 0.5  # s: how long the main thread may take to start unwinding after a signal
-_ENDING = threading.Lock()  # held by whoever ends the process: _exit_now or _end_now
-
-
 def main(argv=None) -> int:
     """The command line; ``argv=None`` means a real process (``sys.argv``), which receives its
-    signals in a thread of its own and after an interruption ends at once, without waiting at
-    interpreter exit for anything."""
-    global _said
-    _said = False
+    signals in a thread of its own and after an interruption ends at once
+    (:mod:`experiments.process`)."""
     program = argv is None
-    if program and hasattr(signal, "pthread_sigmask") and _POKE is not None:
-        _receive_signals()
-    # Before numpy, scipy or torch load: their AVX2 kernels on every x86-64 CPU that has them, so
-    # a fit sums in the same order on another CPU (clm_sim.numerics; CLM_SIM_NATIVE_KERNELS=1 opts out).
-    pin_portable_kernels()
+    if program:
+        process.receive_signals()
+    pin_portable_kernels()  # before numpy, scipy or torch load (clm_sim.numerics)
     args = parser().parse_args(argv)
     # Files only, never a window: the one place where clm-sim picks matplotlib's backend.
     os.environ["MPLBACKEND"] = "Agg"
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = {sig: signal.signal(sig, _signalled) for sig in _CODES} if main_thread else {}
-    code = None
-    try:
-        code = args.func(args)
-        return code
-    except UserError as exc:
-        code = 2
-        print(f"clm-sim: error: {_one_line(str(exc))}", file=sys.stderr)
-        return code
-    except KeyboardInterrupt as exc:
-        sig = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
-        code = _CODES[sig]
-        _stop_workers()
-        print(f"clm-sim: {_WORDS[sig]}", file=sys.stderr, flush=True)
-        _said = True
-        return code
-    except OSError as exc:  # the last net: a file the checks above did not foresee, one line
-        code = 2
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"clm-sim: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return code
-    finally:
-        if program and code in (130, 143):
-            _exit_now(code)
-        if program and main_thread:
-            # Done: a late signal (results written, interpreter exiting) ends with its code.
-            _state["done"] = True
-            signal.signal(signal.SIGINT, _end_now)
-            signal.signal(signal.SIGTERM, _end_now)
-        else:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-
-
-def _exit_now(code: int) -> None:
-    """End an interrupted process without interpreter shutdown, which may wait on pool threads
-    (and so hang, or print a late traceback): only multiprocessing's own exit clean-up runs
-    (it releases the pools' semaphores; the workers are already ended), under a one-second
-    guard."""
-    import multiprocessing.util
-
-    _ENDING.acquire()  # not both this and a second signal's _end_now
-    _state["exiting"] = True
-    guard = threading.Timer(1.0, os._exit, (code,))
-    guard.daemon = True
-    guard.start()
-    with contextlib.suppress(Exception):
-        multiprocessing.util._exit_function()
-    _release_semaphores()
-    with contextlib.suppress(Exception):
-        sys.stdout.flush()
-        sys.stderr.flush()
-    os._exit(code)
-
-
-def _release_semaphores() -> None:
-    """Unlink the pools' semaphores (multiprocessing's resource tracker, which exits by itself
-    when this process has ended, then has nothing left to remove)."""
-    import multiprocessing.util
-
-    with contextlib.suppress(Exception):
-        multiprocessing.util._run_finalizers(0)
-
-
-def _stop_workers() -> None:
-    """End the PGNN fit pool, if this command started one (sweep workers end in
-    :func:`experiments.workers.run_local`)."""
-    workers = sys.modules.get("experiments.workers")
-    if workers is not None:
-        workers.stop_fits()
-
-
-def _one_line(text: str, limit: int = 1000) -> str:
-    """A message as one line of at most ``limit`` characters (a value quoted in it is cut)."""
-    text = " ".join(text.split())
-    return text if len(text) <= limit else text[:limit] + " ..."
+    source = next((getattr(args, k) for k in ("config", "data", "model", "run", "fresh")
+                   if getattr(args, k, None)), None)
+    return process.run(lambda: args.func(args), program=program, name=args.command,
+                       source=source, debug=args.debug)
 
 
 if __name__ == "__main__":

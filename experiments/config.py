@@ -304,6 +304,16 @@ def in_file(path, exc: Exception, where: str = "") -> UserError:
     return UserError(f"{path}: {where + ': ' if where else ''}{message}")
 
 
+def refuse_other_commands(data: dict, path) -> None:
+    """A config of ``clm-sim sweep`` or ``clm-sim study`` given to ``clm-sim run``: one line
+    naming the command that runs it."""
+    for section, command in (("sweep", "sweep"), ("kind", "study"), ("study", "study"),
+                             ("failure_map", "study")):
+        if section in data:
+            raise UserError(f"{path}: has a '{section}:' " + ("key" if section == "kind" else
+                            "section") + f"; run it with 'clm-sim {command} {path}'")
+
+
 def load_config(path) -> ExperimentConfig:
     """Read and check an experiment config; errors name the file and the key."""
     path = Path(path)

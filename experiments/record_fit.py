@@ -18,6 +18,7 @@ import dataclasses
 
 import numpy as np
 
+from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
 from experiments import table
 from experiments.config import ExperimentConfig
@@ -56,8 +57,51 @@ def force_rms(pred: np.ndarray, rec: Prepared) -> dict:
 
 def fit_lip(train: Prepared) -> dict[str, float]:
     """Least-squares theta on the windowed, filtered training samples."""
-    theta = np.linalg.lstsq(train.phi[train.inside], train.target[train.inside], rcond=None)[0]
-    return dict(zip(THETA_NAMES, map(float, theta)))
+    return fit_lip_std(train)[0]
+
+
+def fit_lip_std(train: Prepared) -> tuple[dict[str, float], dict[str, float]]:
+    """:func:`fit_lip` and the standard errors of its parameters (same units); ``UserError``
+    where the window does not excite every parameter (a column zero or collinear)."""
+    phi, target = train.phi[train.inside], train.target[train.inside]
+    scale = np.linalg.norm(phi, axis=0)
+    if np.any(scale == 0) or np.linalg.matrix_rank(phi / scale) < phi.shape[1]:
+        raise UserError(f"{train.name} record: the training window does not excite all "
+                        f"parameters (a regressor is zero or collinear inside it); it needs "
+                        f"motion in both directions (widen data.window)")
+    theta = np.linalg.lstsq(phi, target, rcond=None)[0]
+    resid = target - phi @ theta
+    cov = np.linalg.pinv(phi.T @ phi) * (resid @ resid / max(len(target) - len(theta), 1))
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return dict(zip(THETA_NAMES, map(float, theta))), dict(zip(THETA_NAMES, map(float, std)))
+
+
+def record_checks(config: ExperimentConfig, run, train: Prepared, source: str) -> tuple[
+        dict[str, float], list[str]]:
+    """The guards of :mod:`experiments.record_guards` on the training record: refuse (one
+    line) a record or window that identifies nothing or a fit with non-finite numbers; the
+    LIP of the window and the warnings where it is suspect."""
+    from types import SimpleNamespace
+
+    from experiments.record_guards import fit_warnings, refuse_small_window
+    from experiments.suspicions import record_warnings
+
+    refuse_small_window(int(train.inside.sum()), len(train.inside), source)
+    theta, std = fit_lip_std(train)
+    if not all(np.isfinite(list(theta.values())) + np.isfinite(list(std.values()))):
+        raise UserError(f"{source}: the fit gives non-finite parameters; the record's values "
+                        f"are too large or degenerate for a least-squares fit")
+
+    def refit(y):
+        try:
+            coarse = prepare(config, dataclasses.replace(run, y=y), train.name)
+            return fit_lip_std(coarse)[0]["mass"] if coarse.inside.sum() else float("nan")
+        except UserError:
+            return float("nan")
+
+    lip = SimpleNamespace(theta_=theta, std_=std)
+    return theta, record_warnings(run, lip) + fit_warnings(
+        run, config.features, theta, std, option="features.regression_lowpass_hz", refit=refit)
 
 
 def _stat(values) -> dict | None:
@@ -69,15 +113,17 @@ def _stat(values) -> dict | None:
             "median": float(np.median(values))}
 
 
-def evaluate(config: ExperimentConfig, records: list[Prepared], progress) -> list[dict]:
-    """Every row of ``config`` identified on ``records[0]`` and scored on all ``records``."""
+def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
+             theta_lip: dict[str, float] | None = None) -> list[dict]:
+    """Every row of ``config`` identified on ``records[0]`` and scored on all ``records``
+    (``theta_lip``: the LIP of the window, if already fitted)."""
     from controllers.pgnn import TrainingData
     from controllers.pgnn_settings import decimation_for
     from experiments import workers
     from experiments.testbed import STREAM_NETWORK, stream
 
     train = records[0]
-    theta_lip = fit_lip(train)
+    theta_lip = theta_lip or fit_lip(train)
     progress(f"LIP on the window ({int(train.inside.sum())} of {len(train.inside)} samples): "
              + ", ".join(f"{k} {v:.4g}" for k, v in theta_lip.items()))
     rows = []
@@ -187,21 +233,38 @@ def to_markdown(rows: list[dict], pairs: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def compute(config: ExperimentConfig, progress) -> dict:
+def compute(config: ExperimentConfig, progress, warn=None) -> dict:
     """Identify every row of ``config`` from its ``data:`` records: ``{"rows", "comparisons",
-    "models": [per row, per seed], "samples"}``."""
+    "models": [per row, per seed], "warnings", "samples"}``. The record guards refuse in one
+    line a record or window that identifies nothing; ``warn(source, lines)`` receives the
+    warnings where the result is suspect (default: stderr, one line each)."""
+    from experiments.suspicions import warn as stderr_warn
+
+    warn = warn or stderr_warn
+    from experiments.record_guards import refuse_unidentifiable
+
     recs = [("training", config.data.load("training"))]
+    source = f"data.training ({config.data.training})"
+    refuse_unidentifiable(recs[0][1], source)
     if config.data.validation is not None:
         recs.append(("validation", config.data.load("validation")))
     for name, run in recs:
         progress(f"{name} record: {len(run)} samples at {1 / run.ts:g} Hz")
-    prepared = [prepare(config, run, name) for name, run in recs]
+    prepared = []
+    for name, run in recs:
+        try:
+            prepared.append(prepare(config, run, name))
+        except UserError as exc:  # a filter cut-off above Nyquist, a record too short for it
+            raise UserError(f"data.{name}: {exc}") from None
     for p in prepared:
         progress(f"{p.name}: {int(p.inside.sum())} samples inside the window, "
                  f"{int((~p.inside).sum())} outside")
-    done = evaluate(config, prepared, progress)
+    theta, warnings = record_checks(config, recs[0][1], prepared[0], source)
+    warn(source, warnings)
+    done = evaluate(config, prepared, progress, theta)
     rows = [row for row, _ in done]
     return {"rows": rows, "comparisons": comparisons(rows), "models": [m for _, m in done],
+            "warnings": warnings,
             "window": dataclasses.asdict(config.data.window),
             "samples": {p.name: {"inside": int(p.inside.sum()),
                                  "outside": int((~p.inside).sum()),

@@ -11,6 +11,8 @@ command still runs (a refusal is for what cannot be right: :mod:`clm_sim.record`
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 MASS_RANGE_KG = (0.01, 1000.0)  # from a 10 g voice-coil stage to a 1 t gantry
@@ -64,3 +66,14 @@ def plant_warnings(plant, where: str) -> list[str]:
         return [f"{where}.mass: {plant.mass:g} kg is outside {lo:g}..{hi:g} kg of linear-motor "
                 f"carriages; is it in kg?"]
     return []
+
+
+def config_warnings(config) -> list[str]:
+    """The warnings about an experiment config's plants (``plant``, ``truth``)."""
+    return [line for where, plant in (("plant", config.plant), ("truth", config.truth))
+            if plant is not None for line in plant_warnings(plant, where)]
+
+
+def warn(path, lines: list[str]) -> None:
+    """Data that look wrong but may be right: one stderr line each; the command goes on."""
+    sys.stderr.write("".join(f"clm-sim: warning: {path}: {line}\n" for line in lines))

@@ -11,6 +11,7 @@ function-local ones too: a local import that hides a cycle is still a cycle.
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -124,6 +125,21 @@ def test_import_graph_has_no_cycle():
         if m not in state:
             visit(m)
     assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_process_lifecycle_is_a_module_the_graph_sees():
+    """The signal and exit handling stops the workers and removes temporary folders: it names
+    those modules in imports (an edge of this graph), never reaches them through sys.modules,
+    and the command line only dispatches to it."""
+    assert {"experiments.workers", "clm_sim.outdir"} <= GRAPH["experiments.process"]
+    assert "experiments.process" in GRAPH["experiments.cli"]
+    hidden = re.compile(r"sys\.modules(\.get\(|\[)\s*['\"](clm_sim|controllers|experiments)")
+    reached = [m for m, path in MODULES.items() if hidden.search(path.read_text("utf-8"))]
+    assert not reached, f"{reached} reach project modules through sys.modules"
+
+
+def test_the_command_line_only_parses_and_dispatches():
+    assert len(MODULES["experiments.cli"].read_text("utf-8").splitlines()) <= 250
 
 
 def test_the_facade_names_only_public_objects_that_exist():

@@ -27,6 +27,7 @@ from controllers.pgnn_settings import PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.runner import preflight
+from experiments.studies.kinds import take_kind
 from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
 
@@ -62,7 +63,7 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
     name the file and the key. A config without a ``study:`` section is refused (it is an
     experiment for ``clm-sim run``)."""
     path = Path(path)
-    data = dict(load_yaml(path))
+    data = take_kind(load_yaml(path), path, "extrapolation")
     has_study = "study" in data  # an empty 'study:' takes every default
     settings = data.pop("study", None)
     try:
@@ -78,6 +79,16 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
         if key not in config.references:
             raise UserError(f"{path}: study: reference {key!r} is not defined under 'references'")
     return config, study
+
+
+def main(config_path, out=None, *, quiet: bool = False) -> int:
+    """``clm-sim study CONFIG`` for ``kind: extrapolation``: checked as ``clm-sim run`` checks,
+    before any work; prints the report."""
+    config, study = load_study(config_path)
+    out = Path(out) if out else Path("results") / Path(config_path).stem
+    run_study(config, study, out, quiet=quiet)
+    print((out / "report.md").read_text(), end="")
+    return 0
 
 
 def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,

@@ -46,6 +46,7 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
+from experiments.studies.kinds import take_kind
 from experiments.sweeps.store import code_version
 from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
@@ -108,7 +109,7 @@ class FailureMapSettings:
 def load_failure_map(path) -> tuple[ExperimentConfig, FailureMapSettings]:
     """Read a failure-map config; errors name the file and the key."""
     path = Path(path)
-    data = dict(load_yaml(path))
+    data = take_kind(load_yaml(path), path, "failure_map")
     section = data.pop("failure_map", None)
     try:
         if "effects" in (data.get("plant") or {}):

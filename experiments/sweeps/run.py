@@ -48,6 +48,19 @@ class Outcome:
         """0 when every task succeeded, 1 when some failed or remain unfinished."""
         return 1 if (self.failures or self.unfinished) else 0
 
+    def lines(self, grid, out: Path) -> list[str]:
+        """What ``clm-sim sweep`` prints at the end (``grid``: the swept keys)."""
+        lines = [f"{self.total} tasks: {self.computed} run now, {self.reused} reused from "
+                 f"{out}/tasks, {len(self.failures)} failed, {self.unfinished} unfinished"]
+        for f in self.failures:
+            point = ", ".join(f"{k}={f[k]}" for k in grid) or "config"
+            lines.append(f"  FAILED {point}: {f['error']}")
+        if self.stopped:
+            lines.append(f"sweep stopped: {self.stopped}; run the same command again to resume")
+        if not self.unfinished:
+            lines.append(f"results in {out}/ (table.md, table.json, figures/)")
+        return lines
+
 
 def execute(config_plain: dict) -> dict:
     """Run one task in a worker: ``{"status": "ok", "rows"}`` or ``{"status": "failed",

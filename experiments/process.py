@@ -1,0 +1,192 @@
+"""The life of a ``clm-sim`` process: how a command ends, whatever ends it.
+
+:func:`run` calls one command and turns every way it can end into an exit code and at most one
+line on stderr:
+
+- a user mistake (:class:`clm_sim.errors.UserError`) or a file the checks did not foresee
+  (``OSError``): the line, exit 2;
+- Ctrl-C (exit 130) or SIGTERM (exit 143): every ``finally`` removes what it was writing, the
+  workers are stopped, ``clm-sim: interrupted`` / ``terminated``; a second signal ends the
+  process at once;
+- anything else is a bug of clm-sim: one line naming the command, its input and the internal
+  error, with a hint to report it, exit 1 (the Python traceback only with ``--debug``).
+
+A real process (``program=True``) receives its signals in a thread of its own
+(:func:`receive_signals`) and, after an interruption, ends without interpreter shutdown
+(:func:`_exit_now`). The two modules it stops on the way, :mod:`experiments.workers` (worker
+processes) and :mod:`clm_sim.outdir` (temporary folders, locks), are imported here by name:
+both are light (standard library only).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import sys
+import threading
+import traceback
+from collections.abc import Callable
+
+from clm_sim import outdir
+from clm_sim.errors import UserError
+from experiments import workers
+
+EXIT_USER = 2  # a user mistake: bad input, a file that cannot be written
+EXIT_BUG = 1  # an internal error (also: sweep tasks that failed, compare mismatches)
+CODES = {signal.SIGINT: 130, signal.SIGTERM: 128 + signal.SIGTERM}
+WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+ANSWER_S = 0.5  # s: how long the main thread may take to start unwinding after a signal
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every clean-up (temporary result folders, sweep
+    workers) runs the same way."""
+
+
+_said = False  # the line of an interruption is printed (a second signal prints no other)
+_state = {"signalled": False, "done": False, "exiting": False, "signum": signal.SIGINT}
+_POKE = getattr(signal, "SIGUSR1", None)  # thread-directed, from the signal thread to main
+_unwinding = threading.Event()  # set when the main thread has taken the first signal
+_ENDING = threading.Lock()  # held by whoever ends the process: _exit_now or _end_now
+
+
+def _end_now(signum, frame):
+    """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
+    clean-up was doing; the workers are killed, the temporary folder and lock removed first.
+    Does nothing if the process is already being ended (:func:`_exit_now`)."""
+    if not _ENDING.acquire(blocking=False):
+        return
+    workers.kill_all()
+    outdir.abandon()
+    if not _said:
+        os.write(2, f"clm-sim: {WORDS[signum]}\n".encode())
+    os._exit(CODES[signum])
+
+
+def _signalled(signum, frame):
+    """The first Ctrl-C or SIGTERM: unwind (every ``finally`` removes what it was writing); a
+    second signal ends the process at once."""
+    _unwinding.set()
+    signal.signal(signal.SIGINT, _end_now)
+    signal.signal(signal.SIGTERM, _end_now)
+    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+
+def receive_signals() -> None:
+    """A real process takes Ctrl-C and SIGTERM in a thread of its own: they are blocked in every
+    other thread (blocked here before any library starts one), so none is lost to a library's
+    thread or while workers start (:data:`experiments.workers.SPAWNING`). The first is passed
+    to the main thread as if it had come there (it unwinds the command); if the main thread has
+    not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
+    after the command ended, this thread ends the process at once (:func:`_end_now`).
+    Does nothing where the platform has no thread-directed signals."""
+    if not hasattr(signal, "pthread_sigmask") or _POKE is None:
+        return
+    stops = set(CODES)
+    signal.pthread_sigmask(signal.SIG_BLOCK, stops)
+    # The main thread is poked with a signal of its own (a real one: it also ends a blocking
+    # wait there), and takes it as the signal received.
+    signal.signal(_POKE, lambda _, frame: _signalled(_state["signum"], frame))
+    main = threading.main_thread().ident
+
+    def receive():
+        while True:
+            signum = signal.sigwait(stops)
+            if _state["exiting"]:
+                continue  # the main thread is ending the process (under its own guard)
+            if _state["signalled"] or _state["done"]:
+                _end_now(signum, None)
+                continue  # (only if the main thread is already ending the process)
+            _state["signalled"], _state["signum"] = True, signum
+            with workers.SPAWNING:
+                signal.pthread_kill(main, _POKE)
+            if not _unwinding.wait(ANSWER_S):
+                # The main thread is inside a long call that releases the GIL (a simulation
+                # kernel, a fit) and writes no file meanwhile: end from here.
+                _end_now(signum, None)
+
+    threading.Thread(target=receive, daemon=True, name="clm-sim-signals").start()
+
+
+def run(command: Callable[[], int], *, program: bool, name: str, source: str | None = None,
+        debug: bool = False) -> int:
+    """Call ``command`` and return its exit code, every ending turned into a code and at most
+    one stderr line (module docstring). ``name``: the subcommand, ``source``: its input file,
+    both for the line of an internal error; ``program``: a real process (ends at once after an
+    interruption); ``debug``: an internal error also prints its traceback."""
+    global _said
+    _said = False
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = {sig: signal.signal(sig, _signalled) for sig in CODES} if main_thread else {}
+    code = None
+    try:
+        code = command()
+        return code
+    except UserError as exc:
+        code = EXIT_USER
+        print(f"clm-sim: error: {one_line(str(exc))}", file=sys.stderr)
+        return code
+    except KeyboardInterrupt as exc:
+        sig = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
+        code = CODES[sig]
+        workers.stop_fits()  # the PGNN fit pool (sweep workers end in workers.run_local)
+        print(f"clm-sim: {WORDS[sig]}", file=sys.stderr, flush=True)
+        _said = True
+        return code
+    except OSError as exc:  # a file the checks above did not foresee, one line
+        code = EXIT_USER
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"clm-sim: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return code
+    except (Exception, RecursionError) as exc:  # a bug of clm-sim: said, not hidden
+        code = EXIT_BUG
+        if debug:
+            traceback.print_exc()
+        on = f" on {source}" if source else ""
+        print(f"clm-sim: internal error in '{name}'{on}: {type(exc).__name__}: "
+              f"{one_line(str(exc), 300)}; this is a bug of clm-sim, please report it with the "
+              f"command and its input"
+              + ("" if debug else "; --debug shows the traceback"), file=sys.stderr)
+        return code
+    finally:
+        if program and code in (130, 143):
+            _exit_now(code)
+        if program and main_thread:
+            # Done: a late signal (results written, interpreter exiting) ends with its code.
+            _state["done"] = True
+            signal.signal(signal.SIGINT, _end_now)
+            signal.signal(signal.SIGTERM, _end_now)
+        else:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
+def _exit_now(code: int) -> None:
+    """End an interrupted process without interpreter shutdown, which may wait on pool threads
+    (and so hang, or print a late traceback): only multiprocessing's own exit clean-up runs
+    (it releases the pools' semaphores; the workers are already ended), under a one-second
+    guard."""
+    import multiprocessing.util
+
+    _ENDING.acquire()  # not both this and a second signal's _end_now
+    _state["exiting"] = True
+    guard = threading.Timer(1.0, os._exit, (code,))
+    guard.daemon = True
+    guard.start()
+    with contextlib.suppress(Exception):
+        multiprocessing.util._exit_function()
+    # Unlink the pools' semaphores (multiprocessing's resource tracker, which exits by itself
+    # when this process has ended, then has nothing left to remove).
+    with contextlib.suppress(Exception):
+        multiprocessing.util._run_finalizers(0)
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        sys.stderr.flush()
+    os._exit(code)
+
+
+def one_line(text: str, limit: int = 1000) -> str:
+    """A message as one line of at most ``limit`` characters (a value quoted in it is cut)."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[:limit] + " ..."

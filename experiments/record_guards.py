@@ -1,0 +1,126 @@
+"""The guards of every identification from a measured record (``identify``, ``diagnose``,
+``run`` with a ``data:`` section): one set, so that no command gives a confident number from data
+that cannot carry it.
+
+- :func:`refuse_unidentifiable`: a record that identifies nothing (no force, a constant force,
+  no motion, too few samples in the training window) is refused in one line;
+- :func:`fit_warnings`: a result that may be wrong is said in one line each: a filter cut-off near
+  the Nyquist frequency or below what the record can resolve, a position quantized so coarsely
+  that its acceleration is noisy enough to bias the mass low (errors in the regressor: the fit
+  is repeated with twice the step), a mass no linear motor has or that the record leaves
+  undetermined.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clm_sim.errors import UserError
+from experiments.suspicions import MASS_RANGE_KG
+
+MIN_FIT_SAMPLES = 200  # samples a fit of 4 parameters needs at least (as a record: MIN_SAMPLES)
+NYQUIST_FRACTION = 0.8  # a cut-off above this fraction of Nyquist: the filter is not a filter
+MIN_CUTOFF_PERIODS = 5.0  # a cut-off whose period fits fewer times in the record: transient only
+MIN_CUTOFF_HZ = 1.0  # Hz: servo forces change faster; below, the filter leaves only drift
+QUANTIZATION_BIAS = 0.05  # an estimated quantization bias of the mass above this is said
+UNDETERMINED = 0.5  # a mass whose standard error exceeds this fraction of it is not identified
+
+
+def refuse_unidentifiable(run, source) -> None:
+    """Raise ``UserError`` (one line naming ``source``) where the record ``run`` carries no
+    parameter at all: ``u`` zero or constant, ``y`` constant or taking two values only."""
+    u, y = run.u, run.y
+    if not np.any(u):
+        raise UserError(f"{source}: u is zero in every sample; a record without force "
+                        f"identifies nothing (is the u column, or its --scale, right?)")
+    if np.ptp(u) <= 1e-12 * float(np.max(np.abs(u))):
+        raise UserError(f"{source}: u is constant ({u[0]:.6g} N in every sample); a constant "
+                        f"force cannot tell mass from friction (is the u column right?)")
+    if np.ptp(y) == 0:
+        raise UserError(f"{source}: y is constant ({y[0]:.6g} m in every sample); a record "
+                        f"without motion does not excite any parameter")
+    if len(np.unique(y[:100_000])) < 3 and len(np.unique(y)) < 3:
+        raise UserError(f"{source}: y takes only two values; its quantization is coarser than "
+                        f"the motion (is y the position in m?)")
+
+
+def refuse_small_window(count: int, total: int, source: str) -> None:
+    """Raise ``UserError`` where a training window keeps fewer than ``MIN_FIT_SAMPLES``."""
+    if count < MIN_FIT_SAMPLES:
+        raise UserError(f"{source}: the training window keeps {count} of {total} samples; a "
+                        f"fit needs at least {MIN_FIT_SAMPLES} (widen data.window)")
+
+
+def quantization_step(y: np.ndarray) -> float:
+    """The step (m) in which ``y`` moves: its smallest non-zero increment (0 for a record
+    that moves in steps below float rounding)."""
+    steps = np.abs(np.diff(y))
+    steps = steps[steps > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)]
+    return float(steps.min()) if len(steps) else 0.0
+
+
+def quantization_bias(y: np.ndarray, mass: float, refit) -> tuple[float, float]:
+    """The mass ``refit(y2)`` gives with ``y`` quantized to twice its step, and the estimated
+    fraction by which ``mass`` (the fit on ``y``) is biased low by the quantization.
+
+    Quantization noise in the second-difference acceleration is noise in the regressor, which
+    shrinks the least-squares mass by ``1 / (1 + x)``, ``x`` the noise-to-signal power ratio,
+    growing with the step squared: ``m(q) = m0 / (1 + x)``, ``m(2q) = m0 / (1 + 4x)``, so
+    ``x = (r - 1) / (4 - r)`` with ``r = m(q) / m(2q)`` (1 where doubling the step changes
+    nothing; above 4 the estimate has no meaning and the bias is reported as 1)."""
+    q = quantization_step(y)
+    if q == 0 or not mass > 0:
+        return mass, 0.0
+    coarse = refit(np.round(y / (2 * q)) * (2 * q))
+    if not coarse > 0:
+        return coarse, 1.0
+    r = mass / coarse
+    if r <= 1:
+        return coarse, 0.0
+    if r >= 4:
+        return coarse, 1.0
+    x = (r - 1) / (4 - r)
+    return coarse, x / (1 + x)
+
+
+def cutoff_warnings(cutoff: float | None, ts: float, samples: int, option: str) -> list[str]:
+    """A regression cut-off (Hz) near the Nyquist frequency, or too low for the record."""
+    if cutoff is None:
+        return []
+    nyquist, duration = 0.5 / ts, samples * ts
+    if cutoff > NYQUIST_FRACTION * nyquist:
+        return [f"{option} {cutoff:g} Hz is {cutoff / nyquist:.0%} of the record's Nyquist "
+                f"frequency {nyquist:g} Hz: the second-difference acceleration is not filtered "
+                f"there; give a lower {option} (e.g. {0.2 / ts:g} Hz)"]
+    low = max(MIN_CUTOFF_HZ, MIN_CUTOFF_PERIODS / duration)
+    if cutoff < low:
+        return [f"{option} {cutoff:g} Hz is below {low:.3g} Hz: the filter passes only drift "
+                f"and its own transient in a {duration:.3g} s record; is it in Hz?"]
+    return []
+
+
+def fit_warnings(run, features, theta: dict, std: dict | None, option: str,
+                 refit=None) -> list[str]:
+    """The warnings about parameters ``theta`` (``std``: their standard errors, or None)
+    identified from ``run`` through ``features`` (``option``: the cut-off's name in the
+    command's input; ``refit(y)``: the mass the same fit gives on positions ``y``, for the
+    quantization check)."""
+    out = cutoff_warnings(features.regression_lowpass_hz, run.ts, len(run), option)
+    mass = theta.get("mass", float("nan"))
+    if refit is not None:
+        coarse, bias = quantization_bias(run.y, mass, refit)
+        if bias > QUANTIZATION_BIAS:
+            out.append(f"y moves in steps of {quantization_step(run.y):.3g} m, and with twice "
+                       f"that step the mass falls from {mass:.4g} to {coarse:.4g} kg: "
+                       f"quantization noise in the acceleration biases it low, "
+                       + (f"by about {bias:.0%}" if bias < 0.9 else
+                          "strongly (the record does not determine the mass at this step)")
+                       + f"; give a lower {option} or a finer position")
+    lo, hi = MASS_RANGE_KG
+    if mass > 0 and not lo <= mass <= hi:
+        out.append(f"the identified mass {mass:.4g} kg is outside {lo:g}..{hi:g} kg of "
+                   f"linear-motor carriages: are u in N and y in m?")
+    if std is not None and mass > 0 and std.get("mass", 0.0) > UNDETERMINED * mass:
+        out.append(f"the mass {mass:.4g} kg has a standard error of {std['mass']:.2g} kg: "
+                   f"the record does not determine it (more excitation, a longer record)")
+    return out

@@ -1,0 +1,42 @@
+"""Which study a study config is: its ``kind:`` says so.
+
+``kind: extrapolation`` (the lambda study; settings under ``study:``) or ``kind: failure_map``
+(where lambda = 0 fails; settings under ``failure_map:``). A config written before ``kind:``
+existed is still read by its section: ``failure_map:`` a failure map, else the extrapolation study
+(both sections without a ``kind:`` are refused).
+"""
+
+from __future__ import annotations
+
+from clm_sim.errors import UserError
+
+KINDS = {"extrapolation": "study", "failure_map": "failure_map"}  # kind -> its section
+
+
+def kind_of(data: dict, path) -> str:
+    """The kind of the study config ``data`` read from ``path``; ``UserError`` (naming the file)
+    for an unknown kind, a section of another kind, or no way to tell."""
+    kind = data.get("kind")
+    sections = [s for s in KINDS.values() if s in data]
+    if kind is None:  # as before kind: existed; without a section, load_study says what is missing
+        if len(sections) > 1:
+            raise UserError(f"{path}: kind: missing; a config with both 'study:' and "
+                            f"'failure_map:' says which study it is with 'kind: extrapolation' "
+                            f"or 'kind: failure_map'")
+        return "failure_map" if sections == ["failure_map"] else "extrapolation"
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise UserError(f"{path}: kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+    other = [s for s in sections if s != KINDS[kind]]
+    if other:
+        raise UserError(f"{path}: {other[0]}: not a setting of 'kind: {kind}' (its settings go "
+                        f"under '{KINDS[kind]}:')")
+    return kind
+
+
+def take_kind(data: dict, path, expected: str) -> dict:
+    """``data`` without its ``kind:``, which must be ``expected`` (or absent)."""
+    data = dict(data)
+    kind = data.pop("kind", None)
+    if kind is not None and kind != expected:
+        raise UserError(f"{path}: kind: {kind!r} is not a {expected} study")
+    return data
