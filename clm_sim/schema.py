@@ -218,7 +218,7 @@ def build_effect(mapping, key: str) -> Effect:
     if not isinstance(mapping, dict) or "type" not in mapping:
         raise UserError(f"{key}: an effect needs a 'type:' (one of {', '.join(EFFECTS)})")
     name = mapping["type"]
-    if name not in EFFECTS:
+    if not isinstance(name, str) or name not in EFFECTS:
         raise UserError(f"{key}.type: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
     return build(EFFECTS[name], {k: v for k, v in mapping.items() if k != "type"}, key)
 

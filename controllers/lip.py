@@ -16,6 +16,7 @@ import numpy as np
 from clm_sim.effects import Effect
 from clm_sim.errors import NotFittedError, UserError, check_ts
 from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
+from clm_sim.modelfile import mapping, number, read_json, sample_time
 from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, build_effect
@@ -131,24 +132,29 @@ class LIPFeedforward:
         a file without ``ts`` or ``features`` gives a model that needs ``ts`` at every use and
         the default features)."""
         path = Path(path)
+        info = read_json(path, "LIP model")
         try:
-            info = json.loads(path.read_text())
             if info.get("kind") != "lip":
-                raise KeyError("kind: lip")
+                raise UserError(f"kind: expected \"lip\", got {json.dumps(info.get('kind'))}")
+            if not isinstance(info.get("effects") or [], list):
+                raise UserError("effects: expected a list")
             effects = tuple(build_effect(e, f"effects[{i}]")
                             for i, e in enumerate(info.get("effects") or []))
-            features = build(FeatureMap, info.get("features") or {}, "features")
+            features = build(FeatureMap, mapping(info.get("features"), "features"), "features")
             model = cls(features=features, effects=effects)
-            model.theta_ = {k: float(info[k]) for k in THETA_NAMES}
-            model.coef_ = {k: float(v) for k, v in info.get("coefficients", model.theta_).items()}
-            model.std_ = {k: float(v) for k, v in info.get("std", {}).items()}
-            model.residual_rms_ = float(info.get("residual_rms_n", float("nan")))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise UserError(f"{path}: cannot read a LIP model ({type(exc).__name__}: {exc})") \
-                from None
+            model.theta_ = {k: number(info.get(k), k) for k in THETA_NAMES}
+            model.coef_ = {k: number(v, f"coefficients.{k}") for k, v in
+                           mapping(info.get("coefficients", model.theta_), "coefficients").items()}
+            model.std_ = {k: number(v, f"std.{k}") for k, v in
+                          mapping(info.get("std"), "std").items()}
+            rms = info.get("residual_rms_n")
+            model.residual_rms_ = float("nan") if rms is None else number(rms, "residual_rms_n")
+            ts = sample_time(info.get("ts"))
+        except UserError as exc:
+            raise UserError(f"{path}: cannot read a LIP model ({exc})") from None
         model.effects_ = effects
-        if info.get("ts") is not None:
-            model.ts_ = float(info["ts"])
+        if ts is not None:
+            model.ts_ = ts
         return model
 
     @classmethod
@@ -160,8 +166,8 @@ class LIPFeedforward:
         if missing:
             raise UserError(f"lip: parameters missing: {', '.join(missing)}")
         lip = cls(features=features or FeatureMap(), effects=tuple(effects))
-        lip.theta_ = {k: float(theta[k]) for k in THETA_NAMES}
+        lip.theta_ = {k: number(theta[k], k) for k in THETA_NAMES}  # finite; true is no 1 kg
         lip.effects_ = tuple(effects)
         if ts is not None:
-            lip.ts_ = float(ts)
+            lip.ts_ = sample_time(ts)
         return lip

@@ -130,6 +130,23 @@ CONSTRAINTS = {
 }
 
 
+MAX_WIDTH = 1024  # neurons: a hidden layer this wide is beyond what a force record identifies
+MAX_LAYERS = 8  # deeper networks are beyond what a force record identifies
+
+
+def checked_widths(value, key: str) -> tuple[int, ...]:
+    """Hidden widths read from a file: 1..``MAX_LAYERS`` layers of 1..``MAX_WIDTH`` neurons
+    (integers, not booleans), checked before any network is allocated."""
+    widths = [value] if isinstance(value, int) and not isinstance(value, bool) else value
+    if not (isinstance(widths, (list, tuple)) and 1 <= len(widths) <= MAX_LAYERS and all(
+            isinstance(w, int) and not isinstance(w, bool) and 1 <= w <= MAX_WIDTH
+            for w in widths)):
+        shown = repr(value) if len(repr(value)) < 60 else repr(value)[:60] + "..."
+        raise UserError(f"{key}: expected 1 to {MAX_LAYERS} layers of 1 to {MAX_WIDTH} "
+                        f"neurons, got {shown}")
+    return tuple(widths)
+
+
 def check_settings(settings: dict) -> None:
     """Raise a ``UserError`` naming the config key of the first setting in ``settings`` (names
     of ``CONSTRAINTS``; missing ones are not checked) that its constraint refuses, or of a

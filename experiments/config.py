@@ -13,7 +13,7 @@ from clm_sim.loop import Dither
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import PGNNSettings, check_settings
+from controllers.pgnn_settings import MAX_LAYERS, MAX_WIDTH, PGNNSettings, check_settings
 from controllers.pid import PIDDesign
 
 
@@ -39,9 +39,10 @@ LIMITS = {
     "points": Limit(10_000, "points", "a reference of more points is not a point-to-point test"),
     "seeds": Limit(100, "seeds", "100 seeds estimate a mean to a tenth of the seed-to-seed "
                    "spread; more only multiply the fits"),
-    "hidden": Limit(1024, "neurons", "a hidden layer this wide is beyond what a few seconds of "
-                    "force data can identify"),
-    "layers": Limit(8, "layers", "deeper networks are beyond what a force record identifies"),
+    "hidden": Limit(MAX_WIDTH, "neurons", "a hidden layer this wide is beyond what a few seconds "
+                    "of force data can identify"),
+    "layers": Limit(MAX_LAYERS, "layers", "deeper networks are beyond what a force record "
+                    "identifies"),
     "max_iter": Limit(100_000, "iterations", "a fit that has not converged in 1e5 iterations "
                       "will not"),
     "restarts": Limit(100, "restarts", "each restart is a full fit"),

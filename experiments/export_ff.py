@@ -18,6 +18,7 @@ import yaml
 
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap
+from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.outdir import atomic_folder
 from clm_sim.schema import build_effect
 from controllers.export import c_source
@@ -52,19 +53,15 @@ def _sample_time(path: Path, stored, option: float | None) -> float:
     ts = option if ts is None else ts
     if ts is None:
         raise UserError(f"{path}: the file carries no sample time; pass --ts (s)")
-    if not (isinstance(ts, (int, float)) and 0 < float(ts) <= 0.1):
-        raise UserError(f"{path}: sample time {ts!r} is not in (0, 0.1] s")
-    return float(ts)
+    try:
+        return sample_time(ts, "sample time")  # a finite, plausible number (not true, 1e-300)
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
 
 
 def _read_json(path: Path) -> dict:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN}): {exc}") from None
-    if not isinstance(data, dict):
-        raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
-    return data
+    """Strict JSON, checked as every model file (:mod:`clm_sim.modelfile`)."""
+    return read_json(path, f"clm-sim feedforward ({KNOWN})")
 
 
 def _effects(items) -> tuple:
@@ -75,8 +72,8 @@ def _effects(items) -> tuple:
 
 def _lip(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
     run_features = _run_config(path).get("features") or {}
-    features = data.get("features") or run_features
     try:
+        features = mapping(data.get("features"), "features") or run_features
         features = FeatureMap(**{k: features[k] for k in ("position_lowpass_hz",)
                                  if k in features})
         lip = LIPFeedforward.fitted(theta=data, effects=_effects(data.get("effects") or []),
@@ -88,7 +85,10 @@ def _lip(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
 
 def _diagnosis(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
     model = data["extended_model"]
-    stored = (data.get("record") or {}).get("sample_time_s")
+    try:
+        stored = mapping(data.get("record"), "record").get("sample_time_s")
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
     try:
         lip = LIPFeedforward.fitted(theta=model, effects=_effects(model.get("effects") or []))
     except (UserError, TypeError, ValueError) as exc:

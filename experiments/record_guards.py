@@ -30,15 +30,15 @@ def refuse_unidentifiable(run, source) -> None:
     """Raise ``UserError`` (one line naming ``source``) where the record ``run`` carries no
     parameter at all: ``u`` zero or constant, ``y`` constant or taking two values only."""
     u, y = run.u, run.y
+    if np.ptp(y) == 0:
+        raise UserError(f"{source}: y is constant ({y[0]:.6g} m in every sample): too little "
+                        f"excitation; a record without motion does not excite any parameter")
     if not np.any(u):
         raise UserError(f"{source}: u is zero in every sample; a record without force "
                         f"identifies nothing (is the u column, or its --scale, right?)")
     if np.ptp(u) <= 1e-12 * float(np.max(np.abs(u))):
         raise UserError(f"{source}: u is constant ({u[0]:.6g} N in every sample); a constant "
                         f"force cannot tell mass from friction (is the u column right?)")
-    if np.ptp(y) == 0:
-        raise UserError(f"{source}: y is constant ({y[0]:.6g} m in every sample); a record "
-                        f"without motion does not excite any parameter")
     if len(np.unique(y[:100_000])) < 3 and len(np.unique(y)) < 3:
         raise UserError(f"{source}: y takes only two values; its quantization is coarser than "
                         f"the motion (is y the position in m?)")

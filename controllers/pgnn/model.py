@@ -66,12 +66,15 @@ import torch
 
 from clm_sim.errors import NotFittedError, UserError, check_ts
 from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
+from clm_sim.modelfile import mapping, number, read_json, regular_file, sample_time
 from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import TERMS, SeparableCost, Weights
 from controllers.pgnn.network import PGNNNetwork
-from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings, check_settings, decimation_for
+from clm_sim.schema import build
+from controllers.pgnn_settings import (CONSTRAINTS, PGNNSettings, check_settings, checked_widths,
+                                       decimation_for)
 
 _DEFAULTS = PGNNSettings()  # the one declaration of the defaults
 
@@ -468,25 +471,50 @@ class PGNNFeedforward:
     def load(cls, path) -> PGNNFeedforward:
         """Read a model written by :meth:`save` (tensors loaded with ``weights_only=True``)."""
         path = Path(path)
+        info = read_json(path.with_suffix(".json"), "PGNN model")
+        pt = regular_file(path.with_suffix(".pt"), "PGNN weights file")
         try:
-            info = json.loads(path.with_suffix(".json").read_text())
-            state = torch.load(path.with_suffix(".pt"), weights_only=True)
-            settings = {k: v for k, v in info["settings"].items() if k in cls.SETTINGS}
-            settings["hidden"] = tuple(settings["hidden"])
-            model = cls(**settings, features=FeatureMap(**info["features"]))
+            settings = {k: v for k, v in mapping(info.get("settings"), "settings").items()
+                        if k in cls.SETTINGS}
+            settings["hidden"] = checked_widths(settings.get("hidden"), "settings.hidden")
+            check_settings(settings)
+            features = build(FeatureMap, mapping(info.get("features"), "features"), "features")
+            theta = mapping(info.get("theta"), "theta")
+            theta = {k: number(theta.get(k), f"theta.{k}") for k in THETA_NAMES}
+            ts = sample_time(info.get("ts"))
+            # The weights' size follows from the widths: a larger file is not this model's.
+            widths = (4, *settings["hidden"], 1)
+            weights = sum((a + 1) * b for a, b in zip(widths[:-1], widths[1:])) + 4 + 8
+            if pt.stat().st_size > 16 * weights + 2 ** 20:
+                raise UserError(f"{pt.name}: {pt.stat().st_size} bytes, far more than the "
+                                f"{weights} weights of hidden {list(settings['hidden'])}")
+        except UserError as exc:
+            raise UserError(f"{path}: cannot read PGNN model ({exc})") from None
+        try:
+            state = torch.load(pt, weights_only=True)
+            model = cls(**settings, features=features)
             net = PGNNNetwork(hidden=model.widths(), activation=model.activation)
             net.load_state_dict(state)
-        except (OSError, ValueError, KeyError, RuntimeError) as exc:
-            raise UserError(f"{path}: cannot read PGNN model ({exc})") from None
+        except UserError:
+            raise
+        except Exception as exc:  # a truncated or foreign .pt, weights of another shape
+            first = (str(exc).splitlines() or [type(exc).__name__])[0][:200]
+            raise UserError(f"{path}: cannot read PGNN model ({first})") from None
+        for name, tensor in net.state_dict().items():
+            if not bool(torch.isfinite(tensor).all()):
+                raise UserError(f"{pt}: {name} holds NaN or inf; not a usable model")
+        if not bool((net.mlp.input_std > 0).all()):
+            raise UserError(f"{pt}: mlp.input_std must be positive (a scaling), got "
+                            f"{net.mlp.input_std.tolist()}")
         model.network_ = net
-        model.theta_ = {k: float(v) for k, v in info["theta"].items()}
-        model.theta_lip_ = info["theta_lip"]
-        model.history_ = info["history"]
-        model.best_iteration_ = info["best_iteration"]
-        model.cost_ = info["cost"]
-        model.fit_ = info["fit"]
-        model.n_samples_ = info["n_samples"]
-        model.ts_ = None if info.get("ts") is None else float(info["ts"])  # older files: unknown
+        model.theta_ = theta
+        model.theta_lip_ = info.get("theta_lip")
+        model.history_ = info.get("history")
+        model.best_iteration_ = info.get("best_iteration")
+        model.cost_ = info.get("cost")
+        model.fit_ = info.get("fit")
+        model.n_samples_ = info.get("n_samples")
+        model.ts_ = ts  # older files: unknown
         return model
 
 

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.signal
 
 from clm_sim.errors import UserError, check_ts
+from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.plant import THETA_NAMES, Plant, default_effects
 from clm_sim.schema import build, load_yaml
 from controllers.pid import PIDDesign, design_pid
@@ -150,7 +151,8 @@ def load_model(path, ts: float | None = None) -> SimulationModel:
     the file gives none (older files; ``clm-sim diagnose`` passes the record's). Errors name
     the file and the key."""
     path = Path(path)
-    data = load_yaml(path)
+    # JSON strictly (YAML 1.1 would read 1e-05 as text); a model YAML as a config
+    data = read_json(path, "model file") if path.suffix.lower() == ".json" else load_yaml(path)
     if data.get("kind") == "lip":
         return _lip_model(path, data, ts)
     data = _explicit_effects(data, path)
@@ -186,6 +188,10 @@ def _lip_model(path, data: dict, ts: float | None) -> SimulationModel:
         plant = build(Plant, {**plant, "effects": data.get("effects") or []}, "plant")
     except UserError as exc:
         raise UserError(f"{path}: {exc}") from None
-    own = data.get("ts")
-    rate = float(own) if isinstance(own, (int, float)) else ts
+    try:
+        own = sample_time(data.get("ts"))
+        mapping(data.get("features"), "features")  # not used here, but a file's keys are read
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    rate = own if own is not None else ts
     return SimulationModel(plant, None, f"LIP from {data.get('source', path)}", rate)

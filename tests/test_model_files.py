@@ -1,0 +1,169 @@
+"""Every model file is validated on load (issue 28 item 2): a lip.json, a PGNN's .json and .pt
+and a diagnosis.json that cannot be a model are refused in one line (exit 2) by every consumer
+(``export-ff``, ``diagnose --model``, the loaders of the Python API), before any work and
+before a network is allocated."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from clm_sim.errors import UserError
+from controllers.lip import LIPFeedforward
+from controllers.pgnn import PGNNFeedforward
+from experiments.cli import main
+
+TS = 1e-4
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    """A LIP and an n_l = 2 PGNN fitted quickly on the training run, saved as a run saves them."""
+    from experiments.testbed import Testbed
+
+    tb = Testbed()
+    run = tb.training_run()
+    lip = tb.fit_lip(run)
+    pgnn = tb.fit_pgnn(run, hidden=2, lip=lip, max_iter=2)
+    folder = tmp_path_factory.mktemp("models")
+    lip.save(folder / "lip.json")
+    pgnn.save(folder / "net")
+    return folder
+
+
+def _cli(argv, capsys):
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.err.strip().splitlines()
+
+
+LIP_CASES = {
+    "NaN mass": ('"mass": NaN', "not a number in strict JSON"),
+    "boolean mass": (True, "mass: expected a number"),
+    "text mass": ("1e-05", "mass: expected a number"),
+    "ts 1e-300": (1e-300, "not a servo sample time"),
+    "ts true": (True, "expected a number"),
+    "effects a string": ("x", "effects: expected a list"),
+    "effect type a list": ([{"type": [1]}], "unknown effect"),
+    "features a list": ([1], "features: expected an object"),
+    "a JSON list": (None, "expected a JSON object"),
+    "deep nesting": (None, "nested too deeply"),
+}
+
+
+def _lip_file(folder, case, tmp_path):
+    value, _ = LIP_CASES[case]
+    data = json.loads((folder / "lip.json").read_text())
+    path = tmp_path / "lip.json"
+    if case == "NaN mass":
+        text = json.dumps(data).replace(f'"mass": {json.dumps(data["mass"])}', value)
+    elif case == "a JSON list":
+        text = "[1, 2]"
+    elif case == "deep nesting":
+        text = "[" * 100_000 + "]" * 100_000
+    else:
+        key = {"boolean mass": "mass", "text mass": "mass", "ts 1e-300": "ts", "ts true": "ts",
+               "effects a string": "effects", "effect type a list": "effects",
+               "features a list": "features"}[case]
+        text = json.dumps({**data, key: value})
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("case", sorted(LIP_CASES))
+@pytest.mark.parametrize("consumer", ["load", "export-ff", "diagnose --model"])
+def test_a_bad_lip_file_is_refused_by_every_consumer(saved, tmp_path, capsys, case, consumer):
+    path = _lip_file(saved, case, tmp_path)
+    if consumer == "load":
+        with pytest.raises(UserError) as err:
+            LIPFeedforward.load(path)
+        lines = [str(err.value)]
+        assert str(path) in lines[0]
+    else:
+        argv = (["export-ff", path, "--to", "c", "--out", tmp_path / "out"]
+                if consumer == "export-ff" else
+                ["diagnose", "x.csv", "--model", path, "--out", tmp_path / "out"])
+        if consumer != "export-ff":  # a record that passes its guards: the model is refused
+            from clm_sim.record import Run, save_npz
+            t = np.arange(20000) * 1e-3
+            y = 0.1 * np.sin(2 * t)
+            save_npz(Run(t=t, r=y, y=y, u=-4 * y + 0.2 * np.cos(2 * t)
+                         + np.sign(np.cos(2 * t))), tmp_path / "x.npz")
+            argv[1] = tmp_path / "x.npz"
+        code, lines = _cli(argv, capsys)
+        lines = [line for line in lines if "warning" not in line]
+        assert code == 2 and len(lines) == 1, lines
+        assert not (tmp_path / "out").exists()
+    expected = LIP_CASES[case][1]
+    if consumer == "diagnose --model" and case in ("boolean mass", "text mass", "ts true"):
+        expected = "expected a number"  # as the plant's key, plant.mass
+    assert expected in lines[0], lines[0]
+
+
+def _pgnn_copy(folder, tmp_path, json_edit=None, pt=None):
+    stem = tmp_path / "net"
+    data = json.loads((folder / "net.json").read_text())
+    if json_edit is not None:
+        data = json_edit(data)
+    (tmp_path / "net.json").write_text(json.dumps(data))
+    if pt is None:
+        shutil.copy(folder / "net.pt", tmp_path / "net.pt")
+    else:
+        pt(folder, tmp_path / "net.pt")
+    return stem
+
+
+def _state(edit):
+    def write(folder, target):
+        state = torch.load(folder / "net.pt", weights_only=True)
+        edit(state)
+        torch.save(state, target)
+    return write
+
+
+PGNN_CASES = {
+    "hidden 1e8": (lambda d: {**d, "settings": {**d["settings"], "hidden": [100_000_000]}},
+                   None, "settings.hidden: expected 1 to 8 layers"),
+    "hidden 9 layers": (lambda d: {**d, "settings": {**d["settings"], "hidden": [2] * 9}},
+                        None, "settings.hidden"),
+    "hidden true": (lambda d: {**d, "settings": {**d["settings"], "hidden": True}},
+                    None, "settings.hidden"),
+    "settings a list": (lambda d: {**d, "settings": [1]}, None, "settings: expected an object"),
+    "no theta": (lambda d: {k: v for k, v in d.items() if k != "theta"}, None,
+                 "theta.mass: expected a number"),
+    "ts 1e-300": (lambda d: {**d, "ts": 1e-300}, None, "not a servo sample time"),
+    "empty .pt": (None, lambda folder, target: target.write_bytes(b""),
+                  "cannot read PGNN model"),
+    "text .pt": (None, lambda folder, target: target.write_text("import os"),
+                 "cannot read PGNN model"),
+    "huge .pt": (None, lambda folder, target: target.write_bytes(b"\0" * (3 * 2 ** 20)),
+                 "far more than the"),
+    "NaN weight": (None, _state(lambda s: s[next(k for k in s if "weight" in k)].fill_(
+        float("nan"))), "holds NaN or inf"),
+    "input_std 0": (None, _state(lambda s: s["mlp.input_std"].zero_()), "must be positive"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PGNN_CASES))
+def test_a_bad_pgnn_file_is_refused_on_load_and_by_export(saved, tmp_path, capsys, case):
+    edit, pt, expected = PGNN_CASES[case]
+    stem = _pgnn_copy(saved, tmp_path, edit, pt)
+    with pytest.raises(UserError, match=expected.replace(".", r"\.")):
+        PGNNFeedforward.load(stem)
+    code, lines = _cli(["export-ff", stem.with_suffix(".pt"), "--to", "c", "--ts", TS,
+                        "--out", tmp_path / "out"], capsys)
+    assert code == 2 and len(lines) == 1 and expected in lines[0], lines
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_saved_models_load_unchanged(saved):
+    """The checks refuse nothing the product writes."""
+    lip = LIPFeedforward.load(saved / "lip.json")
+    stored = json.loads((saved / "lip.json").read_text())
+    assert lip.theta_ == {k: stored[k] for k in lip.theta_}
+    pgnn = PGNNFeedforward.load(saved / "net")
+    assert pgnn.network_.mlp.input_std.min() > 0
