@@ -93,6 +93,11 @@ def check_output(out: Path) -> None:
             or all(p.name.startswith(".") or p.name in mine for p in out.iterdir()))):
         raise UserError(f"{out}: output folder exists and does not hold clm-sim sweep results; "
                         f"choose another --out")
+    for name in (".lock", "tasks", "figures", "sweep.resolved.yaml", "table.json", "table.md",
+                 "table.csv"):
+        if (out / name).is_symlink():  # a sweep writes nothing through a link in its folder
+            raise UserError(f"{out / name}: a symbolic link; clm-sim writes no file through a "
+                            f"link inside --out (remove it, or choose another --out)")
 
 
 def _lock(out: Path):
@@ -100,7 +105,9 @@ def _lock(out: Path):
         import fcntl
     except ImportError:  # Windows: no advisory lock
         return None
-    fh = open(out / ".lock", "w")
+    # O_NOFOLLOW: a .lock that is a link to another file must not truncate that file
+    fd = os.open(out / ".lock", os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    fh = os.fdopen(fd, "w")
     try:
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -136,6 +143,7 @@ def _run_sweep(sweep: Sweep, out: Path, say, *, backend, workers, scheduler,
     lock = _lock(out)
     try:
         store = ResultStore(out / "tasks").open()
+        store.on_invalid = lambda path, why: say(f"{path}: {why}; the task is recomputed")
         atomic_write(out / "sweep.resolved.yaml", yaml.safe_dump(
             {"base": sweep.base, "grid": sweep.grid, "code_version": sweep.code_version},
             sort_keys=False))
@@ -197,7 +205,8 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
     if unfinished:
         return  # no table from a partial grid; the next run completes it
     swept = list(sweep.grid)
-    text = json.dumps({"rows": rows, "failures": failures, "swept": swept}, indent=1)
+    text = json.dumps({"rows": rows, "failures": failures, "swept": swept}, indent=1,
+                      allow_nan=False)  # the store holds no NaN; table.json stays JSON
     atomic_write(out / "table.json", text)
     atomic_write(out / "table.md", markdown(rows, swept, failures))
     atomic_write(out / "table.csv", table.to_csv(rows, swept))

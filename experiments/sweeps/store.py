@@ -63,6 +63,7 @@ class ResultStore:
 
     def __init__(self, root: Path):
         self.root = Path(root)
+        self.on_invalid = None  # called with (path, reason) for a task file that is refused
 
     def open(self) -> "ResultStore":
         """Create the folder and remove temporary files left by a killed writer."""
@@ -75,11 +76,47 @@ class ResultStore:
         return self.root / f"{key}.json"
 
     def get(self, key: str) -> dict | None:
-        """The stored result of ``key``, or ``None`` if the task has not finished."""
+        """The stored result of ``key``, or ``None`` if the task has not finished or its file
+        is not a result of this task (not strict JSON, NaN or inf, another task's key or config,
+        a link): such a file is said once (``on_invalid``), removed, and the task recomputed."""
+        path = self.path(key)
         try:
-            return json.loads(self.path(key).read_text(encoding="utf-8"))
+            if path.is_symlink():
+                raise ValueError("a symbolic link, not a task result")
+            result = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
+            why = _invalid(result, key)
         except FileNotFoundError:
             return None
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+            why = f"unreadable ({type(exc).__name__}: {' '.join(str(exc).split())[:120]})"
+        if why is None:
+            return result
+        if self.on_invalid is not None:
+            self.on_invalid(path, why)
+        path.unlink(missing_ok=True)
+        return None
 
     def put(self, key: str, result: dict) -> None:
         atomic_write(self.path(key), json.dumps(result, indent=1, allow_nan=False))
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a number in strict JSON")
+
+
+def _invalid(result, key: str) -> str | None:
+    """Why ``result`` is not the stored result of task ``key`` (None: it is)."""
+    if not isinstance(result, dict):
+        return "not a task result (a JSON object)"
+    if result.get("key") != key:
+        return f"holds the result of task {str(result.get('key'))[:30]!r}, not of {key}"
+    try:
+        if task_key(result.get("config"), result.get("code_version")) != key:
+            return "its config does not hash to its key (edited or swapped)"
+    except (TypeError, ValueError):
+        return "its config is not plain data"
+    if result.get("status") == "ok":
+        return None if isinstance(result.get("rows"), list) else "no rows"
+    if result.get("status") == "failed":
+        return None if isinstance(result.get("error"), str) else "a failure without its error"
+    return f"status {str(result.get('status'))[:30]!r} is neither ok nor failed"
