@@ -67,40 +67,37 @@ def _load(path, args):
 
 
 def _cmd_identify(args) -> int:
-    from clm_sim.features import FeatureMap
-    from clm_sim.outdir import atomic_write, check_writable, write_error
-    from controllers.lip import LIPFeedforward
-    from experiments.suspicions import record_warnings
-    from experiments.table import THETA_UNITS
+    from clm_sim.outdir import check_writable
+    from controllers.idim import IDIMProtocol
+    from experiments.identify import identify, write
 
     out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
     check_writable(out)  # before the work: a result that cannot be written is not computed
-    run = _load(args.data, args)
     cutoff = args.regression_lowpass_hz
     try:
-        features = FeatureMap() if cutoff is None else \
-            FeatureMap(regression_lowpass_hz=None if cutoff <= 0 else cutoff)
-        lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
-    except UserError as exc:  # name the file and the option
-        raise UserError(f"{args.data}: {exc}" + (" (--regression-lowpass-hz)"
-                                                 if "lowpass" in str(exc) else "")) from None
-    values = {**lip.theta_, **lip.std_}
-    bad = [name for name, value in values.items() if not math.isfinite(value)]
-    if bad or not math.isfinite(lip.residual_rms_):
-        raise UserError(f"{args.data}: the fit gives non-finite parameters "
-                        f"({', '.join(sorted(set(bad))) or 'residual'}); the record's values are "
-                        f"too large or degenerate for a least-squares fit")
-    _warn(args.data, record_warnings(run, lip))
-    for name, value in lip.theta_.items():
-        print(f"{name:10s} {value:12.6g} {THETA_UNITS[name]:6s} (std {lip.std_[name]:.2g})")
-    print(f"residual rms {lip.residual_rms_:.4g} N over {len(run)} samples at "
-          f"{1 / run.ts:g} Hz")
+        protocol = IDIMProtocol(
+            regression_lowpass_hz=250.0 if cutoff is None else (None if cutoff <= 0 else cutoff),
+            position_lowpass_hz=args.position_lowpass_hz or None, filter_order=args.filter_order,
+            zero_phase=not args.causal, differentiation=args.differentiation.replace("-", "_"),
+            decimation=args.decimate, offset=args.offset, stiffness=not args.no_stiffness,
+            edge_samples=args.edge_samples, force_at=args.force_at)
+    except UserError as exc:
+        raise UserError(f"{args.data}: {exc}") from None
+    run = _load(args.data, args)
+    validation = _load(args.validate, args) if args.validate else None
     try:
-        atomic_write(out / "lip.json", json.dumps({**lip.to_json(), "source": str(args.data)},
-                                                  indent=1, allow_nan=False))
-    except OSError as exc:
-        raise write_error(out, exc) from None
-    print(f"wrote {out / 'lip.json'} (a model for clm-sim diagnose --model)")
+        result = identify(run, protocol, source=str(args.data), validation=validation,
+                          validation_source=args.validate)
+    except UserError as exc:  # name the option of a filter setting
+        text = str(exc)
+        for key in ("regression_lowpass_hz", "position_lowpass_hz"):
+            if key in text:
+                text += f" (--{key.replace('_', '-')})"
+        raise UserError(text) from None
+    _warn(args.data, list(result.warnings))
+    print(result.summary())
+    print(f"wrote {write(result, out)} (a model for clm-sim diagnose --model and "
+          f"clm-sim simulate)")
     return 0
 
 
@@ -272,6 +269,33 @@ def _cutoff_argument(p: argparse.ArgumentParser, default: str) -> None:
                    help=argparse.SUPPRESS)
 
 
+def _protocol_arguments(p: argparse.ArgumentParser) -> None:
+    """``identify``'s published-protocol options (controllers.idim.IDIMProtocol; the EMPS
+    procedure of Janot et al. is in docs/results/emps_benchmark.md)."""
+    g = p.add_argument_group("protocol (IDIM-LS) options")
+    g.add_argument("--position-lowpass-hz", type=float, metavar="HZ",
+                   help="Butterworth low-pass on the position before differencing (default none)")
+    g.add_argument("--filter-order", type=int, default=4, metavar="N",
+                   help="order of the position and parallel Butterworth filters (default 4)")
+    g.add_argument("--causal", action="store_true",
+                   help="filter forwards only (default: zero-phase, forwards and backwards)")
+    g.add_argument("--differentiation", choices=("second-difference", "central-twice"),
+                   default="second-difference", help="acceleration: second difference of the "
+                   "position, or central difference of the central-difference velocity")
+    g.add_argument("--decimate", type=int, default=1, metavar="N",
+                   help="decimate columns and force by N (8th-order Chebyshev, zero-phase)")
+    g.add_argument("--offset", action="store_true", help="a constant-force column (force_offset)")
+    g.add_argument("--no-stiffness", action="store_true", help="no position column")
+    g.add_argument("--edge-samples", type=int, default=200, metavar="N",
+                   help="samples dropped at each end before decimating (default 200)")
+    g.add_argument("--force-at", choices=("edge", "sample"), default="edge",
+                   help="force at a sample: the two held inputs around it averaged (edge), or "
+                   "the recorded u[k] (sample)")
+    g.add_argument("--validate", metavar="FILE",
+                   help="record for the cross-test: its force error under the fitted model, "
+                   "processed the same way")
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="clm-sim", description="Simulate a coreless linear motor under PID feedback, "
@@ -285,6 +309,7 @@ def parser() -> argparse.ArgumentParser:
     _record_arguments(ident)
     ident.add_argument("--out", help="folder for lip.json (default results/identify/<data name>)")
     _cutoff_argument(ident, "(default: a config's, FeatureMap.regression_lowpass_hz; 0 = none)")
+    _protocol_arguments(ident)
     ident.set_defaults(func=_cmd_identify)
     export = sub.add_parser("export", help="convert a logged run (.npz) to CSV or MATLAB .mat")
     export.add_argument("run", help="run record, e.g. results/lip_baseline/runs/training.npz")
