@@ -101,6 +101,29 @@ def _cmd_identify(args) -> int:
     return 0
 
 
+def _cmd_simulate(args) -> int:
+    from clm_sim.outdir import check_output_folder
+    from experiments.simulation import load_simulation_model, simulate_record, write
+
+    out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
+    check_output_folder(out, marker="scores.json", what="a simulation")  # before the work
+    model = load_simulation_model(args.model)
+    try:
+        run = _load(args.data, args)
+    except UserError as exc:
+        if "(signal u)" in str(exc):
+            raise UserError(f"{args.data}: no input column to drive the model with "
+                            f"({str(exc).split(': ', 1)[1]}); name it with --columns u=NAME") \
+                from None
+        raise
+    sim = simulate_record(model, run, init_samples=args.init_samples, source=str(args.data),
+                          substeps=args.substeps)
+    write(sim, out)
+    print(sim.summary())
+    print(f"wrote {out}/ (simulation.csv, simulation.npz, scores.json, figures/simulation.png)")
+    return 0
+
+
 def _cmd_export(args) -> int:
     from clm_sim.record import load_record, save_csv, save_mat
 
@@ -311,6 +334,18 @@ def parser() -> argparse.ArgumentParser:
     _cutoff_argument(ident, "(default: a config's, FeatureMap.regression_lowpass_hz; 0 = none)")
     _protocol_arguments(ident)
     ident.set_defaults(func=_cmd_identify)
+    simulate = sub.add_parser("simulate", help="simulate a model open loop from a record's "
+                              "input and score it against the measured position")
+    simulate.add_argument("model", help="identify's lip.json, a diagnosis.json (its extended "
+                          "model) or a model YAML (plant:, effects)")
+    _record_arguments(simulate)
+    simulate.add_argument("--init-samples", type=int, default=20, metavar="N",
+                          help="output samples the initial state is taken from (default 20, "
+                          "the benchmark protocol's); scores start after them")
+    simulate.add_argument("--substeps", type=int, metavar="N",
+                          help="integration sub-steps per sample (default: the model plant's)")
+    simulate.add_argument("--out", help="output folder (default results/simulate/<data name>)")
+    simulate.set_defaults(func=_cmd_simulate)
     export = sub.add_parser("export", help="convert a logged run (.npz) to CSV or MATLAB .mat")
     export.add_argument("run", help="run record, e.g. results/lip_baseline/runs/training.npz")
     export.add_argument("--to", choices=("csv", "mat"), default="csv", help="target format")
