@@ -212,6 +212,9 @@ def _diagnosis_model(path, ts: float):
 
 def _cmd_study(args) -> int:
     from clm_sim.schema import load_yaml
+    if "benchmark" in load_yaml(args.config):  # EMPS on the benchmark protocol
+        from experiments.studies.emps_benchmark import main
+        return main(args.config, args.out, quiet=args.quiet)
     if "failure_map" in load_yaml(args.config):  # where lambda = 0 fails: its own study
         from experiments.studies.failure_map import main
         return main(args.config, args.out, workers=args.workers, quiet=args.quiet)
