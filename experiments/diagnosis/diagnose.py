@@ -49,6 +49,11 @@ class Diagnosis:
                      f"{g['residual_rms_after']:.4g} N "
                      f"({-100 * g['residual_rms_reduction']:+.1f} %; the encoder's "
                      f"quantization floor is {g['quantization_floor_n']:.2g} N)")
+        if "simulation_rmse_before" in g:
+            lines.append(f"open-loop simulation of the validation data from its input (initial "
+                         f"state from its first {g['simulation_init_samples']} positions): "
+                         f"position RMSE {g['simulation_rmse_before'] * 1e3:.4g} mm -> "
+                         f"{g['simulation_rmse_after'] * 1e3:.4g} mm")
         if "origin" in g:
             o = g["origin"]
             lines.append(f"with the validation record's encoder origin registered on the "
