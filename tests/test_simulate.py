@@ -181,3 +181,33 @@ def test_the_diagnosis_measures_its_gain_in_the_simulation_too():
     # offset (a few hundredths of a newton off: a drift of micrometres) it stays within 10 um.
     assert g["simulation_rmse_before"] > 1e-2 and g["simulation_rmse_after"] < 1e-5
     assert "open-loop simulation" in result.summary()
+
+
+# ----------------------------------------------------------------------------- output error
+
+def test_output_error_refinement_returns_the_truth_from_a_wrong_start(record):
+    """Started 10 % off in mass, 20 % in viscous and Coulomb friction, the fit on the simulation
+    error of a record of the truth ends at the truth (the reference simulator's record: another
+    integrator, a truncating encoder)."""
+    import dataclasses
+
+    from experiments.output_error import refine
+
+    start = dataclasses.replace(_truth(), mass=STAGE.mass * 1.1, viscous=STAGE.viscous * 0.8,
+                                coulomb=STAGE.coulomb * 1.2)
+    fit = refine(start, record, theta=("mass", "viscous", "coulomb"))
+    assert fit.converged and fit.rmse_m < 3 * RES < fit.rmse_start_m
+    # Within the few counts of the initial state and the truncation: 0.5 % (measured 0.0x %).
+    assert fit.values["mass"] == pytest.approx(STAGE.mass, rel=5e-3)
+    assert fit.values["viscous"] == pytest.approx(STAGE.viscous, rel=5e-3)
+    assert fit.values["coulomb"] == pytest.approx(STAGE.coulomb, rel=5e-3)
+
+
+def test_a_benchmark_config_with_a_typo_is_one_line(tmp_path):
+    from clm_sim.errors import UserError
+    from experiments.studies.emps_benchmark import load_benchmark
+
+    path = tmp_path / "b.yaml"
+    path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, init_sample: 20}\n")
+    with pytest.raises(UserError, match="init_sample"):
+        load_benchmark(path)
