@@ -120,6 +120,28 @@ def test_simulate_writes_named_columns_scores_and_a_figure(record, tmp_path, cap
     np.testing.assert_array_equal(npz["y_measured"], record.y)
 
 
+@pytest.mark.parametrize("kind", ["lip.json", "diagnosis.json", "model.yaml"])
+def test_simulate_reads_every_model_file_the_product_writes(kind, record, tmp_path, capsys):
+    """identify's lip.json, a diagnosis's extended model and a model YAML: the same plant, the
+    same simulation, to the bit."""
+    theta = {"mass": STAGE.mass, "viscous": STAGE.viscous, "coulomb": STAGE.coulomb,
+             "stiffness": 0.0}
+    path = tmp_path / kind
+    if kind == "lip.json":
+        path.write_text(json.dumps({"kind": "lip", **theta, "ts": TS, "effects": []}))
+    elif kind == "diagnosis.json":
+        path.write_text(json.dumps({"extended_model": {**theta, "effects": []},
+                                    "record": {"sample_time_s": TS}}))
+    else:
+        _model(path)
+    _csv(tmp_path / "rec.csv", record)
+    assert main(["simulate", str(path), str(tmp_path / "rec.csv"), "--out",
+                 str(tmp_path / "o")]) == 0
+    got = np.load(tmp_path / "o" / "simulation.npz")["y_simulated"]
+    want = simulate_record(SimulationModel(_truth(), None, "m", TS), record).y_simulated
+    np.testing.assert_array_equal(got, want)
+
+
 @pytest.mark.parametrize("case", ["no input", "other rate", "pgnn", "pt"])
 def test_simulate_refuses_in_one_line(case, record, tmp_path, capsys):
     _csv(tmp_path / "rec.csv", record, drop="u" if case == "no input" else "")
