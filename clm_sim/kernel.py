@@ -277,3 +277,28 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1
     return 0
+
+
+@nb.njit(_nrt=False, **_JIT)
+def open_loop(u, x0, v0, h, nsub, ad, bd, mass, fv, fc, fk,
+              hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
+              st_amp, st_v, st_exp, asym, d_f, d_l, d_z, x_out, v_out):
+    """The motor driven by the held inputs ``u`` (N), no controller: ``x_out[k], v_out[k]`` is
+    the state (m, m/s) at sample k, from ``(x0, v0)`` at sample 0, ``u[k]`` held over
+    ``[t_k, t_k+1)`` and the motor advanced by :func:`plant_step` (Dahl states ``d_z`` advanced
+    in place from the caller's). Returns 0, or ``k + 1`` if the state became non-finite at
+    sample k."""
+    n = u.shape[0]
+    x, v = x0, v0
+    break_pos, break_neg, v_flat = friction_levels(fc, st_amp, st_v, st_exp, asym)
+    for k in range(n):
+        x_out[k] = x
+        v_out[k] = v
+        if k == n - 1:
+            break
+        x, v = advance(x, v, u[k], h, nsub, ad, bd, mass, fv, fc, fk,
+                       hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
+                       st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat)
+        if not (math.isfinite(x) and abs(x) < 1e3):
+            return k + 1
+    return 0

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import clm_sim
 from clm_sim.numerics import pin_portable_kernels
-from experiments import process
+from experiments import arguments, process
 
 
 def _cmd_run(args) -> int:
@@ -40,14 +40,6 @@ def _cmd_run(args) -> int:
     return 0
 
 
-def _record_arguments(p: argparse.ArgumentParser) -> None:
-    """The record ``data`` and how its columns map onto a record (``--columns``, ``--scale``)."""
-    p.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
-    p.add_argument("--columns", help="signal=column names in the files, e.g. y=qm,r=qg,u=vir")
-    p.add_argument("--scale", help="signal=factor or signal=scalar-variable of the file, "
-                   "e.g. u=gtau or y=0.001")
-
-
 def _load(path, args):
     """The record at ``path``, read with the command's ``--columns`` and ``--scale``."""
     from clm_sim.record import load_record, parse_pairs
@@ -57,18 +49,13 @@ def _load(path, args):
 
 
 def _cmd_identify(args) -> int:
-    from clm_sim.outdir import check_writable
-    from experiments.identify import identify
+    from experiments.identify import command
+    return command(args, load=_load)
 
-    out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
-    check_writable(out)  # before the work: a result that cannot be written is not computed
-    result = identify(_load(args.data, args), source=str(args.data),
-                      regression_lowpass_hz=args.regression_lowpass_hz)
-    _warn(args.data, list(result.warnings))
-    print("\n".join(result.lines()))
-    path = result.write(out)
-    print(f"wrote {path} (a model for clm-sim diagnose --model)")
-    return 0
+
+def _cmd_simulate(args) -> int:
+    from experiments.simulation import command
+    return command(args, load=_load)
 
 
 def _cmd_export(args) -> int:
@@ -108,11 +95,14 @@ def _warn(path, lines: list[str]) -> None:
 
 def _cmd_study(args) -> int:
     from clm_sim.schema import load_yaml
-    from experiments.studies import extrapolation, failure_map
+    from experiments.studies import emps_benchmark, extrapolation, failure_map
     from experiments.studies.kinds import kind_of
 
-    if kind_of(load_yaml(args.config), args.config) == "failure_map":  # where lambda = 0 fails
+    kind = kind_of(load_yaml(args.config), args.config)
+    if kind == "failure_map":  # where lambda = 0 fails
         return failure_map.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
+    if kind == "emps_benchmark":  # EMPS on the field's benchmark protocol
+        return emps_benchmark.main(args.config, args.out, quiet=args.quiet)
     return extrapolation.main(args.config, args.out, quiet=args.quiet)
 
 
@@ -137,29 +127,6 @@ def _cmd_compare(args) -> int:
     return code
 
 
-def _workers(text: str) -> int:
-    if not (text.strip().isdecimal() and int(text) >= 1):
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return int(text)
-
-
-def _config_arguments(p: argparse.ArgumentParser, config: str, out: str = "") -> None:
-    """The config file, ``--out`` (default ``results/<config name>``) and ``--quiet``."""
-    p.add_argument("config", help=config)
-    p.add_argument("--out", help=f"output folder (default results/<config name>){out}")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-
-
-def _cutoff_argument(p: argparse.ArgumentParser, default: str) -> None:
-    """``--regression-lowpass-hz``: the parallel filter's cut-off, named as in a config's
-    ``features:`` and in the Python API (``--lowpass-hz`` still accepted, not shown)."""
-    p.add_argument("--regression-lowpass-hz", type=float, metavar="HZ",
-                   help=f"cut-off of the zero-phase parallel filter of the regression, Hz "
-                   f"{default}")
-    p.add_argument("--lowpass-hz", type=float, dest="regression_lowpass_hz",
-                   help=argparse.SUPPRESS)
-
-
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="clm-sim", description="Simulate a coreless linear motor under PID feedback, "
@@ -169,13 +136,22 @@ def parser() -> argparse.ArgumentParser:
                    help="on an internal error, print the Python traceback too")
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run an experiment config and write table and figures")
-    _config_arguments(run, "experiment YAML file")
+    arguments.config(run, "experiment YAML file")
     run.set_defaults(func=_cmd_run)
+
     ident = sub.add_parser("identify", help="identify the LIP feedforward from a record")
-    _record_arguments(ident)
+    arguments.record(ident)
     ident.add_argument("--out", help="folder for lip.json (default results/identify/<data name>)")
-    _cutoff_argument(ident, "(default: a config's, FeatureMap.regression_lowpass_hz; 0 = none)")
+    arguments.cutoff(ident, "(default: a config's, FeatureMap.regression_lowpass_hz; 0 = none)")
+    arguments.protocol(ident)
     ident.set_defaults(func=_cmd_identify)
+    simulate = sub.add_parser("simulate", help="simulate a model open loop from a record's "
+                              "input and score it against the measured position")
+    simulate.add_argument("model", help="identify's lip.json, a diagnosis.json (its extended "
+                          "model) or a model YAML (plant:, effects)")
+    arguments.record(simulate)
+    arguments.simulation(simulate)
+    simulate.set_defaults(func=_cmd_simulate)
     export = sub.add_parser("export", help="convert a logged run (.npz) to CSV or MATLAB .mat")
     export.add_argument("run", help="run record, e.g. results/lip_baseline/runs/training.npz")
     export.add_argument("--to", choices=("csv", "mat"), default="csv", help="target format")
@@ -195,9 +171,9 @@ def parser() -> argparse.ArgumentParser:
     eff.set_defaults(func=_cmd_export_ff)
     sweep = sub.add_parser("sweep", help="run a grid of experiments (a config with a 'sweep:' "
                            "section) in parallel, resumably")
-    _config_arguments(sweep, "experiment YAML file with a sweep: grid",
+    arguments.config(sweep, "experiment YAML file with a sweep: grid",
                       "; re-running into it resumes")
-    sweep.add_argument("--workers", type=_workers, help="parallel tasks (default: all cores)")
+    sweep.add_argument("--workers", type=arguments.workers, help="parallel tasks (default: all cores)")
     sweep.add_argument("--backend", choices=("local", "dask"), default="local",
                        help="local processes, or Dask (pip install 'clm-sim[cluster]')")
     sweep.add_argument("--scheduler", help="Dask scheduler address (default: a LocalCluster)")
@@ -206,18 +182,18 @@ def parser() -> argparse.ArgumentParser:
     sweep.set_defaults(func=_cmd_sweep)
     diag = sub.add_parser("diagnose", help="show what the simulation gets wrong on a measured "
                           "record, name the cause, extend the model, measure the gain")
-    _record_arguments(diag)
+    arguments.record(diag)
     diag.add_argument("--model", help="model YAML (plant:, optional controller:), a lip.json "
                       "from identify or run, or an experiment config (default: the default CLM)")
     diag.add_argument("--validate", help="validation record (default: the final 25 %% of DATA)")
     diag.add_argument("--out", help="output folder (default results/diagnosis_<data name>)")
-    _cutoff_argument(diag, "(default: the diagnosis's narrower band, "
+    arguments.cutoff(diag, "(default: the diagnosis's narrower band, "
                      "DiagnosisSettings.regression_lowpass_hz; capped at 0.2/ts)")
     diag.set_defaults(func=_cmd_diagnose)
     study = sub.add_parser("study", help="the PGNN extrapolation study: lambda sweep, report.md "
                            "with figures")
-    _config_arguments(study, "study YAML file (an experiment config plus 'study:')")
-    study.add_argument("--workers", type=_workers, help="parallel cells of a failure_map: study "
+    arguments.config(study, "study YAML file (an experiment config plus 'study:')")
+    study.add_argument("--workers", type=arguments.workers, help="parallel cells of a failure_map: study "
                        "(default: all cores)")
     study.set_defaults(func=_cmd_study)
     compare = sub.add_parser("compare", help="does a fresh table.json reproduce a published "

@@ -1,9 +1,7 @@
-"""``clm-sim identify``: the LIP feedforward of a measured record, and its ``lip.json``.
+"""``clm-sim identify``: a LIP from a record, by the product's defaults or a published protocol.
 
-    record -> guards (can it carry a LIP at all?) -> LIP (least squares, the feature map's
-    filter) -> plausibility of the result -> printed parameters, lip.json
-
-The command line only parses its options and prints :class:`Identified`'s lines.
+    record (+ validation record) -> IDIM-LS fit (controllers.idim) -> lip.json, printed summary,
+    cross-test force error on the validation record (the same processing)
 """
 
 from __future__ import annotations
@@ -14,78 +12,137 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from clm_sim.errors import UserError
-from clm_sim.features import FeatureMap
 from clm_sim.outdir import atomic_write, write_error
-from controllers.lip import LIPFeedforward
-from experiments.record_guards import fit_warnings, refuse_unidentifiable
-from experiments.suspicions import record_warnings
+from clm_sim.record import Run
+from controllers.idim import CrossTest, IDIMFit, IDIMProtocol, cross_test, fit
 from experiments.table import THETA_UNITS
+
+UNITS = {**THETA_UNITS, "offset": "N"}
 
 
 @dataclass(frozen=True)
 class Identified:
-    """A LIP identified from a record: the model, the record's size and rate, the warnings
-    (one line each; the result may be suspect) and the source file."""
+    """What ``identify`` found: the ``fit``, the record it came from, the cross-test on the
+    validation record (None without one) and the data warnings (one line each)."""
 
-    lip: LIPFeedforward
-    samples: int
-    ts: float
-    warnings: tuple[str, ...]
+    fit: IDIMFit
+    run: Run
     source: str
+    cross: CrossTest | None = None
+    validation: str | None = None
+    warnings: tuple[str, ...] = ()
 
-    def lines(self) -> list[str]:
-        """The parameters with their standard errors and the residual, as printed."""
-        lip = self.lip
-        out = [f"{name:10s} {value:12.6g} {THETA_UNITS[name]:6s} (std {lip.std_[name]:.2g})"
-               for name, value in lip.theta_.items()]
-        out.append(f"residual rms {lip.residual_rms_:.4g} N over {self.samples} samples at "
-                   f"{1 / self.ts:g} Hz")
-        return out
-
-    def write(self, out: Path) -> Path:
-        """``out/lip.json`` (atomically): the model and its source."""
-        path = Path(out) / "lip.json"
-        try:
-            atomic_write(path, json.dumps({**self.lip.to_json(), "source": self.source},
-                                          indent=1, allow_nan=False))
-        except OSError as exc:
-            raise write_error(out, exc) from None
-        return path
-
-
-def features_for(cutoff: float | None) -> FeatureMap:
-    """The feature map of ``--regression-lowpass-hz``: None the default, <= 0 no filter."""
-    if cutoff is None:
-        return FeatureMap()
-    return FeatureMap(regression_lowpass_hz=None if cutoff <= 0 else cutoff)
+    def summary(self) -> str:
+        """The coefficients, the residual and the cross-test, one per line."""
+        f = self.fit
+        lines = [f"{name:10s} {value:12.6g} {UNITS[name]:6s} (std {f.std[name]:.2g})"
+                 for name, value in f.coefficients.items()]
+        if not f.protocol.stiffness:
+            lines.append(f"{'stiffness':10s} {0.0:12.6g} {UNITS['stiffness']:6s} (fixed)")
+        lines.append(f"residual rms {f.residual_rms_n:.4g} N, relative error "
+                     f"{100 * f.relative_error:.3g} % over {f.samples} fitted samples "
+                     f"({len(self.run)} at {1 / self.run.ts:g} Hz)")
+        if self.cross is not None:
+            lines.append(f"cross-test on {self.validation}: residual rms "
+                         f"{self.cross.residual_rms_n:.4g} N, relative error "
+                         f"{100 * self.cross.relative_error:.3g} % over {self.cross.samples} "
+                         f"samples (the same processing)")
+        return "\n".join(lines)
 
 
-def identify(run, *, source: str, regression_lowpass_hz: float | None = None) -> Identified:
-    """The LIP of the record ``run`` (read from ``source``, named in every message).
+def identify(run: Run, protocol: IDIMProtocol, *, source: str,
+             validation: Run | None = None, validation_source: str | None = None
+             ) -> Identified:
+    """Fit ``run`` by ``protocol``; cross-test on ``validation`` (same sample time) if given.
+    Errors name ``source`` (or ``validation_source``)."""
+    from controllers.lip import LIPFeedforward
+    from experiments.record_guards import fit_warnings, refuse_unidentifiable
+    from experiments.suspicions import record_warnings
 
-    Raises ``UserError`` (one line) where the record cannot carry a LIP (no motion, no force,
-    too few samples) or the fit gives non-finite numbers; a cut-off outside the record's band
-    names ``--regression-lowpass-hz``."""
     refuse_unidentifiable(run, source)
-    cutoff = regression_lowpass_hz
     try:
-        features = features_for(cutoff)
-        lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
-    except UserError as exc:  # name the file and the option
-        raise UserError(f"{source}: {exc}" + (" (--regression-lowpass-hz)"
-                                              if "lowpass" in str(exc) else "")) from None
-    values = {**lip.theta_, **lip.std_}
+        result = fit(y=run.y, u=run.u, ts=run.ts, protocol=protocol)
+    except UserError as exc:  # name the file, and the option of a filter setting
+        text = f"{source}: {exc}"
+        for key in ("regression_lowpass_hz", "position_lowpass_hz"):
+            if key in text:
+                text += f" (--{key.replace('_', '-')})"
+        raise UserError(text) from None
+    values = {**result.coefficients, **result.std}
     bad = [name for name, value in values.items() if not math.isfinite(value)]
-    if bad or not math.isfinite(lip.residual_rms_):
+    if bad or not math.isfinite(result.residual_rms_n):
         raise UserError(f"{source}: the fit gives non-finite parameters "
                         f"({', '.join(sorted(set(bad))) or 'residual'}); the record's values are "
                         f"too large or degenerate for a least-squares fit")
-    def refit(y):
+    cross = None
+    if validation is not None:
+        if abs(validation.ts / run.ts - 1) > 1e-3:
+            raise UserError(f"{validation_source}: sampled at {validation.ts:g} s, the record at "
+                            f"{run.ts:g} s; the cross-test needs the same rate")
         try:
-            return LIPFeedforward(features=features).fit(y=y, u=run.u, ts=run.ts).theta_["mass"]
+            cross = cross_test(result, y=validation.y, u=validation.u, ts=validation.ts)
+        except UserError as exc:
+            raise UserError(f"{validation_source}: {exc}") from None
+    lip = result.model if isinstance(result.model, LIPFeedforward) else None
+
+    def refit(y):  # the mass the same protocol gives on positions y (quantization check)
+        try:
+            return fit(y=y, u=run.u, ts=run.ts, protocol=protocol).coefficients["mass"]
         except UserError:
             return float("nan")
 
     warnings = record_warnings(run, lip) + fit_warnings(
-        run, features, lip.theta_, lip.std_, option="--regression-lowpass-hz", refit=refit)
-    return Identified(lip, len(run), run.ts, tuple(warnings), str(source))
+        run, protocol.feature_map(), result.coefficients, result.std,
+        option="--regression-lowpass-hz", refit=refit)
+    return Identified(result, run, source, cross, validation_source, tuple(warnings))
+
+
+def write(result: Identified, out: Path) -> Path:
+    """Write ``out/lip.json`` (the model, its source and the protocol); returns its path."""
+    info = {**result.fit.model.to_json(), "source": result.source,
+            "identification": {**result.fit.protocol.as_dict(),
+                               "relative_error": result.fit.relative_error,
+                               "fitted_samples": result.fit.samples}}
+    if result.cross is not None:
+        info["cross_test"] = {"record": result.validation,
+                              "relative_error": result.cross.relative_error,
+                              "residual_rms_n": result.cross.residual_rms_n,
+                              "samples": result.cross.samples}
+    try:
+        atomic_write(out / "lip.json", json.dumps(info, indent=1, allow_nan=False))
+    except OSError as exc:
+        raise write_error(out, exc) from None
+    return out / "lip.json"
+
+
+def protocol_from_options(args, *, source: str):
+    """The :class:`IDIMProtocol` of ``identify``'s command-line options (``args``: the parsed
+    namespace); a bad setting is a ``UserError`` naming ``source``."""
+    cutoff = args.regression_lowpass_hz
+    try:
+        return IDIMProtocol(
+            regression_lowpass_hz=250.0 if cutoff is None else (None if cutoff <= 0 else cutoff),
+            position_lowpass_hz=args.position_lowpass_hz or None, filter_order=args.filter_order,
+            zero_phase=not args.causal, differentiation=args.differentiation.replace("-", "_"),
+            decimation=args.decimate, offset=args.offset, stiffness=not args.no_stiffness,
+            edge_samples=args.edge_samples, force_at=args.force_at)
+    except UserError as exc:
+        raise UserError(f"{source}: {exc}") from None
+
+
+def command(args, *, load) -> int:
+    """``clm-sim identify`` on the parsed ``args``; ``load(path, args)`` reads a record."""
+    from clm_sim.outdir import check_writable
+    from experiments.suspicions import warn
+
+    out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
+    check_writable(out)  # before the work: a result that cannot be written is not computed
+    protocol = protocol_from_options(args, source=str(args.data))
+    validation = load(args.validate, args) if args.validate else None
+    result = identify(load(args.data, args), protocol, source=str(args.data),
+                      validation=validation, validation_source=args.validate)
+    warn(args.data, list(result.warnings))
+    print(result.summary())
+    print(f"wrote {write(result, out)} (a model for clm-sim diagnose --model and "
+          f"clm-sim simulate)")
+    return 0

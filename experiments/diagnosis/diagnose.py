@@ -45,6 +45,11 @@ class Diagnosis:
             lines.append("no cause named")
         lines += [str(u) for u in self.unexplained]
         g = self.gain
+        if "simulation_rmse_before" in g:
+            lines.append(f"open-loop simulation of the validation data from its input (initial "
+                         f"state from its first {g['simulation_init_samples']} positions): "
+                         f"position RMSE {g['simulation_rmse_before'] * 1e3:.4g} mm -> "
+                         f"{g['simulation_rmse_after'] * 1e3:.4g} mm")
         lines.append(f"out-of-sample force residual RMS {g['residual_rms_before']:.4g} N -> "
                      f"{g['residual_rms_after']:.4g} N "
                      f"({-100 * g['residual_rms_reduction']:+.1f} %; the encoder's "

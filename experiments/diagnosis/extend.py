@@ -21,6 +21,7 @@ from clm_sim.effects import Effect, Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force
 from clm_sim.loop import simulate
+from clm_sim.open_loop import INIT_SAMPLES, initial_state, score, simulate_input
 from clm_sim.plant import THETA_NAMES, Plant
 from clm_sim.record import Run
 from controllers.lip import LIPFeedforward
@@ -120,6 +121,14 @@ def resimulate(plant: Plant, controller: Controller, run: Run) -> np.ndarray:
     return sim.e
 
 
+def simulation_rmse(plant: Plant, run: Run, init_samples: int = INIT_SAMPLES) -> float:
+    """RMSE (m) of ``plant`` simulated open loop from ``run.u``, its initial state from the
+    first ``init_samples`` of ``run.y`` (the benchmark protocol), over the samples after them."""
+    state = initial_state(run.y, run.ts, plant, init_samples)
+    x, _ = simulate_input(plant, run.u, run.ts, state)
+    return score(run.y, x, init_samples).rmse
+
+
 def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after: Plant,
           effects: tuple[Effect, ...], controller: Controller | None, *,
           val_offset: int | None = None, full: Run | None = None) -> tuple[dict, dict]:
@@ -141,6 +150,12 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
         gain["lip_residual_rms_before"], gain["lip_residual_rms_after"] = lip
     except UserError as exc:  # a LIP cannot always take every effect (collinear columns)
         gain["lip_error"] = str(exc)
+    try:  # what the simulation gets wrong, before and after: the field's score
+        gain["simulation_rmse_before"] = simulation_rmse(before, val)
+        gain["simulation_rmse_after"] = simulation_rmse(after, val)
+        gain["simulation_init_samples"] = INIT_SAMPLES
+    except UserError as exc:
+        gain["simulation_error"] = str(exc)
     signals = {"val_before": res_b, "val_after": res_a}
     if val_offset is None:  # another experiment: its encoder origin may differ
         try:

@@ -64,6 +64,11 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
               f"{g['residual_rms_after']:.4g} |",
               f"| the encoder's quantization floor (N), no model goes below | "
               f"{g['quantization_floor_n']:.3g} | |"]
+    if "simulation_rmse_before" in g:
+        lines.append(f"| open-loop simulation from the input, position RMSE (mm; initial state "
+                     f"from the first {g['simulation_init_samples']} positions) | "
+                     f"{g['simulation_rmse_before'] * 1e3:.4g} | "
+                     f"{g['simulation_rmse_after'] * 1e3:.4g} |")
     if "lip_residual_rms_before" in g:
         lines.append(f"| LIP re-identified, residual RMS (N) | {g['lip_residual_rms_before']:.4g} "
                      f"| {g['lip_residual_rms_after']:.4g} |")

@@ -1,16 +1,18 @@
 """Which study a study config is: its ``kind:`` says so.
 
-``kind: extrapolation`` (the lambda study; settings under ``study:``) or ``kind: failure_map``
-(where lambda = 0 fails; settings under ``failure_map:``). A config written before ``kind:``
-existed is still read by its section: ``failure_map:`` a failure map, else the extrapolation study
-(both sections without a ``kind:`` are refused).
+``kind: extrapolation`` (the lambda study; settings under ``study:``), ``kind: failure_map``
+(where lambda = 0 fails; settings under ``failure_map:``) or ``kind: emps_benchmark`` (EMPS on the
+field's benchmark protocol; settings under ``benchmark:``). A config written before ``kind:``
+existed is still read by its section (none: the extrapolation study; two sections without a
+``kind:`` are refused).
 """
 
 from __future__ import annotations
 
 from clm_sim.errors import UserError
 
-KINDS = {"extrapolation": "study", "failure_map": "failure_map"}  # kind -> its section
+KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
+         "emps_benchmark": "benchmark"}
 
 
 def kind_of(data: dict, path) -> str:
@@ -23,7 +25,8 @@ def kind_of(data: dict, path) -> str:
             raise UserError(f"{path}: kind: missing; a config with both 'study:' and "
                             f"'failure_map:' says which study it is with 'kind: extrapolation' "
                             f"or 'kind: failure_map'")
-        return "failure_map" if sections == ["failure_map"] else "extrapolation"
+        by_section = {section: name for name, section in KINDS.items()}
+        return by_section[sections[0]] if sections else "extrapolation"
     if not isinstance(kind, str) or kind not in KINDS:
         raise UserError(f"{path}: kind: expected one of {', '.join(KINDS)}, got {kind!r}")
     other = [s for s in sections if s != KINDS[kind]]

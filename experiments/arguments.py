@@ -1,0 +1,76 @@
+"""The command line's option sets, shared by the commands that take them (``clm-sim`` parses with
+them; :mod:`experiments.cli` dispatches). Only argparse here: building the parser loads no
+numerics, so ``clm-sim --version`` and ``--help`` answer at once."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def workers(text: str) -> int:
+    if not (text.strip().isdecimal() and int(text) >= 1):
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return int(text)
+
+
+def config(p: argparse.ArgumentParser, config: str, out: str = "") -> None:
+    """The config file, ``--out`` (default ``results/<config name>``) and ``--quiet``."""
+    p.add_argument("config", help=config)
+    p.add_argument("--out", help=f"output folder (default results/<config name>){out}")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def cutoff(p: argparse.ArgumentParser, default: str) -> None:
+    """``--regression-lowpass-hz``: the parallel filter's cut-off, named as in a config's
+    ``features:`` and in the Python API (``--lowpass-hz`` still accepted, not shown)."""
+    p.add_argument("--regression-lowpass-hz", type=float, metavar="HZ",
+                   help=f"cut-off of the zero-phase parallel filter of the regression, Hz "
+                   f"{default}")
+    p.add_argument("--lowpass-hz", type=float, dest="regression_lowpass_hz",
+                   help=argparse.SUPPRESS)
+
+
+def record(p: argparse.ArgumentParser) -> None:
+    """The record ``data`` and how its columns map onto a record (``--columns``, ``--scale``)."""
+    p.add_argument("data", help="record: CSV with header t,r,y,u (SI units), .npz or .mat")
+    p.add_argument("--columns", help="signal=column names in the files, e.g. y=qm,r=qg,u=vir")
+    p.add_argument("--scale", help="signal=factor or signal=scalar-variable of the file, "
+                   "e.g. u=gtau or y=0.001")
+
+
+def protocol(p: argparse.ArgumentParser) -> None:
+    """``identify``'s published-protocol options on the argparse parser ``p``, read by
+    :func:`experiments.identify.protocol_from_options` (controllers.idim.IDIMProtocol; the EMPS procedure of Janot et
+    al. is in docs/results/emps_benchmark.md)."""
+    g = p.add_argument_group("protocol (IDIM-LS) options")
+    g.add_argument("--position-lowpass-hz", type=float, metavar="HZ",
+                   help="Butterworth low-pass on the position before differencing (default none)")
+    g.add_argument("--filter-order", type=int, default=4, metavar="N",
+                   help="order of the position and parallel Butterworth filters (default 4)")
+    g.add_argument("--causal", action="store_true",
+                   help="filter forwards only (default: zero-phase, forwards and backwards)")
+    g.add_argument("--differentiation", choices=("second-difference", "central-twice"),
+                   default="second-difference", help="acceleration: second difference of the "
+                   "position, or central difference of the central-difference velocity")
+    g.add_argument("--decimate", type=int, default=1, metavar="N",
+                   help="decimate columns and force by N (8th-order Chebyshev, zero-phase)")
+    g.add_argument("--offset", action="store_true", help="a constant-force column (force_offset)")
+    g.add_argument("--no-stiffness", action="store_true", help="no position column")
+    g.add_argument("--edge-samples", type=int, default=200, metavar="N",
+                   help="samples dropped at each end before decimating (default 200)")
+    g.add_argument("--force-at", choices=("edge", "sample"), default="edge",
+                   help="force at a sample: the two held inputs around it averaged (edge), or "
+                   "the recorded u[k] (sample)")
+    g.add_argument("--validate", metavar="FILE",
+                   help="record for the cross-test: its force error under the fitted model, "
+                   "processed the same way")
+
+
+def simulation(p: argparse.ArgumentParser) -> None:
+    """``simulate``'s options after the model and the record, on the argparse parser ``p``."""
+    p.add_argument("--init-samples", type=int, default=20, metavar="N",
+                   help="output samples the initial state is taken from (default 20, "
+                   "the benchmark protocol's); scores start after them")
+    p.add_argument("--substeps", type=int, metavar="N",
+                   help="integration sub-steps per sample (default: the model plant's)")
+    p.add_argument("--out", help="output folder (default results/simulate/<data name>)")

@@ -1,0 +1,186 @@
+"""``clm-sim simulate MODEL RECORD``: a model's forward simulation against a measured record.
+
+    model file (identify's lip.json, a diagnosis.json's extended plant, a model YAML)
+    + record -> open loop from the record's input, initial state from its first output samples
+    (clm_sim.open_loop) -> simulated beside measured (CSV, NPZ), figure, scores
+
+The model owns its sample time (a lip.json's ``ts``, a model file's ``ts`` or its controller's,
+a diagnosis's record): a record sampled at another rate is refused. Models without a forward
+form (a PGNN: an inverse model whose network has no plant) are refused by name.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from clm_sim.errors import UserError, check_ts
+from clm_sim.open_loop import INIT_SAMPLES, Score, initial_state, score, simulate_input
+from clm_sim.outdir import atomic_folder
+from clm_sim.plant import THETA_NAMES, Plant
+from clm_sim.record import Run
+from clm_sim.schema import build, load_yaml
+from experiments.diagnosis.model import SimulationModel, load_model
+
+COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")
+
+
+def load_simulation_model(path) -> SimulationModel:
+    """The model of a file: a ``diagnosis.json`` (its extended plant, at its record's sample
+    time), else what :func:`experiments.diagnosis.model.load_model` reads (a model YAML, a LIP
+    parameter file, an experiment config). A PGNN file is refused: it has no open-loop form."""
+    path = Path(path)
+    if path.suffix.lower() == ".pt":
+        raise UserError(f"{path}: a PGNN feedforward is an inverse model (force from motion); "
+                        f"it has no open-loop form to simulate")
+    data = load_yaml(path)
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: not a model file (expected a mapping)")
+    if data.get("kind") == "pgnn":
+        raise UserError(f"{path}: a PGNN feedforward is an inverse model (force from motion); "
+                        f"it has no open-loop form to simulate")
+    if "extended_model" in data:
+        return _diagnosis_model(path, data)
+    return load_model(path)
+
+
+def _diagnosis_model(path: Path, data: dict) -> SimulationModel:
+    ext = data["extended_model"]
+    if not isinstance(ext, dict) or any(k not in ext for k in THETA_NAMES):
+        raise UserError(f"{path}: extended_model needs {', '.join(THETA_NAMES)}")
+    try:
+        plant = build(Plant, {**{k: ext[k] for k in THETA_NAMES},
+                              "effects": ext.get("effects") or []}, "extended_model")
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    rec = data.get("record") or {}
+    ts = rec.get("sample_time_s")
+    return SimulationModel(plant, None, f"extended model of {path}",
+                           float(ts) if isinstance(ts, (int, float)) else None)
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """A model simulated against a record: the measured and simulated position (m) per sample,
+    the input (N), the window the initial state came from, and the :class:`Score` after it."""
+
+    model: str
+    record: str
+    t: np.ndarray
+    u: np.ndarray
+    y_measured: np.ndarray
+    y_simulated: np.ndarray
+    init_samples: int
+    score: Score
+    plant: Plant
+
+    def __repr__(self) -> str:
+        return (f"Simulation({self.model!r} on {self.record!r}: RMSE "
+                f"{self.score.rmse * 1e3:.4g} mm)")
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The named columns written to CSV and NPZ (SI units; ``error = y_measured -
+        y_simulated``; NaN inside the initialization window)."""
+        return {"t": self.t, "u": self.u, "y_measured": self.y_measured,
+                "y_simulated": self.y_simulated, "error": self.y_measured - self.y_simulated}
+
+    def summary(self) -> str:
+        s = self.score
+        return (f"{self.model} on {self.record}, open loop from the input, initial state from "
+                f"the first {self.init_samples} output samples:\n"
+                f"position: RMSE {s.rmse * 1e3:.4g} mm, NRMSE {s.nrmse:.4g}, fit "
+                f"{s.fit_percent:.2f} %, max |error| {s.max_abs * 1e3:.4g} mm over the "
+                f"{s.samples} samples after the window")
+
+    def to_json(self) -> dict:
+        return {"model": self.model, "record": self.record, "mode": "open loop",
+                "init_samples": self.init_samples, "sample_time_s": float(self.t[1] - self.t[0]),
+                "position": {**self.score.as_dict(), "unit": "m"},
+                "plant": {**self.plant.theta(),
+                          "effects": [e.as_config() for e in self.plant.effects],
+                          "substeps": self.plant.substeps}}
+
+
+def simulate_record(model: SimulationModel, run: Run, *, init_samples: int = INIT_SAMPLES,
+                    source: str | None = None, substeps: int | None = None) -> Simulation:
+    """``model``'s plant driven by ``run.u`` (N) open loop, its initial state from
+    ``run.y[:init_samples]`` only, scored after them. ``substeps`` overrides the plant's."""
+    source = source or str(run.meta.get("source", "record"))
+    check_ts(model.ts, run.ts, f"{source}: the model ({model.name})")
+    plant = model.plant if substeps is None else dataclasses.replace(model.plant,
+                                                                     substeps=substeps)
+    state = initial_state(run.y, run.ts, plant, init_samples)
+    try:
+        x, _ = simulate_input(plant, run.u, run.ts, state)
+    except UserError as exc:
+        raise UserError(f"{source}: {exc}") from None
+    return Simulation(model.name, source, run.t, run.u, run.y, x, init_samples,
+                      score(run.y, x, init_samples), plant)
+
+
+def plot_simulation(sim: Simulation, axes=None):
+    """Measured and simulated position (top) and their difference (bottom), in mm against
+    time in s; the initialization window shaded. Returns the two axes."""
+    from experiments import plots
+
+    if axes is None:
+        fig = plots._figure(10.0, 6.0)
+        axes = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    top, bottom = axes
+    t0 = sim.t[sim.init_samples]
+    top.plot(sim.t, sim.y_measured * 1e3, color=plots.PALETTE[0], lw=1.0, label="measured")
+    top.plot(sim.t, sim.y_simulated * 1e3, color=plots.PALETTE[1], lw=1.0, ls="--",
+             label="simulated")
+    top.set_ylabel("position (mm)")
+    plots._legend_right(top)
+    bottom.plot(sim.t, (sim.y_measured - sim.y_simulated) * 1e3, color=plots.PALETTE[3], lw=1.0)
+    bottom.set_ylabel("measured − simulated (mm)")
+    bottom.set_xlabel("time (s)")
+    for ax in axes:
+        ax.axvspan(sim.t[0], t0, color="0.85", lw=0)
+    top.set_title(f"{sim.model}: RMSE {sim.score.rmse * 1e3:.4g} mm after the first "
+                  f"{sim.init_samples} samples", fontsize=9)
+    return axes
+
+
+def write(sim: Simulation, out: Path) -> None:
+    """``out/simulation.csv`` and ``.npz`` (the named columns), ``scores.json`` and
+    ``figures/simulation.png``; the folder appears whole or not at all."""
+    from experiments import plots
+
+    with atomic_folder(out, marker="scores.json", what="a simulation") as tmp:
+        cols = sim.columns()
+        np.savetxt(tmp / "simulation.csv", np.column_stack([cols[k] for k in COLUMNS]),
+                   delimiter=",", header=",".join(COLUMNS), comments="", fmt="%.17g")
+        with open(tmp / "simulation.npz", "wb") as fh:
+            np.savez_compressed(fh, **cols)
+        (tmp / "scores.json").write_text(json.dumps(sim.to_json(), indent=1))
+        axes = plot_simulation(sim)
+        plots.save(axes[0].figure, tmp / "figures" / "simulation.png")
+
+
+def command(args, *, load) -> int:
+    """``clm-sim simulate`` on the parsed ``args``; ``load(path, args)`` reads a record."""
+    from clm_sim.outdir import check_output_folder
+
+    out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
+    check_output_folder(out, marker="scores.json", what="a simulation")  # before the work
+    model = load_simulation_model(args.model)
+    try:
+        run = load(args.data, args)
+    except UserError as exc:
+        if "(signal u)" in str(exc):
+            raise UserError(f"{args.data}: no input column to drive the model with "
+                            f"({str(exc).split(': ', 1)[1]}); name it with --columns u=NAME") \
+                from None
+        raise
+    sim = simulate_record(model, run, init_samples=args.init_samples, source=str(args.data),
+                          substeps=args.substeps)
+    write(sim, out)
+    print(sim.summary())
+    print(f"wrote {out}/ (simulation.csv, simulation.npz, scores.json, figures/simulation.png)")
+    return 0

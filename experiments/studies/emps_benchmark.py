@@ -1,0 +1,274 @@
+"""The EMPS benchmark on the field's protocol: the product's physical models beside the published.
+
+Protocol (nonlinearbenchmark.org, the ``nonlinear_benchmarks`` EMPS loader): train on
+``DATA_EMPS.mat``, test on ``DATA_EMPS_PULSES.mat``; input ``u = gtau*vir`` (N), output ``qm``
+(m); a model may use the test input and the first 20 test output samples (its initial state),
+nothing else of the test record; score: RMSE (mm) of the open-loop simulated position over the
+remaining samples. Every row is simulated by the same code (``clm_sim.open_loop``).
+
+Rows, each made from the training record only (or from nothing: the published model):
+
+* ``published``: Janot et al.'s IDIM-LS model as published (``benchmark.published_model``);
+* ``published procedure``: the same procedure rerun by ``clm-sim identify`` with its options;
+* ``product LIP`` and ``product LIP + offset``: ``clm-sim identify`` with its defaults, and with
+  an offset column (one setting apart);
+* ``diagnosis-extended``: the published model diagnosed on the training record (causes selected
+  on its first 75 %, gain on the rest), extended with what was named;
+* ``published, output-error`` and ``extended, output-error``: those two models' parameters
+  refined on the training record's simulation error (``experiments.output_error``; the two
+  rows differ in the structure only).
+
+``clm-sim study experiments/configs/emps_benchmark.yaml`` writes ``benchmark.json``,
+``report.md`` (the page ``docs/results/emps_benchmark.md``) and ``figures/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from clm_sim.errors import UserError
+from clm_sim.outdir import atomic_folder
+from clm_sim.plant import THETA_NAMES, Plant
+from clm_sim.record import Run, load_record
+from clm_sim.schema import build, load_yaml
+from controllers.idim import IDIMProtocol
+from experiments.diagnosis.model import SimulationModel, load_model
+from experiments.simulation import Simulation, simulate_record
+from experiments.studies.kinds import take_kind
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """A published score on the same protocol: ``name``, test RMSE (mm), ``source``."""
+
+    name: str
+    test_rmse_mm: float
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class BenchmarkSettings:
+    """The ``benchmark:`` section: the records (paths relative to the current folder), how their
+    columns map (``columns``, ``scale`` as ``clm-sim --columns/--scale``), the initialization
+    window, the published model file and procedure, and the published baselines."""
+
+    training: str
+    test: str
+    columns: dict[str, str] = field(default_factory=dict)
+    scale: dict[str, str | float] = field(default_factory=dict)
+    init_samples: int = 20
+    published_model: str = "experiments/configs/emps_model.yaml"
+    published_procedure: IDIMProtocol = field(default_factory=IDIMProtocol)
+    baselines: tuple[Baseline, ...] = ()
+    max_nfev: int = 400
+
+
+@dataclass(frozen=True)
+class Row:
+    """One model: how it was made, from which data, its plant, and its scores."""
+
+    name: str
+    made_from: str
+    plant: Plant
+    cpu_s: float
+    train: Simulation
+    test: Simulation
+    force_rms_test_n: float
+    force_mean_test_n: float
+    note: str = ""
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "made_from": self.made_from, "note": self.note,
+                "cpu_s": self.cpu_s, "test_rmse_m": self.test.score.rmse,
+                "train_rmse_m": self.train.score.rmse, "test_fit_percent":
+                self.test.score.fit_percent, "force_residual_rms_test_n": self.force_rms_test_n,
+                "force_residual_mean_test_n": self.force_mean_test_n,
+                "parameters": {**self.plant.theta(), "offset_n": _offset(self.plant),
+                               "effects": [e.as_config() for e in self.plant.effects]}}
+
+
+def _offset(plant: Plant) -> float:
+    return float(sum(e.force_n for e in plant.effects if e.type == "force_offset"))
+
+
+def load_benchmark(path) -> tuple[str, BenchmarkSettings]:
+    data = take_kind(load_yaml(path), path, "emps_benchmark")
+    unknown = set(data) - {"name", "benchmark"}
+    if unknown or "benchmark" not in data:
+        raise UserError(f"{path}: a benchmark config has 'name' and 'benchmark:' only"
+                        + (f" (unknown: {', '.join(sorted(unknown))})" if unknown else ""))
+    try:
+        settings = build(BenchmarkSettings, data["benchmark"], "benchmark")
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    return str(data.get("name", Path(path).stem)), settings
+
+
+def _force_residual(plant: Plant, run: Run) -> tuple[float, float]:
+    """RMS and mean (N) of the diagnosis's force residual (measured force minus the model's
+    inverse dynamics, low-passed) of ``plant`` on ``run``: the mean is the constant force the
+    model misses, which an open-loop simulation integrates twice."""
+    from experiments.diagnosis.residual import DiagnosisSettings, Residual
+
+    res = Residual(run, plant, DiagnosisSettings())
+    return float(res.rms()), float(res.z.mean())
+
+
+def run_benchmark(settings: BenchmarkSettings, progress=print) -> list[Row]:
+    """Every row made from the training record and simulated on both records (paths relative
+    to the current folder)."""
+    from controllers.idim import fit as idim_fit
+    from experiments.diagnosis import DiagnosisSettings, diagnose
+    from experiments.output_error import refine
+
+    def path(key):
+        p = Path(getattr(settings, key))
+        if not p.exists():
+            raise UserError(f"benchmark.{key}: file not found: {p} (paths are relative to the "
+                            f"current folder {Path.cwd()})")
+        return p
+
+    train, test = (load_record(path(k), columns=settings.columns, scale=settings.scale)
+                   for k in ("training", "test"))
+    published = load_model(path("published_model"))
+    n0 = settings.init_samples
+    rows: list[Row] = []
+
+    def add(name, plant, cpu, made_from, note=""):
+        model = SimulationModel(plant, None, name, train.ts)
+        r = Row(name, made_from, plant, cpu,
+                simulate_record(model, train, init_samples=n0, source=settings.training),
+                simulate_record(model, test, init_samples=n0, source=settings.test),
+                *_force_residual(plant, test), note)
+        progress(f"{name}: test RMSE {r.test.score.rmse * 1e3:.3f} mm, training "
+                 f"{r.train.score.rmse * 1e3:.3f} mm ({cpu:.1f} s CPU)")
+        rows.append(r)
+        return r
+
+    add("published model", published.plant, 0.0, "nothing (the published parameters)")
+
+    def lip_row(name, protocol, made_from):
+        cpu = time.process_time()
+        f = idim_fit(y=train.y, u=train.u, ts=train.ts, protocol=protocol)
+        plant = dataclasses.replace(published.plant, **f.model.theta_, effects=f.model.effects_)
+        return add(name, plant, time.process_time() - cpu, made_from)
+
+    lip_row("published procedure (identify options)",
+            settings.published_procedure, "training record (IDIM-LS)")
+    lip_row("product LIP (identify)", IDIMProtocol(), "training record (LIP)")
+    lip = lip_row("product LIP + offset (identify --offset)", IDIMProtocol(offset=True),
+                  "training record (LIP)")
+
+    def refined(name, plant):
+        """Output-error fit from ``plant``, and again from a second start (the LIP + offset's
+        parameters in the same structure): the note says whether the two ends agree."""
+        cpu = time.process_time()
+        fit = refine(plant, train, init_samples=n0, max_nfev=settings.max_nfev)
+        cpu = time.process_time() - cpu
+        other = refine(_restart(plant, lip.plant), train, init_samples=n0,
+                       max_nfev=settings.max_nfev)
+        model = SimulationModel(other.plant, None, name, train.ts)
+        spread = max(abs(other.values[k] - v) / max(abs(v), 1e-9) for k, v in fit.values.items())
+        note = (f"{_stop(fit)}. Second start (the LIP + offset's parameters): {_stop(other)}; "
+                f"test RMSE {simulate_record(model, test, init_samples=n0).score.rmse * 1e3:.3f}"
+                f" mm; the two ends differ by up to {100 * spread:.2g} % in a parameter")
+        return add(name, fit.plant, cpu, "training record (simulation error)", note)
+
+    refined("published, output-error", published.plant)
+
+    cpu = time.process_time()
+    # Causes selected and fitted on the whole training record; the gain the diagnosis reports is
+    # then measured on its own final quarter (not out of sample; the table does not use it).
+    cut = int(round(0.75 * len(train)))
+    diag = diagnose(train, published, validation=train.slice(cut), settings=DiagnosisSettings())
+    add("diagnosis-extended", diag.extended, time.process_time() - cpu,
+        "training record (force residual)", "; ".join(f.effect for f in diag.findings))
+    refined("diagnosis-extended, output-error", diag.extended)
+    return rows
+
+
+def _restart(plant: Plant, start: Plant) -> Plant:
+    """``plant``'s structure (offsets merged) with ``start``'s theta and constant force."""
+    from experiments.output_error import merge_offsets
+
+    p = merge_offsets(plant)
+    effects = tuple(dataclasses.replace(e, force_n=_offset(start)) if e.type == "force_offset"
+                    else e for e in p.effects)
+    return dataclasses.replace(p, **start.theta(), effects=effects)
+
+
+def _stop(fit) -> str:
+    return (f"{'converged' if fit.converged else 'stopped'} after {fit.nfev} evaluations: "
+            f"{fit.message}; training RMSE {fit.rmse_start_m * 1e3:.3f} -> "
+            f"{fit.rmse_m * 1e3:.3f} mm")
+
+
+def _params(p: Plant) -> str:
+    extra = [e.type for e in p.effects if e.type != "force_offset"]
+    return (f"M {p.mass:.2f}, Fv {p.viscous:.1f}, Fc {p.coulomb:.2f}, k {p.stiffness:.3g}, "
+            f"OF {_offset(p):+.2f}" + (f"; {', '.join(extra)}" if extra else ""))
+
+
+def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command: str) -> str:
+    pub = rows[0]
+    product = rows[1:]
+    by_train = min(product, key=lambda r: r.train.score.rmse)
+    by_test = min(product, key=lambda r: r.test.score.rmse)
+    mm = lambda r: r.test.score.rmse * 1e3  # noqa: E731
+    lines = ["| model | made from | test RMSE (mm) | training RMSE (mm) | test fit (%) | "
+             "force residual on test, RMS (N) | its mean (N) | "
+             "parameters (kg, N·s/m, N, N/m, N) | CPU (s) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r.name} | {r.made_from} | {mm(r):.2f} | "
+                     f"{r.train.score.rmse * 1e3:.2f} | {r.test.score.fit_percent:.1f} | "
+                     f"{r.force_rms_test_n:.3f} | {r.force_mean_test_n:+.3f} | "
+                     f"{_params(r.plant)} | {r.cpu_s:.1f} |")
+    for b in settings.baselines:
+        lines.append(f"| {b.name} (black box, published) | {b.source} | {b.test_rmse_mm:.1f} | "
+                     f"– | – | – | – | – | – |")
+    rel = lambda r: 100 * (mm(r) / mm(pub) - 1)  # noqa: E731
+    verdict = [
+        f"The published model simulates the test record to {mm(pub):.2f} mm. Chosen by the "
+        f"training record alone (lowest training RMSE), the product's best physical model is "
+        f"**{by_train.name}**: {mm(by_train):.2f} mm on test, "
+        f"{'better' if rel(by_train) < 0 else 'worse'} than the published model by "
+        f"{abs(rel(by_train)):.0f} % ({mm(by_train) - mm(pub):+.2f} mm).",
+        f"The product row with the lowest test RMSE is **{by_test.name}**: {mm(by_test):.2f} mm, "
+        f"{abs(rel(by_test)):.0f} % {'below' if rel(by_test) < 0 else 'above'} the published "
+        f"model; " + ("it is also the training-record choice." if by_test is by_train else
+                      "the training record would not have chosen it (its training RMSE is "
+                      f"{by_test.train.score.rmse * 1e3:.2f} mm against "
+                      f"{by_train.train.score.rmse * 1e3:.2f} mm), so this is a measurement "
+                      "on the test record, not a model selected without it.")]
+    notes = [f"- {r.name}: {r.note}" for r in rows if r.note]
+    return "\n".join([f"<!-- generated by: {command} -->", "", *lines, "", *verdict, "",
+                      "Fits and findings:", "", *notes, ""])
+
+
+def main(config_path, out=None, *, quiet: bool = False) -> int:
+    """``clm-sim study CONFIG`` for a config with a ``benchmark:`` section."""
+    from experiments import plots
+    from experiments.simulation import plot_simulation
+
+    name, settings = load_benchmark(config_path)
+    out = Path(out) if out else Path("results") / Path(config_path).stem
+    progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
+    rows = run_benchmark(settings, progress)
+    command = f"clm-sim study {config_path}"
+    table = to_markdown(name, rows, settings, command)
+    with atomic_folder(out, marker="benchmark.json", what="a benchmark") as tmp:
+        (tmp / "benchmark.json").write_text(json.dumps(
+            {"name": name, "command": command, "rows": [r.to_json() for r in rows],
+             "baselines": [dataclasses.asdict(b) for b in settings.baselines],
+             "init_samples": settings.init_samples}, indent=1))
+        (tmp / "table.md").write_text(table)
+        for i, r in enumerate(rows):
+            axes = plot_simulation(r.test)
+            plots.save(axes[0].figure, tmp / "figures" / f"test_{i}.png")
+    print(table, end="")
+    return 0
