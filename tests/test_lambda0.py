@@ -240,6 +240,30 @@ def test_emps_pgnn_runs_on_the_measured_records(tmp_path, monkeypatch):
     lip = rows[0]["force_rms"]["training"]["inside"]["mean"]
     reg = next(r for r in rows if r["lambda"] == 0.01)
     assert reg["force_rms"]["training"]["inside"]["mean"] <= lip
+    assert "offset_n" in rows[0]  # the LIP with its offset column, as the diagnosis finds
+    import json
+    doc = json.loads((tmp_path / "emps" / "table.json").read_text())
+    assert all(c["varies"] and "p_wilcoxon" in c and "p_holm" in c for c in doc["comparisons"])
+
+
+def test_record_lip_has_an_offset_column():
+    """The LIP of a measured record carries a constant force offset: on data with an offset and
+    a position range that does not straddle zero, it returns the true stiffness and offset (an
+    LIP without the column would put the offset into the stiffness)."""
+    from experiments import record_fit
+
+    data = synthetic()
+    phi = data.phi.copy()
+    phi[:, 3] += 0.1  # positions 0 to 0.2 m: the mean position is not zero
+    target = phi @ np.array([18.8, 172.0, 7.2, 20.0]) - 3.0
+    rec = record_fit.Prepared("training", phi, target, np.ones(len(target), bool), 1e-3)
+    lip = record_fit.fit_lip(rec)
+    # Noise-free data: the least-squares solution is exact to rounding.
+    assert lip.offset_n == pytest.approx(-3.0, abs=1e-8)
+    assert lip.theta["stiffness"] == pytest.approx(20.0, rel=1e-8)
+    assert np.allclose(lip.predict(phi), target, atol=1e-8)
+    no_offset = np.linalg.lstsq(phi, target, rcond=None)[0]
+    assert abs(no_offset[3] - 20.0) > 1.0  # what the offset column prevents
 
 
 @pytest.fixture(scope="module")
