@@ -33,7 +33,8 @@ def _cmd_run(args) -> int:
     from experiments.table import to_markdown
 
     data = load_yaml(args.config)
-    for section, command in (("sweep", "sweep"), ("study", "study"), ("failure_map", "study")):
+    for section, command in (("sweep", "sweep"), ("study", "study"), ("failure_map", "study"),
+                             ("mechanism", "study")):
         if section in data:
             raise UserError(f"{args.config}: has a '{section}:' section; run it with "
                             f"'clm-sim {command} {args.config}'")
@@ -194,6 +195,9 @@ def _cmd_study(args) -> int:
     from clm_sim.schema import load_yaml
     if "failure_map" in load_yaml(args.config):  # where lambda = 0 fails: its own study
         from experiments.studies.failure_map import main
+        return main(args.config, args.out, workers=args.workers, quiet=args.quiet)
+    if "mechanism" in load_yaml(args.config):  # finding (iii) over records, its mechanism
+        from experiments.studies.mechanism import main
         return main(args.config, args.out, workers=args.workers, quiet=args.quiet)
     from experiments.studies.extrapolation import load_study, run_study
 

@@ -374,3 +374,63 @@ def test_holm_adjusts_step_down():
     from experiments import table
 
     assert table.holm([0.01, 0.04, None, 0.03]) == [0.03, 0.06, None, 0.06]
+
+
+def test_cluster_bootstrap_covers_the_spread_between_records():
+    """The two-level bootstrap's interval widens with the spread between records, which a
+    bootstrap over draws alone would miss; its mean is the mean of the record means."""
+    from experiments.studies.mechanism import cluster_bootstrap
+
+    rng = np.random.default_rng(1)
+    tight = [[0.0 + 0.01 * rng.standard_normal() for _ in range(3)] for _ in range(6)]
+    spread = [[float(k) - 2.5 + 0.01 * rng.standard_normal() for _ in range(3)]
+              for k in range(6)]
+    a = cluster_bootstrap(tight, 500, 0.95, np.random.default_rng(0))
+    b = cluster_bootstrap(spread, 500, 0.95, np.random.default_rng(0))
+    assert b["ci"][1] - b["ci"][0] > 50 * (a["ci"][1] - a["ci"][0])
+    assert b["mean"] == pytest.approx(np.mean([np.mean(v) for v in spread]))
+
+
+def test_cubic_recovers_the_cable_term():
+    from experiments.studies.mechanism import cubic
+
+    y = np.linspace(-0.1, 0.1, 41)
+    assert cubic(y, 10 * y + 2000 * y ** 3 + 1.0) == pytest.approx(2000.0, rel=1e-9)
+    assert abs(cubic(y, 10 * y)) < 1e-6
+
+
+def test_mechanism_config_loads_and_errors_name_the_key(tmp_path):
+    from experiments.studies.mechanism import load_mechanism
+
+    config, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism.yaml")
+    assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lambda == 0
+    assert set(st.cases) == {"cable_cubic", "cable_linear"}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("mechanism: {records: 1}\n")
+    with pytest.raises(UserError, match=r"bad.yaml: .*records"):
+        load_mechanism(bad)
+
+
+@pytest.mark.slow
+def test_mechanism_study_runs_and_reports(tmp_path):
+    """A tiny design (two records, one draw, a 3-neuron network, 5 iterations): every cell has
+    both lambdas per draw, the report prints the finding and the mechanism table, and the truth's
+    cubic is the cable's 2000 N/m^3 (a cubic through a cubic) and 0 for the control."""
+    from experiments.studies.mechanism import load_mechanism, run_mechanism
+
+    path = tmp_path / "m.yaml"
+    path.write_text(
+        "name: m\nseed: 1\n"
+        "references:\n"
+        "  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}\n"
+        "  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}\n"
+        "training: {repeats: 1}\n"
+        "mechanism:\n  records: 2\n  draws: 1\n  hidden: 3\n  bootstrap: 200\n"
+        "  pgnn: {weight_decay: 0, continuation_lambda: 0, max_iter: 5}\n")
+    config, st = load_mechanism(path)
+    summary = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
+    assert summary["cases"]["cable_cubic"]["truth_cubic"] == pytest.approx(2000.0, rel=1e-6)
+    assert abs(summary["cases"]["cable_linear"]["truth_cubic"]) < 1e-3
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "| cable_linear | λ = 0 |" in text and "two-level bootstrap" in text
+    assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
