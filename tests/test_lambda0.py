@@ -434,3 +434,41 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     text = (tmp_path / "out" / "report.md").read_text()
     assert "| cable_linear | λ = 0 |" in text and "two-level bootstrap" in text
     assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
+
+
+def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
+    """emps_pgnn.yaml's rows as record_fit compares them: only rows differing in one setting
+    (plus each PGNN row against the LIP), each with the Wilcoxon p, the median difference, the
+    wins and a log ratio; one exploded seed moves the mean difference but not the median."""
+    from experiments import record_fit, table
+
+    config = load_config(EMPS_CONFIG)
+    rng = np.random.default_rng(0)
+    rows = []
+    for spec in config.feedforwards:
+        n = 1 if spec.kind == "lip" else spec.seeds
+        per_seed = [{"training": {"inside": float(rng.uniform(0.4, 0.5)),
+                                  "outside": float(rng.uniform(5, 50))}} for _ in range(n)]
+        row = {"kind": spec.kind, "label": spec.label(), "n_seeds": n,
+               "force_rms": {"training": {}}, "force_rms_per_seed": per_seed}
+        if spec.kind == "pgnn":
+            fits = [{"start": "draw", "continuation_lambda":
+                     0.01 if "continuation" in spec.label() else 0.0}] * n
+            row["settings"] = table.row_settings(spec, fits)
+        rows.append(row)
+    rows[1]["force_rms_per_seed"][0]["training"]["outside"] = 2.1e5  # one exploded seed
+    pairs = record_fit.comparisons(rows)
+    assert pairs and all(c["varies"] for c in pairs)
+    by = {r["label"]: r for r in rows}
+    for c in pairs:
+        if c["b"] == "LIP":
+            continue
+        a, b = by[c["a"]]["settings"], by[c["b"]]["settings"]
+        assert {k for k in a if a[k] != b[k]} == set(c["values"])
+        assert c["p_wilcoxon"] is not None and c["p_holm"] >= c["p_wilcoxon"]
+    exploded = next(c for c in pairs if c["b"] == rows[1]["label"] and c["side"] == "outside"
+                    and c["varies"] == "lambda")
+    assert exploded["diff"] < -1e4 and abs(exploded["median_diff"]) < 50
+    assert not any(c["varies"] == "lambda" and "continuation" in c["b"] + c["a"]
+                   and "weight decay" in c["a"] and "weight decay 1e-5, n_l" in c["a"]
+                   and "continuation" in c["b"] for c in pairs)
