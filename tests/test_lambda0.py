@@ -472,3 +472,24 @@ def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
     assert not any(c["varies"] == "lambda" and "continuation" in c["b"] + c["a"]
                    and "weight decay" in c["a"] and "weight decay 1e-5, n_l" in c["a"]
                    and "continuation" in c["b"] for c in pairs)
+
+
+def test_newey_west_widens_with_autocorrelated_residuals():
+    """On AR(1) residuals with rho = 0.8 the Newey-West standard error of a mean is about
+    sqrt((1 + rho) / (1 - rho)) = 3 times the white-noise one, and the white-noise one is right
+    (ratio about 1) on white residuals."""
+    from experiments.hac import newey_west
+
+    rng = np.random.default_rng(0)
+    n = 20000
+    ones = np.ones((n, 1))
+    white = newey_west(ones, rng.standard_normal(n), lags=60)
+    e = np.zeros(n)
+    for t in range(1, n):
+        e[t] = 0.8 * e[t - 1] + rng.standard_normal()
+    ar = newey_west(ones, e, lags=60)
+    # Tolerances: the Bartlett estimate at 60 lags is biased low by ~ 1/60 of the long-run
+    # variance's tail and has a sampling error of a few per cent at n = 20000.
+    assert white["std_newey_west"][0] / white["std_white"][0] == pytest.approx(1.0, abs=0.15)
+    assert ar["std_newey_west"][0] / ar["std_white"][0] == pytest.approx(3.0, rel=0.15)
+    assert ar["lag1_autocorr"] == pytest.approx(0.8, abs=0.02)
