@@ -95,7 +95,7 @@ def _warn(path, lines: list[str]) -> None:
 
 def _cmd_study(args) -> int:
     from clm_sim.schema import load_yaml
-    from experiments.studies import emps_benchmark, extrapolation, failure_map
+    from experiments.studies import emps_benchmark, extrapolation, failure_map, mechanism
     from experiments.studies.kinds import kind_of
 
     kind = kind_of(load_yaml(args.config), args.config)
@@ -103,6 +103,8 @@ def _cmd_study(args) -> int:
         return failure_map.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
     if kind == "emps_benchmark":  # EMPS on the field's benchmark protocol
         return emps_benchmark.main(args.config, args.out, quiet=args.quiet)
+    if kind == "mechanism":  # finding (iii) over training records, and its mechanism
+        return mechanism.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
     return extrapolation.main(args.config, args.out, quiet=args.quiet)
 
 

@@ -296,7 +296,7 @@ def split_figure(summary: dict, models: dict, lip, r: np.ndarray, ts: float, ref
     if truth is not None:
         axes[3].plot(t, truth - lip_force, color=PALETTE[7], ls="--", lw=0.9,
                      label="true plant force")
-    titles = ["physical part θ_phy·T minus the LIP force", "network part f_NN",
+    titles = ["physical part θ_phy·filt(T) minus the LIP force", "network part f_NN",
               "whole model minus the LIP force"]
     for ax, title in zip(axes[1:], titles):
         ax.fill_between(t, 0, 1, where=beyond, color=PALETTE[4], alpha=0.1,

@@ -8,7 +8,10 @@ The fitting data are :func:`controllers.pgnn.training_data` at decimation 1, res
 window (position and/or velocity of the filtered signals), then decimated with the PGNN's own
 decimation (one sample per 8 ms by default, whatever the record's rate). The LIP of a record is
 the least-squares ``theta`` on the same windowed, filtered samples, so both models see the same
-data. ``force_rms`` (N) is the rms of filtered force minus prediction over the samples inside
+data; it carries a constant force offset column besides the four physical ones (as the
+diagnosis finds on EMPS and the published EMPS model has: without it the stiffness absorbs the
+offset through the mean position). The PGNN's network carries its offset in its output bias.
+``force_rms`` (N) is the rms of filtered force minus prediction over the samples inside
 the window and over those outside it, on the training record and on the validation record.
 """
 
@@ -55,53 +58,82 @@ def force_rms(pred: np.ndarray, rec: Prepared) -> dict:
     return {"inside": _rms(err[rec.inside]), "outside": _rms(err[~rec.inside])}
 
 
-def fit_lip(train: Prepared) -> dict[str, float]:
-    """Least-squares theta on the windowed, filtered training samples."""
-    return fit_lip_std(train)[0]
+@dataclasses.dataclass(frozen=True)
+class RecordLIP:
+    """The LIP of a record: ``theta`` (named, SI units), a constant force ``offset_n`` (N; the
+    published EMPS model and the diagnosis have one) and their standard errors ``std`` (the
+    same names and ``"offset"``)."""
+
+    theta: dict
+    offset_n: float
+    std: dict
+
+    @property
+    def theta_(self) -> dict:  # the fitted-model view record_warnings reads
+        return self.theta
+
+    @property
+    def std_(self) -> dict:
+        return self.std
+
+    def predict(self, phi: np.ndarray) -> np.ndarray:
+        """Force (N) for filtered feature columns ``phi`` (N, 4)."""
+        return phi @ np.array([self.theta[k] for k in THETA_NAMES]) + self.offset_n
 
 
-def fit_lip_std(train: Prepared) -> tuple[dict[str, float], dict[str, float]]:
-    """:func:`fit_lip` and the standard errors of its parameters (same units); ``UserError``
-    where the window does not excite every parameter (a column zero or collinear)."""
-    phi, target = train.phi[train.inside], train.target[train.inside]
-    scale = np.linalg.norm(phi, axis=0)
-    if np.any(scale == 0) or np.linalg.matrix_rank(phi / scale) < phi.shape[1]:
+def fit_lip(train: Prepared) -> RecordLIP:
+    """Least-squares theta and force offset on the windowed, filtered training samples, with
+    their standard errors; ``UserError`` where the window does not excite every parameter (a
+    column zero or collinear)."""
+    phi = train.phi[train.inside]
+    cols = np.column_stack([phi, np.ones(len(phi))])
+    target = train.target[train.inside]
+    scale = np.linalg.norm(cols, axis=0)
+    if np.any(scale == 0) or np.linalg.matrix_rank(cols / scale) < cols.shape[1]:
         raise UserError(f"{train.name} record: the training window does not excite all "
                         f"parameters (a regressor is zero or collinear inside it); it needs "
                         f"motion in both directions (widen data.window)")
-    theta = np.linalg.lstsq(phi, target, rcond=None)[0]
-    resid = target - phi @ theta
-    cov = np.linalg.pinv(phi.T @ phi) * (resid @ resid / max(len(target) - len(theta), 1))
+    x = np.linalg.lstsq(cols, target, rcond=None)[0]
+    resid = target - cols @ x
+    cov = np.linalg.pinv(cols.T @ cols) * (resid @ resid / max(len(target) - len(x), 1))
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
-    return dict(zip(THETA_NAMES, map(float, theta))), dict(zip(THETA_NAMES, map(float, std)))
+    names = (*THETA_NAMES, "offset")
+    return RecordLIP(dict(zip(THETA_NAMES, map(float, x[:4]))), float(x[4]),
+                     dict(zip(names, map(float, std))))
 
 
 def record_checks(config: ExperimentConfig, run, train: Prepared, source: str) -> tuple[
-        dict[str, float], list[str]]:
+        RecordLIP, list[str]]:
     """The guards of :mod:`experiments.record_guards` on the training record: refuse (one
     line) a record or window that identifies nothing or a fit with non-finite numbers; the
     LIP of the window and the warnings where it is suspect."""
-    from types import SimpleNamespace
-
-    from experiments.record_guards import fit_warnings, refuse_small_window
+    from experiments.record_guards import cutoff_warnings, fit_warnings, refuse_small_window
     from experiments.suspicions import record_warnings
 
     refuse_small_window(int(train.inside.sum()), len(train.inside), source)
-    theta, std = fit_lip_std(train)
-    if not all(np.isfinite(list(theta.values())) + np.isfinite(list(std.values()))):
+    try:
+        lip = fit_lip(train)
+    except UserError:  # collinear columns: name the cut-off where that is the cause
+        cutoff = cutoff_warnings(config.features.regression_lowpass_hz, run.ts, len(run),
+                                 "features.regression_lowpass_hz")
+        if cutoff:
+            raise UserError(f"{source}: nothing to identify: {cutoff[0]}") from None
+        raise
+    values = [*lip.theta.values(), lip.offset_n, *lip.std.values()]
+    if not np.all(np.isfinite(values)):
         raise UserError(f"{source}: the fit gives non-finite parameters; the record's values "
                         f"are too large or degenerate for a least-squares fit")
 
     def refit(y):
         try:
             coarse = prepare(config, dataclasses.replace(run, y=y), train.name)
-            return fit_lip_std(coarse)[0]["mass"] if coarse.inside.sum() else float("nan")
+            return fit_lip(coarse).theta["mass"] if coarse.inside.sum() else float("nan")
         except UserError:
             return float("nan")
 
-    lip = SimpleNamespace(theta_=theta, std_=std)
-    return theta, record_warnings(run, lip) + fit_warnings(
-        run, config.features, theta, std, option="features.regression_lowpass_hz", refit=refit)
+    return lip, record_warnings(run, lip) + fit_warnings(
+        run, config.features, lip.theta, lip.std, option="features.regression_lowpass_hz",
+        refit=refit)
 
 
 def _stat(values) -> dict | None:
@@ -114,22 +146,24 @@ def _stat(values) -> dict | None:
 
 
 def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
-             theta_lip: dict[str, float] | None = None) -> list[dict]:
+             lip: RecordLIP | None = None) -> list[dict]:
     """Every row of ``config`` identified on ``records[0]`` and scored on all ``records``
-    (``theta_lip``: the LIP of the window, if already fitted)."""
+    (``lip``: the LIP of the window, if already fitted)."""
     from controllers.pgnn import TrainingData
     from controllers.pgnn_settings import decimation_for
     from experiments import workers
     from experiments.testbed import STREAM_NETWORK, stream
 
     train = records[0]
-    theta_lip = theta_lip or fit_lip(train)
+    lip = lip or fit_lip(train)
+    theta_lip = lip.theta
     progress(f"LIP on the window ({int(train.inside.sum())} of {len(train.inside)} samples): "
-             + ", ".join(f"{k} {v:.4g}" for k, v in theta_lip.items()))
+             + ", ".join(f"{k} {v:.4g}" for k, v in theta_lip.items())
+             + f", offset {lip.offset_n:.4g} N")
     rows = []
     for spec in config.feedforwards:
         if spec.kind == "lip":
-            preds = [[r.phi @ np.array([theta_lip[k] for k in THETA_NAMES]) for r in records]]
+            preds = [[lip.predict(r.phi) for r in records]]
             thetas, fits, models = [theta_lip], None, [None]
         else:
             settings = spec.pgnn_settings()
@@ -156,10 +190,13 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
                "force_rms_per_seed": per_seed,
                "theta_phy": {k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES},
                "theta_phy_per_seed": thetas}
+        if spec.kind == "lip":
+            row["offset_n"] = lip.offset_n
         if fits is not None:
             row["fits"] = fits
             row["converged"] = sum(f["stop"] == "converged" for f in fits)
             row["regularizers"] = table.regularizers(spec, fits)
+            row["settings"] = table.row_settings(spec, fits)
         rows.append((row, models))
         progress(f"{spec.label()}: " + "; ".join(
             f"{r.name} inside {_fmt(row['force_rms'][r.name]['inside'])} N, outside "
@@ -176,29 +213,45 @@ def _fmt(stat) -> str:
 
 
 def comparisons(rows: list[dict]) -> list[dict]:
-    """Paired differences of ``force_rms`` over seeds: every other PGNN row against the
-    lambda = 0 row of the same n_l, seeds and network weight decay (``a - b``, 95 %
-    t-interval), per record and side."""
+    """Paired differences of ``force_rms`` over seeds, per record and side, between PGNN rows of
+    the same seed count that differ in one setting (:func:`experiments.table.varies`; ``b`` the
+    earlier row), and of every PGNN row against the LIP (one LIP, so one-sample): ``a - b``
+    with its 95 % t-interval, the t and Wilcoxon signed-rank p-values, the paired log ratio
+    ``a / b`` (the errors beyond the window are heavy-tailed: one seed reaches 1e5 N), the count
+    of seeds where ``a < b``, and Holm's adjustment of the Wilcoxon p-values over the family;
+    ``starred`` when that stays below 0.05."""
     out = []
-    lam0 = [r for r in rows if r["kind"] == "pgnn" and r["training"] == "simultaneous"
-            and not r["lambda"]]
-    for b in lam0:
-        for a in rows:
-            if a is b or a["kind"] != "pgnn" or a["hidden"] != b["hidden"] \
-                    or a["n_seeds"] != b["n_seeds"] or a in lam0 \
-                    or a["regularizers"]["weight_decay"] != b["regularizers"]["weight_decay"]:
-                continue
-            for rec in a["force_rms"]:
-                for side in ("inside", "outside"):
-                    da = [s[rec][side] for s in a["force_rms_per_seed"]]
-                    db = [s[rec][side] for s in b["force_rms_per_seed"]]
-                    if None in da or None in db:
-                        continue
-                    mean, lo, hi = table.t_interval(np.subtract(da, db))
-                    ci = [lo, hi] if len(da) > 1 else None
-                    out.append({"a": a["label"], "b": b["label"], "metric": "force_rms",
-                                "record": rec, "side": side, "n": len(da), "diff": mean,
-                                "ci95": ci, "excludes_zero": bool(ci and (lo > 0 or hi < 0))})
+    pgnn = [r for r in rows if r["kind"] == "pgnn"]
+    lip = next((r for r in rows if r["kind"] == "lip"), None)
+    pairs = []
+    for j, a in enumerate(pgnn):
+        for b in pgnn[:j]:
+            one = table.varies(a["settings"], b["settings"]) if a["n_seeds"] == b["n_seeds"] \
+                else None
+            if one is not None:
+                pairs.append((a, b, *one))
+    if lip is not None:
+        pairs += [(a, lip, "model (PGNN row vs the LIP)", None) for a in pgnn]
+    for a, b, setting, values in pairs:
+        for rec in a["force_rms"]:
+            for side in ("inside", "outside"):
+                da = [s[rec][side] for s in a["force_rms_per_seed"]]
+                db = [s[rec][side] for s in b["force_rms_per_seed"]]
+                if None in da or None in db:
+                    continue
+                db = db * len(da) if len(db) == 1 else db
+                d = np.subtract(da, db)
+                mean, lo, hi = table.t_interval(d)
+                ci = [lo, hi] if len(da) > 1 else None
+                out.append({"a": a["label"], "b": b["label"], "metric": "force_rms",
+                            "record": rec, "side": side, "varies": setting, "values": values,
+                            "n": len(da), "diff": mean, "median_diff": float(np.median(d)),
+                            "a_lower": int(np.sum(d < 0)), "ci95": ci,
+                            "excludes_zero": bool(ci and (lo > 0 or hi < 0)),
+                            **table.paired_tests(d), "log_ratio": table.log_ratio(da, db)})
+    for c, p in zip(out, table.holm([c["p_wilcoxon"] for c in out])):
+        c["p_holm"] = p
+        c["starred"] = bool(p is not None and p < 0.05)
     return out
 
 
@@ -209,13 +262,14 @@ def to_markdown(rows: list[dict], pairs: list[dict]) -> str:
     head = (["feedforward", "seeds"]
             + [f"force rms {r} {side} [N]" for r in recs for side in ("inside", "outside")]
             + [f"{table._SHORT[k]} [{table.THETA_UNITS[k]}]" for k in THETA_NAMES]
-            + ["fits converged"])
+            + ["offset [N]", "fits converged"])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         cells = [row["label"], str(row["n_seeds"])]
         cells += [_fmt(row["force_rms"][r][side]) for r in recs for side in ("inside",
                                                                            "outside")]
         cells += [f"{row['theta_phy'][k]:.4g}" for k in THETA_NAMES]
+        cells.append(f"{row['offset_n']:.4g}" if "offset_n" in row else "–")
         cells.append(f"{row['converged']}/{len(row['fits'])}" if "fits" in row else "–")
         lines.append("| " + " | ".join(cells) + " |")
     stops = [(r["label"], f) for r in rows for f in r.get("fits", []) if f["stop"] != "converged"]
@@ -223,13 +277,23 @@ def to_markdown(rows: list[dict], pairs: list[dict]) -> str:
         f"{label} seed {f['seed']} ({f['stop']} after {f['iterations']} iterations)"
         for label, f in stops) if stops else "none") + "."]
     lines += table.theta_paths([r for r in rows if "fits" in r])
-    lines += ["", "**Paired differences** (a − b over the same seeds; mean and 95 % "
-              "t-interval; * where it excludes 0):", ""]
+    lines += ["", "**Paired differences** (a − b over the same seeds, between rows that differ "
+              "in one setting, named after `varies`, and against the LIP; mean, 95 % "
+              "t-interval and median; seeds where a is lower; p-values of the t-test and the "
+              "Wilcoxon signed-rank test; the geometric-mean ratio a/b with its interval; "
+              "* where the Wilcoxon p stays below 0.05 after Holm's adjustment over every "
+              "difference listed here):", ""]
     for c in pairs:
         ci = f"[{c['ci95'][0]:+.3f}, {c['ci95'][1]:+.3f}] N" if c["ci95"] else "(no interval)"
-        lines.append(f"- force rms, {c['record']} {c['side']}: {c['a']} − {c['b']} = "
-                     f"{c['diff']:+.3f} N {ci} (n = {c['n']})" + (" *" if c["excludes_zero"]
-                                                                   else ""))
+        ratio = c["log_ratio"]
+        ratio = (f"; ratio {ratio['ratio']:.3f} [{ratio['ci95'][0]:.3f}, "
+                 f"{ratio['ci95'][1]:.3f}]" if ratio else "")
+        lines.append(
+            f"- force rms, {c['record']} {c['side']}, varies {c['varies']}: {c['a']} − {c['b']} "
+            f"= {c['diff']:+.3f} N {ci}, median {c['median_diff']:+.3f} N (n = {c['n']}; a "
+            f"lower in {c['a_lower']}; p t {table._p(c['p_t'])}, Wilcoxon "
+            f"{table._p(c['p_wilcoxon'])}, Holm {table._p(c['p_holm'])}{ratio})"
+            + (" *" if c["starred"] else ""))
     return "\n".join(lines) + "\n"
 
 
@@ -259,9 +323,9 @@ def compute(config: ExperimentConfig, progress, warn=None) -> dict:
     for p in prepared:
         progress(f"{p.name}: {int(p.inside.sum())} samples inside the window, "
                  f"{int((~p.inside).sum())} outside")
-    theta, warnings = record_checks(config, recs[0][1], prepared[0], source)
+    lip, warnings = record_checks(config, recs[0][1], prepared[0], source)
     warn(source, warnings)
-    done = evaluate(config, prepared, progress, theta)
+    done = evaluate(config, prepared, progress, lip)
     rows = [row for row, _ in done]
     return {"rows": rows, "comparisons": comparisons(rows), "models": [m for _, m in done],
             "warnings": warnings,

@@ -44,10 +44,11 @@ def test_paper_cost_rows_reach_the_fit_without_weight_decay_or_continuation():
     those terms (its record says so)."""
     config = load_config(PAPER)
     rows = [s for s in config.feedforwards if s.name and "paper's cost" in s.name]
-    assert len(rows) == 2 and {s.hidden for s in rows} == {16, 8}
+    assert len(rows) == 4 and {(s.hidden, s.lam) for s in rows} == {
+        (n, lam) for n in (16, 8) for lam in (0.0, 0.01)}
     data = synthetic()
     for spec in rows:
-        assert spec.training == "simultaneous" and spec.lam == 0 and spec.seeds >= 10
+        assert spec.training == "simultaneous" and spec.seeds >= 10
         settings = {**spec.pgnn_settings(), "hidden": 3, "max_iter": 3}
         model = PGNNFeedforward(**settings)
         assert not model._continues() and model._weights().weight_decay == 0
@@ -56,7 +57,8 @@ def test_paper_cost_rows_reach_the_fit_without_weight_decay_or_continuation():
         model.fit_data(data=data, theta_lip=lip, rng=np.random.default_rng(0))
         assert [s["start"] for s in model.fit_["starts"]] == ["draw"]
         assert model.fit_["continuation_lambda"] == 0.0
-        assert model.cost_["weight_decay"] == 0.0 and model.fit_["reg_cost"] == 0.0
+        assert model.cost_["weight_decay"] == 0.0
+        assert (model.fit_["reg_cost"] == 0.0) == (spec.lam == 0)  # only the pull to theta_LIP
     weight_decay_rows = [s for s in config.feedforwards if s.kind == "pgnn"
                          and s.pgnn.weight_decay > 0]
     assert all("weight decay" in s.label() for s in weight_decay_rows)
@@ -238,3 +240,256 @@ def test_emps_pgnn_runs_on_the_measured_records(tmp_path, monkeypatch):
     lip = rows[0]["force_rms"]["training"]["inside"]["mean"]
     reg = next(r for r in rows if r["lambda"] == 0.01)
     assert reg["force_rms"]["training"]["inside"]["mean"] <= lip
+    assert "offset_n" in rows[0]  # the LIP with its offset column, as the diagnosis finds
+    import json
+    doc = json.loads((tmp_path / "emps" / "table.json").read_text())
+    assert all(c["varies"] and "p_wilcoxon" in c and "p_holm" in c for c in doc["comparisons"])
+
+
+def test_record_lip_has_an_offset_column():
+    """The LIP of a measured record carries a constant force offset: on data with an offset and
+    a position range that does not straddle zero, it returns the true stiffness and offset (an
+    LIP without the column would put the offset into the stiffness)."""
+    from experiments import record_fit
+
+    data = synthetic()
+    phi = data.phi.copy()
+    phi[:, 3] += 0.1  # positions 0 to 0.2 m: the mean position is not zero
+    target = phi @ np.array([18.8, 172.0, 7.2, 20.0]) - 3.0
+    rec = record_fit.Prepared("training", phi, target, np.ones(len(target), bool), 1e-3)
+    lip = record_fit.fit_lip(rec)
+    # Noise-free data: the least-squares solution is exact to rounding.
+    assert lip.offset_n == pytest.approx(-3.0, abs=1e-8)
+    assert lip.theta["stiffness"] == pytest.approx(20.0, rel=1e-8)
+    assert np.allclose(lip.predict(phi), target, atol=1e-8)
+    no_offset = np.linalg.lstsq(phi, target, rcond=None)[0]
+    assert abs(no_offset[3] - 20.0) > 1.0  # what the offset column prevents
+
+
+@pytest.fixture(scope="module")
+def paper_cost_fit():
+    """The default testbed's training run (seed 1), its LIP, and the lambda = 0 fit with the
+    paper's cost (no weight decay, no continuation) of network draw 3: a draw whose theta_phy
+    drifts by orders of magnitude (viscous ~ -7e4 N·s/m on this code), the case where a replay
+    of theta on other features than the fitted ones leaks hundreds of newtons at reversals."""
+    from experiments.testbed import Testbed
+
+    tb = Testbed()
+    run = tb.training_run(seed=1)
+    lip = tb.fit_lip(run)
+    model = tb.fit_pgnn(run, hidden=16, lam=0.0, seed=3, lip=lip, weight_decay=0.0,
+                        continuation_lambda=0.0)
+    return tb, run, lip, model
+
+
+@pytest.mark.slow
+def test_paper_cost_lambda0_replays_near_the_lip_without_reversal_spikes(paper_cost_fit):
+    """The replayed function is the fitted one: a drifted lambda = 0 fit's feedforward on r1
+    stays within tens of newtons of the LIP's at every sample (the network cancels the drift on
+    the filtered features it was fitted on, and replay uses the same ones). Replaying theta on
+    the raw features instead (the old path) leaks delta_theta . (T - filt T) at the reversals:
+    the check below shows that leak is large for this draw, so the bound is not vacuous."""
+    from clm_sim.features import held_force, lip_regressors
+
+    tb, _, lip, model = paper_cost_fit
+    r = tb.reference("r1")
+    drift = max(abs(model.theta_[k] - lip.theta_[k]) / abs(lip.theta_[k]) for k in THETA_NAMES)
+    assert drift > 10  # the draw drifted (else the test would show nothing)
+    gap = np.abs(model.feedforward(r, tb.ts) - lip.feedforward(r, tb.ts))
+    # Tens of newtons: the two models differ by the network's share of the parasitic forces
+    # (a few N) plus filter edge effects; a reversal leak is hundreds.
+    assert gap.max() < 30.0, gap.max()
+    feats = tb.config.features
+    yf, v, a = feats.motion(r, tb.ts)
+    raw = lip_regressors(yf, v, a) @ np.array([model.theta_[k] for k in THETA_NAMES])
+    phys, net = model.predict_parts(y=r, ts=tb.ts)
+    leak = np.abs(held_force(raw + net) - held_force(phys + net))
+    assert leak.max() > 100.0, leak.max()
+
+
+@pytest.mark.slow
+def test_paper_cost_lambda0_predicts_its_training_record_at_its_training_cost(paper_cost_fit):
+    """``predict`` on the training record, at the fit's samples, gives back the data cost the fit
+    recorded (same features, filter, alignment and decimation in fit and predict)."""
+    from controllers.pgnn import training_data
+    from controllers.pgnn_settings import decimation_for
+
+    tb, run, _, model = paper_cost_fit
+    step = decimation_for(run.ts, model.decimation)
+    data = training_data(tb.config.features, y=run.y, u=run.u, ts=run.ts, decimation=step)
+    keep = tb.config.features.fit_slice(len(run.y))
+    pred = model.predict(y=run.y)[keep][::step]
+    assert len(pred) == len(data.target)
+    cost = float(np.mean((data.target - pred) ** 2))
+    # Same float64 arithmetic in another order: agreement to 1e-9 relative.
+    assert cost == pytest.approx(model.fit_["data_cost"], rel=1e-9)
+
+
+def test_table_compares_only_rows_that_differ_in_one_setting():
+    """paper_table.yaml's PGNN rows, as the table sees them: every comparison pairs rows that
+    differ in exactly one setting and names it; the paper's-cost lambda = 0 / 0.01 pair exists
+    per n_l and varies lambda; weight decay and the continuation start are compared alone; no
+    pair mixes lambda with weight decay or continuation."""
+    from experiments import table
+
+    config = load_config(PAPER)
+    rows = []
+    rng = np.random.default_rng(0)
+    for spec in config.feedforwards:
+        if spec.kind != "pgnn":
+            continue
+        cont = (spec.pgnn.continuation_lambda if spec.training == "simultaneous"
+                and not spec.lam and spec.pgnn.continuation_lambda else 0.0)
+        fits = [{"seed": s, "stop": "converged", "iterations": 5, "data_cost": 0.09,
+                 "reg_cost": 0.0, "grad_norm": 0.0, "first_order": 0.0,
+                 "theta_drift": float(rng.uniform(0, 1)), "continuation_lambda": cont,
+                 "start": "draw"} for s in range(spec.seeds)]
+        metrics = [{"r1": {"mae": float(rng.uniform(2e-7, 4e-7)), "rms": 1e-7, "max": 1e-6},
+                    "fit": f} for f in fits]
+        rows.append(table.make_row(spec, metrics, None))
+    pairs = table.comparisons(rows)
+    by_label = {r["label"]: r for r in rows}
+    mae = [c for c in pairs if c["metric"] == "mae"]
+    for c in mae:
+        a, b = by_label[c["a"]]["settings"], by_label[c["b"]]["settings"]
+        differ = {k for k in a if a[k] != b[k]}
+        assert differ == set(c["values"]) and c["varies"] in differ | {"regularizer"}
+        assert a["hidden"] == b["hidden"]
+        assert not ({"lambda", "weight_decay", "continuation_lambda"} <= differ | {"lambda"}
+                    and len(differ & {"lambda", "weight_decay", "continuation_lambda"}) > 1)
+    for n in (16, 8):
+        lam_pair = [c for c in mae if c["varies"] == "lambda"
+                    and c["a"] == f"PGNN simultaneous, lambda=0.01, the paper's cost, n_l={n}"
+                    and c["b"] == f"PGNN simultaneous, lambda=0, the paper's cost, n_l={n}"]
+        assert len(lam_pair) == 1 and lam_pair[0]["values"] == {"lambda": [0.01, 0.0]}
+        assert any(c["varies"] == "weight_decay" and f"n_l={n}" in c["a"] for c in mae)
+        assert any(c["varies"] == "continuation_lambda" and f"n_l={n}" in c["a"] for c in mae)
+    # The pair the outside review found confounded is not compared.
+    assert not any(c["a"].startswith("PGNN simultaneous, lambda=0.01, weight decay 1e-5")
+                   and "the paper's cost" in c["b"] and "lambda=0," in c["b"] for c in pairs)
+    assert all(c["p_holm"] >= c["p_t"] for c in pairs if c["p_t"] is not None)
+
+
+def test_holm_adjusts_step_down():
+    from experiments import table
+
+    assert table.holm([0.01, 0.04, None, 0.03]) == [0.03, 0.06, None, 0.06]
+
+
+def test_cluster_bootstrap_covers_the_spread_between_records():
+    """The two-level bootstrap's interval widens with the spread between records, which a
+    bootstrap over draws alone would miss; its mean is the mean of the record means."""
+    from experiments.studies.mechanism import cluster_bootstrap
+
+    rng = np.random.default_rng(1)
+    tight = [[0.0 + 0.01 * rng.standard_normal() for _ in range(3)] for _ in range(6)]
+    spread = [[float(k) - 2.5 + 0.01 * rng.standard_normal() for _ in range(3)]
+              for k in range(6)]
+    a = cluster_bootstrap(tight, 500, 0.95, np.random.default_rng(0))
+    b = cluster_bootstrap(spread, 500, 0.95, np.random.default_rng(0))
+    assert b["ci"][1] - b["ci"][0] > 50 * (a["ci"][1] - a["ci"][0])
+    assert b["mean"] == pytest.approx(np.mean([np.mean(v) for v in spread]))
+
+
+def test_cubic_recovers_the_cable_term():
+    from experiments.studies.mechanism import cubic
+
+    y = np.linspace(-0.1, 0.1, 41)
+    assert cubic(y, 10 * y + 2000 * y ** 3 + 1.0) == pytest.approx(2000.0, rel=1e-9)
+    assert abs(cubic(y, 10 * y)) < 1e-6
+
+
+def test_mechanism_config_loads_and_errors_name_the_key(tmp_path):
+    from experiments.studies.mechanism import load_mechanism
+
+    config, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism.yaml")
+    assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lambda == 0
+    assert set(st.cases) == {"cable_cubic", "cable_linear"}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("mechanism: {records: 1}\n")
+    with pytest.raises(UserError, match=r"bad.yaml: .*records"):
+        load_mechanism(bad)
+
+
+@pytest.mark.slow
+def test_mechanism_study_runs_and_reports(tmp_path):
+    """A tiny design (two records, one draw, a 3-neuron network, 5 iterations): every cell has
+    both lambdas per draw, the report prints the finding and the mechanism table, and the truth's
+    cubic is the cable's 2000 N/m^3 (a cubic through a cubic) and 0 for the control."""
+    from experiments.studies.mechanism import load_mechanism, run_mechanism
+
+    path = tmp_path / "m.yaml"
+    path.write_text(
+        "name: m\nseed: 1\n"
+        "references:\n"
+        "  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}\n"
+        "  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}\n"
+        "training: {repeats: 1}\n"
+        "mechanism:\n  records: 2\n  draws: 1\n  hidden: 3\n  bootstrap: 200\n"
+        "  pgnn: {weight_decay: 0, continuation_lambda: 0, max_iter: 5}\n")
+    config, st = load_mechanism(path)
+    summary = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
+    assert summary["cases"]["cable_cubic"]["truth_cubic"] == pytest.approx(2000.0, rel=1e-6)
+    assert abs(summary["cases"]["cable_linear"]["truth_cubic"]) < 1e-3
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "| cable_linear | λ = 0 |" in text and "two-level bootstrap" in text
+    assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
+
+
+def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
+    """emps_pgnn.yaml's rows as record_fit compares them: only rows differing in one setting
+    (plus each PGNN row against the LIP), each with the Wilcoxon p, the median difference, the
+    wins and a log ratio; one exploded seed moves the mean difference but not the median."""
+    from experiments import record_fit, table
+
+    config = load_config(EMPS_CONFIG)
+    rng = np.random.default_rng(0)
+    rows = []
+    for spec in config.feedforwards:
+        n = 1 if spec.kind == "lip" else spec.seeds
+        per_seed = [{"training": {"inside": float(rng.uniform(0.4, 0.5)),
+                                  "outside": float(rng.uniform(5, 50))}} for _ in range(n)]
+        row = {"kind": spec.kind, "label": spec.label(), "n_seeds": n,
+               "force_rms": {"training": {}}, "force_rms_per_seed": per_seed}
+        if spec.kind == "pgnn":
+            fits = [{"start": "draw", "continuation_lambda":
+                     0.01 if "continuation" in spec.label() else 0.0}] * n
+            row["settings"] = table.row_settings(spec, fits)
+        rows.append(row)
+    rows[1]["force_rms_per_seed"][0]["training"]["outside"] = 2.1e5  # one exploded seed
+    pairs = record_fit.comparisons(rows)
+    assert pairs and all(c["varies"] for c in pairs)
+    by = {r["label"]: r for r in rows}
+    for c in pairs:
+        if c["b"] == "LIP":
+            continue
+        a, b = by[c["a"]]["settings"], by[c["b"]]["settings"]
+        assert {k for k in a if a[k] != b[k]} == set(c["values"])
+        assert c["p_wilcoxon"] is not None and c["p_holm"] >= c["p_wilcoxon"]
+    exploded = next(c for c in pairs if c["b"] == rows[1]["label"] and c["side"] == "outside"
+                    and c["varies"] == "lambda")
+    assert exploded["diff"] < -1e4 and abs(exploded["median_diff"]) < 50
+    assert not any(c["varies"] == "lambda" and "continuation" in c["b"] + c["a"]
+                   and "weight decay" in c["a"] and "weight decay 1e-5, n_l" in c["a"]
+                   and "continuation" in c["b"] for c in pairs)
+
+
+def test_newey_west_widens_with_autocorrelated_residuals():
+    """On AR(1) residuals with rho = 0.8 the Newey-West standard error of a mean is about
+    sqrt((1 + rho) / (1 - rho)) = 3 times the white-noise one, and the white-noise one is right
+    (ratio about 1) on white residuals."""
+    from experiments.hac import newey_west
+
+    rng = np.random.default_rng(0)
+    n = 20000
+    ones = np.ones((n, 1))
+    white = newey_west(ones, rng.standard_normal(n), lags=60)
+    e = np.zeros(n)
+    for t in range(1, n):
+        e[t] = 0.8 * e[t - 1] + rng.standard_normal()
+    ar = newey_west(ones, e, lags=60)
+    # Tolerances: the Bartlett estimate at 60 lags is biased low by ~ 1/60 of the long-run
+    # variance's tail and has a sampling error of a few per cent at n = 20000.
+    assert white["std_newey_west"][0] / white["std_white"][0] == pytest.approx(1.0, abs=0.15)
+    assert ar["std_newey_west"][0] / ar["std_white"][0] == pytest.approx(3.0, rel=0.15)
+    assert ar["lag1_autocorr"] == pytest.approx(0.8, abs=0.02)

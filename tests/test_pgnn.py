@@ -355,9 +355,9 @@ def test_predict_refuses_before_fit():
         PGNNFeedforward().feedforward(np.zeros(100), 1e-4)
 
 
-def test_paper_table_config_has_the_ten_rows():
-    """Per n_l: sequential, lambda = 0 with the paper's cost, lambda = 0 with weight decay and
-    continuation, lambda = 0.01."""
+def test_paper_table_config_has_the_fourteen_rows():
+    """Per n_l: sequential; lambda = 0 and 0.01 with the paper's cost; lambda = 0 with weight
+    decay, then with weight decay and continuation; lambda = 0.01 with weight decay."""
     from pathlib import Path
 
     from experiments.config import load_config
@@ -367,8 +367,8 @@ def test_paper_table_config_has_the_ten_rows():
     rows = [(f.kind, f.training, f.lam, f.hidden) for f in config.feedforwards]
     assert rows == [("none", None, None, None), ("lip", None, None, None)] + [
         ("pgnn", t, lam, n) for n in (16, 8)
-        for t, lam in (("sequential", None), ("simultaneous", 0.0), ("simultaneous", 0.0),
-                       ("simultaneous", 0.01))]
+        for t, lam in (("sequential", None), ("simultaneous", 0.0), ("simultaneous", 0.01),
+                       ("simultaneous", 0.0), ("simultaneous", 0.0), ("simultaneous", 0.01))]
     assert all(f.seeds >= 10 for f in config.feedforwards if f.kind == "pgnn")
 
 

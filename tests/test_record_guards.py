@@ -145,6 +145,9 @@ def test_run_with_data_warns_where_the_result_is_suspect(record, tmp_path, capsy
                                                          expected):
     config = _data_config(tmp_path, _save(tmp_path, record), **options)
     code, out, err = _cli(["run", config, "--out", tmp_path / "out", "--quiet"], capsys)
+    if code == 2:  # the offset column is collinear with what a drift-only filter leaves
+        assert len(err) == 1 and expected in err[0] and "data.training" in err[0], err
+        return
     warnings = [line for line in err if line.startswith("clm-sim: warning: data.training")]
     assert code == 0 and any(expected in line for line in warnings), err
     doc = json.loads((tmp_path / "out" / "table.json").read_text())

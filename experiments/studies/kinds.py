@@ -2,7 +2,8 @@
 
 ``kind: extrapolation`` (the lambda study; settings under ``study:``), ``kind: failure_map``
 (where lambda = 0 fails; settings under ``failure_map:``) or ``kind: emps_benchmark`` (EMPS on the
-field's benchmark protocol; settings under ``benchmark:``). A config written before ``kind:``
+field's benchmark protocol; settings under ``benchmark:``) or ``kind: mechanism`` (finding (iii)
+over training records and its mechanism; settings under ``mechanism:``). A config written before ``kind:``
 existed is still read by its section (none: the extrapolation study; two sections without a
 ``kind:`` are refused).
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 from clm_sim.errors import UserError
 
 KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
-         "emps_benchmark": "benchmark"}
+         "emps_benchmark": "benchmark", "mechanism": "mechanism"}
 
 
 def kind_of(data: dict, path) -> str:

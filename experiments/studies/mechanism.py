@@ -1,0 +1,489 @@
+"""Why lambda = 0 does what it does beyond the training range: finding (iii) over training
+records, the drift's mechanism shown, and a control experiment.
+
+Finding (iii) of the PGNN paper: beyond the training range a PGNN trained without the pull
+toward theta_LIP (lambda = 0) tracks worse than one with it (lambda = 0.01). This study asks it
+with both rows on one cost (``mechanism.pgnn``; default the paper's: no network weight decay, no
+continuation start), so the two rows differ in lambda alone, and with the training record as the
+unit of replication:
+
+* ``records`` training records (dither seeds ``seed, seed + 1, ...``; each its own LIP), and
+  ``draws`` network draws per record; lambda = 0 and lambda = ``lam`` share the record and the
+  draw (paired);
+* per case (a plant: ``cases`` name -> its parasitic effects), the r2-minus-r1 question is the
+  paired difference of MAE on the ``outside`` reference, ``lam - 0``. Its interval is a
+  two-level (cluster) bootstrap: records resampled with replacement, then draws within each
+  chosen record, so it covers both sources of variation; the same for the log ratio. The p-value
+  is the t-test on the per-record means (records are the independent units), Holm-adjusted over
+  the cases.
+
+The mechanism, per fit: the static force (v = a = 0, the dwell) against position out to the
+outside reference's reach, split into the physical part ``theta . filt(T)`` and the network,
+beside the LIP and the true plant force (the simulator's oracle). The network's best
+linear-in-features part is its least-squares projection on ``[filt T, 1]`` over the training
+data; the rest is its remainder. ``cubic`` coefficients are least-squares fits of ``c0 + c1 y +
+c2 y^2 + c3 y^3`` over the static curve inside the training range: the remainder's ``c3`` is
+what the drift builds, the truth's is what there is to build (the default plant's cable carrier,
+2000 N/m^3). A case whose effects have no such term (a linear cable) is the control.
+
+``clm-sim study CONFIG`` dispatches here when the config has a ``mechanism:`` section;
+``mechanism.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/force_beyond.png``
+are written into the output folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import scipy.stats
+import yaml
+
+from clm_sim.effects import CableSlab, Effect
+from clm_sim.errors import UserError
+from clm_sim.features import TrainingRange
+from clm_sim.outdir import atomic_folder
+from clm_sim.schema import build, load_yaml, to_plain
+from controllers.pgnn_settings import PGNNSettings
+from experiments.config import ExperimentConfig, resolved
+from experiments.table import holm
+from experiments.testbed import Progress, Testbed
+
+
+def _default_cases() -> dict[str, tuple[Effect, ...]]:
+    return {"cable_cubic": (CableSlab(coefficients=(0.0, 10.0, 0.0, 2000.0)),),
+            "cable_linear": (CableSlab(coefficients=(0.0, 10.0)),)}
+
+
+@dataclass(frozen=True)
+class MechanismSettings:
+    """The ``mechanism:`` section of a config.
+
+    cases: name -> the parasitic effects of the plant (they replace ``plant.effects``);
+    records: training records (dither seeds) per case, >= 2; draws: network draws per record,
+    >= 1; hidden: n_l; lam: the lambda compared with 0 (> 0); inside / outside: the training
+    reference and the one that leaves its range; pgnn: the fit settings shared by both rows
+    (default: the paper's cost); bootstrap: resamples of the two-level bootstrap; confidence:
+    level of the intervals; grid_points: positions of the static force curve.
+    """
+
+    cases: dict[str, tuple[Effect, ...]] = field(default_factory=_default_cases)
+    records: int = 5
+    draws: int = 2
+    hidden: int = 16
+    lam: float = 0.01
+    inside: str = "r1"
+    outside: str = "r2"
+    pgnn: PGNNSettings = field(default_factory=lambda: PGNNSettings(
+        weight_decay=0.0, continuation_lambda=0.0))
+    bootstrap: int = 4000
+    confidence: float = 0.95
+    grid_points: int = 69
+    aliases: ClassVar[dict[str, str]] = {"lambda": "lam"}  # config name -> field
+
+    def __post_init__(self):
+        if not self.cases:
+            raise UserError("cases: expected at least one case")
+        for key, low in (("records", 2), ("draws", 1), ("hidden", 1), ("bootstrap", 100),
+                         ("grid_points", 11)):
+            value = getattr(self, key)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
+                raise UserError(f"{key}: expected an integer >= {low}, got {value!r}")
+        if not self.lam > 0:
+            raise UserError(f"lambda: expected a number > 0, got {self.lam!r}")
+        if not 0.5 <= self.confidence < 1:
+            raise UserError(f"confidence: expected a level in [0.5, 1), got {self.confidence!r}")
+
+
+def load_mechanism(path) -> tuple[ExperimentConfig, MechanismSettings]:
+    """Read a mechanism config; errors name the file and the key."""
+    path = Path(path)
+    data = dict(load_yaml(path))
+    section = data.pop("mechanism", None)
+    try:
+        if "effects" in (data.get("plant") or {}):
+            raise UserError("plant.effects: the effects are set per case under mechanism.cases")
+        if data.get("truth") is not None:
+            raise UserError("truth: not supported by the mechanism study (cases set the plant)")
+        config = build(ExperimentConfig, data, "config")
+        settings = build(MechanismSettings, section, "mechanism")
+    except UserError as exc:
+        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
+            from None
+    for key in (settings.inside, settings.outside):
+        if key not in config.references:
+            raise UserError(f"{path}: mechanism: reference {key!r} is not defined under "
+                            f"'references'")
+    return config, settings
+
+
+# ----------------------------------------------------------------------------- one cell
+
+@dataclass(frozen=True)
+class Cell:
+    """One task: a case and a training record (every draw, both lambdas)."""
+
+    config: ExperimentConfig
+    settings: MechanismSettings
+    case: str
+    record: int
+
+
+def cubic(y: np.ndarray, f: np.ndarray) -> float:
+    """The y^3 coefficient (N/m^3) of a least-squares cubic in ``y`` (m) through ``f`` (N)."""
+    return float(np.polynomial.polynomial.polyfit(y, f, 3)[3])
+
+
+def static_parts(model, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Physical part ``theta . T`` and network part (N) of a PGNN at rest (v = a = 0) at
+    positions ``y`` (m): the force it holds at a dwell."""
+    phi = np.zeros((len(y), 4))
+    phi[:, 3] = y
+    return phi @ np.array([model.theta_[k] for k in ("mass", "viscous", "coulomb",
+                                                     "stiffness")]), model.network(phi)
+
+
+def linear_part(model, phi: np.ndarray) -> np.ndarray:
+    """The network's best linear-in-features part: least-squares coefficients of its output on
+    ``[phi, 1]`` over the training columns ``phi`` (N, 4), in the order a, v, sign v, y, 1."""
+    cols = np.column_stack([phi, np.ones(len(phi))])
+    return np.linalg.lstsq(cols, model.network(phi), rcond=None)[0]
+
+
+def _cell(cell: Cell) -> dict:
+    from controllers.pgnn import training_data
+
+    st = cell.settings
+    config = replace(cell.config, plant=replace(cell.config.plant,
+                                                effects=st.cases[cell.case]))
+    tb = Testbed(config)
+    ts = config.ts
+    run = tb.training_run(seed=cell.record)
+    lip = tb.fit_lip(run)
+    settings = to_plain(st.pgnn)
+    data = training_data(config.features, y=run.y, u=run.u, ts=run.ts,
+                         decimation=settings.get("decimation"))
+    inside = TrainingRange.of(config.features, tb.reference(st.inside), ts)
+    reach = float(np.max(np.abs(tb.reference(st.outside))))
+    y = np.linspace(-reach, reach, st.grid_points)
+    within = np.abs(y) <= inside.position_m
+    beyond = ~within
+    zeros = np.zeros_like(y)
+    truth = tb.machine.inverse_force(y, zeros, zeros)
+    lip_static = lip.theta_["stiffness"] * y
+
+    def rms_beyond(f):
+        return float(np.sqrt(np.mean((f - truth)[beyond] ** 2)))
+
+    out = {"case": cell.case, "record": cell.record, "position_limit_m": inside.position_m,
+           "y": y.tolist(), "truth": truth.tolist(), "lip_static": lip_static.tolist(),
+           "lip": {"theta": dict(lip.theta_), "error_beyond_rms_n": rms_beyond(lip_static),
+                   "mae": {r: tb.replay(lip, r).mae for r in (st.inside, st.outside)}},
+           "truth_cubic": cubic(y[within], truth[within]), "fits": []}
+    for draw in range(st.draws):
+        for lam in (0.0, st.lam):
+            model = tb.fit_pgnn(run, hidden=st.hidden, lam=lam, seed=draw, lip=lip,
+                                **{k: v for k, v in settings.items() if k != "lam"})
+            phys, net = static_parts(model, y)
+            coef = linear_part(model, data.phi)
+            lin = coef[3] * y + coef[4]
+            rest = net - lin
+            total = phys + net
+            out["fits"].append({
+                "draw": draw, "lambda": lam, "stop": model.fit_["stop"],
+                "iterations": model.fit_["iterations"], "data_cost": model.fit_["data_cost"],
+                "theta": dict(model.theta_),
+                "mae": {r: tb.replay(model, r).mae for r in (st.inside, st.outside)},
+                "error_beyond_rms_n": rms_beyond(total),
+                "dwell_force_n": float(np.interp(reach, y, total)),
+                "drift_stiffness": model.theta_["stiffness"] - lip.theta_["stiffness"],
+                "network_linear": dict(zip(("mass", "viscous", "coulomb", "stiffness",
+                                            "offset"), map(float, coef))),
+                "remainder_cubic": cubic(y[within], rest[within]),
+                "model_cubic": cubic(y[within], total[within]),
+                "static": {"physical": phys.tolist(), "network": net.tolist(),
+                           "network_linear": lin.tolist(), "remainder": rest.tolist()}})
+    return out
+
+
+def run_cell(cell: Cell) -> dict:
+    """One cell in a worker process (single-threaded torch)."""
+    import torch
+
+    torch.set_num_threads(1)
+    out = _cell(cell)
+    json.dumps(out, allow_nan=False)
+    return out
+
+
+def cells(config: ExperimentConfig, settings: MechanismSettings) -> list[Cell]:
+    """Every task in a fixed order (case, record); records are ``seed, seed + 1, ...``."""
+    return [Cell(config, settings, case, config.seed + k)
+            for case in settings.cases for k in range(settings.records)]
+
+
+# ----------------------------------------------------------------------------- statistics
+
+def cluster_bootstrap(values: list[list[float]], resamples: int, confidence: float,
+                      rng: np.random.Generator) -> dict:
+    """Mean of ``values[record][draw]`` and its percentile interval from a two-level bootstrap:
+    records with replacement, then draws with replacement within each chosen record."""
+    vals = [np.asarray(v, dtype=float) for v in values]
+    n = len(vals)
+    means = np.empty(resamples)
+    for b in range(resamples):
+        pick = rng.integers(0, n, n)
+        means[b] = np.mean([vals[i][rng.integers(0, len(vals[i]), len(vals[i]))].mean()
+                            for i in pick])
+    tail = 50 * (1 - confidence)
+    lo, hi = np.percentile(means, [tail, 100 - tail])
+    return {"mean": float(np.mean([v.mean() for v in vals])), "ci": [float(lo), float(hi)]}
+
+
+def _record_t(values: list[list[float]]) -> float | None:
+    per_record = [float(np.mean(v)) for v in values]
+    if len(per_record) < 2 or np.std(per_record) == 0:
+        return None
+    return float(scipy.stats.ttest_1samp(per_record, 0.0).pvalue)
+
+
+def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
+    """Per case: finding (iii) over records x draws (difference and log ratio of MAE on the
+    outside reference, lam - 0, and of the static force error beyond the range), the per-record
+    means, and the mechanism's medians; Holm over the cases."""
+    rng = np.random.default_rng(0)  # the bootstrap's own stream: same results, same intervals
+    out, pvals = {}, []
+    ref = settings.outside
+    for case in settings.cases:
+        cell_list = [r for r in results if r["case"] == case]
+        pairs = []  # per record: [(fit lam0, fit reg), ...]
+        for r in cell_list:
+            by = {(f["draw"], f["lambda"]): f for f in r["fits"]}
+            pairs.append([(by[(d, 0.0)], by[(d, settings.lam)]) for d in range(settings.draws)])
+        diff = [[b["mae"][ref] - a["mae"][ref] for a, b in p] for p in pairs]
+        logr = [[np.log(b["mae"][ref] / a["mae"][ref]) for a, b in p] for p in pairs]
+        err = [[b["error_beyond_rms_n"] - a["error_beyond_rms_n"] for a, b in p] for p in pairs]
+        boot_lr = cluster_bootstrap(logr, settings.bootstrap, settings.confidence, rng)
+        fits = [f for r in cell_list for f in r["fits"]]
+
+        def med(lam, key, sub=None):
+            vals = [f[key] if sub is None else f[key][sub] for f in fits if f["lambda"] == lam]
+            return float(np.median(vals))
+
+        rows = {}
+        for name, lam in (("lambda=0", 0.0), (f"lambda={settings.lam:g}", settings.lam)):
+            rows[name] = {
+                "mae_inside_um": med(lam, "mae", settings.inside) * 1e6,
+                "mae_outside_um": med(lam, "mae", ref) * 1e6,
+                "error_beyond_rms_n": med(lam, "error_beyond_rms_n"),
+                "dwell_force_n": med(lam, "dwell_force_n"),
+                "drift_stiffness": med(lam, "drift_stiffness"),
+                "network_linear_stiffness": med(lam, "network_linear", "stiffness"),
+                "model_linear_stiffness_minus_lip": float(np.median(
+                    [f["drift_stiffness"] + f["network_linear"]["stiffness"]
+                     for f in fits if f["lambda"] == lam])),
+                "remainder_cubic": med(lam, "remainder_cubic"),
+                "model_cubic": med(lam, "model_cubic"),
+                "converged": sum(f["stop"] == "converged" for f in fits if f["lambda"] == lam),
+                "fits": sum(f["lambda"] == lam for f in fits)}
+        lip = {"mae_inside_um": float(np.median([r["lip"]["mae"][settings.inside]
+                                                 for r in cell_list])) * 1e6,
+               "mae_outside_um": float(np.median([r["lip"]["mae"][ref]
+                                                  for r in cell_list])) * 1e6,
+               "error_beyond_rms_n": float(np.median([r["lip"]["error_beyond_rms_n"]
+                                                      for r in cell_list]))}
+        every = [f for f in fits]
+        rho = scipy.stats.spearmanr([f["mae"][ref] for f in every],
+                                    [f["error_beyond_rms_n"] for f in every])
+        p = _record_t(diff)
+        pvals.append(p)
+        out[case] = {
+            "effects": [e.as_config() for e in settings.cases[case]],
+            "truth_cubic": float(np.median([r["truth_cubic"] for r in cell_list])),
+            "truth_dwell_force_n": float(np.median([np.interp(max(r["y"]), r["y"], r["truth"])
+                                                    for r in cell_list])),
+            "records": [r["record"] for r in cell_list], "draws": settings.draws,
+            "mae_outside_diff": {**cluster_bootstrap(diff, settings.bootstrap,
+                                                     settings.confidence, rng),
+                                 "per_record": [float(np.mean(d)) for d in diff],
+                                 "lam_lower": int(sum(x < 0 for d in diff for x in d)),
+                                 "n": int(sum(len(d) for d in diff)), "p_records_t": p},
+            "mae_outside_ratio": {"ratio": float(np.exp(boot_lr["mean"])),
+                                  "ci": [float(np.exp(c)) for c in boot_lr["ci"]]},
+            "error_beyond_diff": cluster_bootstrap(err, settings.bootstrap,
+                                                   settings.confidence, rng),
+            "spearman_mae_vs_force_error": float(rho.statistic),
+            "rows": rows, "lip": lip}
+    for case, p in zip(settings.cases, holm(pvals)):
+        out[case]["mae_outside_diff"]["p_holm"] = p
+    return {"cases": out, "settings": to_plain(settings)}
+
+
+# ----------------------------------------------------------------------------- report
+
+def _p(p) -> str:
+    return "–" if p is None else f"{p:.2g}"
+
+
+def report(s: dict) -> str:
+    """The study's Markdown report: finding (iii) per case, then the mechanism table."""
+    st = dict(s["settings"])
+    st["lam"] = st.get("lam", st.get("lambda"))  # to_plain writes the config's name
+    out = [f"# Finding (iii) over training records, and its mechanism", "",
+           f"Per case: {st['records']} training records (dither seeds) x {st['draws']} network "
+           f"draws, n_l = {st['hidden']}; λ = 0 and λ = {st['lam']:g} on one cost "
+           f"(weight decay {st['pgnn']['weight_decay']:g}, continuation "
+           f"{st['pgnn']['continuation_lambda']:g}), paired by record and draw. Intervals: "
+           f"{100 * st['confidence']:g} % two-level bootstrap (records, then draws within "
+           f"them; {st['bootstrap']} resamples). p: t-test on the per-record means, Holm over "
+           f"the cases.", "",
+           f"| case | MAE {st['outside']}: λ = {st['lam']:g} − λ = 0 [µm] | ratio λ = "
+           f"{st['lam']:g} / λ = 0 | per-record means [µm] | pairs with λ = {st['lam']:g} "
+           f"lower | p (Holm) | static force error beyond the range, λ = {st['lam']:g} − λ = 0 "
+           f"[N] | Spearman(MAE {st['outside']}, force error) |",
+           "|---|---|---|---|---|---|---|---|"]
+    for case, c in s["cases"].items():
+        d, r, e = c["mae_outside_diff"], c["mae_outside_ratio"], c["error_beyond_diff"]
+        out.append(f"| {case} | {d['mean'] * 1e6:+.3f} [{d['ci'][0] * 1e6:+.3f}, "
+                   f"{d['ci'][1] * 1e6:+.3f}] | {r['ratio']:.3f} [{r['ci'][0]:.3f}, "
+                   f"{r['ci'][1]:.3f}] | "
+                   + ", ".join(f"{x * 1e6:+.3f}" for x in d["per_record"])
+                   + f" | {d['lam_lower']}/{d['n']} | {_p(d['p_records_t'])} "
+                   f"({_p(d.get('p_holm'))}) | {e['mean']:+.2f} [{e['ci'][0]:+.2f}, "
+                   f"{e['ci'][1]:+.2f}] | {c['spearman_mae_vs_force_error']:.2f} |")
+    out += ["", "**The mechanism** (medians over every fit of the case; static force at rest, "
+            "v = a = 0, against position; 'beyond': positions outside the training range out "
+            f"to the reach of {st['outside']}; Δfk: θ's stiffness minus the LIP's; network "
+            "slope: the stiffness column of the network's best linear-in-features part on the "
+            "training data; cubic: y³ coefficient of a cubic fitted over the training range, "
+            "of the network's remainder (what the drift builds) and of the whole model):", "",
+            "| case | row | MAE r1 [µm] | MAE r2 [µm] | force error beyond, rms [N] | force at "
+            "the far dwell [N] | Δfk [N/m] | network slope [N/m] | Δfk + slope [N/m] | "
+            "remainder cubic [N/m³] | model cubic [N/m³] | converged |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for case, c in s["cases"].items():
+        lip = c["lip"]
+        out.append(f"| {case} | true plant | – | – | – | {c['truth_dwell_force_n']:.2f} | – | – "
+                   f"| – | – | {c['truth_cubic']:.0f} | – |")
+        out.append(f"| {case} | LIP | {lip['mae_inside_um']:.3f} | {lip['mae_outside_um']:.3f} "
+                   f"| {lip['error_beyond_rms_n']:.2f} | – | 0 | – | – | – | 0 | – |")
+        for name, row in c["rows"].items():
+            out.append(
+                f"| {case} | {name.replace('lambda=', 'λ = ')} | {row['mae_inside_um']:.3f} | "
+                f"{row['mae_outside_um']:.3f} | {row['error_beyond_rms_n']:.2f} | "
+                f"{row['dwell_force_n']:.2f} | {row['drift_stiffness']:+.4g} | "
+                f"{row['network_linear_stiffness']:+.4g} | "
+                f"{row['model_linear_stiffness_minus_lip']:+.3g} | "
+                f"{row['remainder_cubic']:.0f} | {row['model_cubic']:.0f} | "
+                f"{row['converged']}/{row['fits']} |")
+    out += ["", "Figure: `figures/force_beyond.png` (first record, draw 0 of each case)."]
+    return "\n".join(out) + "\n"
+
+
+def draw(results: list[dict], settings: MechanismSettings, path: Path) -> None:
+    """Per case (columns): the static force against position, beyond the range shaded: top,
+    the true force, the LIP and the two lambdas; bottom, the lambda = 0 fit split into
+    theta . T minus the LIP, the network's linear part and its remainder."""
+    import matplotlib.pyplot as plt
+
+    from experiments import plots
+
+    first = {}
+    for r in results:
+        first.setdefault(r["case"], r)
+    fig, axes = plt.subplots(2, len(first), figsize=(5 * len(first), 7), squeeze=False,
+                             sharex=True)
+    for j, (case, r) in enumerate(first.items()):
+        y = np.asarray(r["y"]) * 1e3
+        lip = np.asarray(r["lip_static"])
+        f0 = next(f for f in r["fits"] if f["draw"] == 0 and f["lambda"] == 0.0)
+        f1 = next(f for f in r["fits"] if f["draw"] == 0 and f["lambda"] == settings.lam)
+        tot = {k: np.asarray(f["static"]["physical"]) + np.asarray(f["static"]["network"])
+               for k, f in (("0", f0), ("1", f1))}
+        top, bottom = axes[0, j], axes[1, j]
+        top.plot(y, r["truth"], color=plots.PALETTE[0], ls="--", label="true force")
+        top.plot(y, lip, color=plots.PALETTE[7], label="LIP")
+        top.plot(y, tot["0"], color=plots.PALETTE[4], label="PGNN λ = 0")
+        top.plot(y, tot["1"], color=plots.PALETTE[5], label=f"PGNN λ = {settings.lam:g}")
+        bottom.plot(y, np.asarray(f0["static"]["physical"]) - lip, color=plots.PALETTE[1],
+                    label="λ = 0: θ·T − LIP")
+        bottom.plot(y, f0["static"]["network_linear"], color=plots.PALETTE[2],
+                    label="network, linear part")
+        bottom.plot(y, f0["static"]["remainder"], color=plots.PALETTE[3],
+                    label="network remainder")
+        bottom.plot(y, np.asarray(r["truth"]) - lip, color=plots.PALETTE[0], ls="--",
+                    label="true − LIP")
+        limit = r["position_limit_m"] * 1e3
+        for ax in (top, bottom):
+            for side in (-1, 1):
+                ax.axvspan(side * limit, side * y.max(), color=plots.PALETTE[4], alpha=0.08)
+            ax.grid(alpha=0.3)
+            ax.set_ylabel("force [N]")
+        top.set_title(f"{case}, record {r['record']}: static force at rest", fontsize=9,
+                      loc="left")
+        bottom.set_title("λ = 0 fit, split", fontsize=9, loc="left")
+        bottom.set_xlabel("position [mm]")
+        top.legend(fontsize=7, loc="upper left")
+        bottom.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    plots.save(fig, path)
+
+
+# ----------------------------------------------------------------------------- running
+
+def compute(config: ExperimentConfig, settings: MechanismSettings, *, workers: int = 1,
+            progress=None) -> list[dict]:
+    """Every cell (in ``workers`` processes when > 1), in task order; the results do not depend
+    on ``workers``."""
+    from experiments.workers import run_local
+
+    progress = progress or (lambda message: None)
+    tasks = cells(config, settings)
+    results: list[dict | None] = [None] * len(tasks)
+    it = ((i, run_cell(t)) for i, t in enumerate(tasks)) if workers <= 1 else \
+        run_local(run_cell, tasks, min(workers, len(tasks)))
+    for done, (i, result) in enumerate(it, 1):
+        results[i] = result
+        progress(f"cell {done}/{len(tasks)}: {tasks[i].case}, record {tasks[i].record}")
+    return results
+
+
+def run_mechanism(config: ExperimentConfig, settings: MechanismSettings, out, *,
+                  workers: int | None = None, quiet: bool = False) -> dict:
+    """Run the study and write it into ``out`` (replaced atomically). Returns the summary."""
+    progress = Progress(quiet)
+    out = Path(out)
+    workers = workers or os.cpu_count() or 1
+    with atomic_folder(out, marker="mechanism.json", what="a clm-sim mechanism study") as tmp:
+        (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
+            {**resolved(config), "mechanism": to_plain(settings)}, sort_keys=False))
+        start = time.perf_counter()
+        results = compute(config, settings, workers=workers, progress=progress)
+        summary = summarize(settings, results)
+        summary["wall_time_s"] = time.perf_counter() - start
+        (tmp / "mechanism.json").write_text(json.dumps(
+            {**summary, "cells": [{k: v for k, v in r.items()} for r in results]}, indent=1))
+        draw(results, settings, tmp / "figures" / "force_beyond.png")
+        (tmp / "report.md").write_text(report(summary))
+    progress(f"report in {out}/report.md")
+    return summary
+
+
+def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
+    """``clm-sim study CONFIG`` for a config with a ``mechanism:`` section."""
+    from experiments.runner import preflight
+
+    config, settings = load_mechanism(config_path)
+    try:
+        preflight(config)
+    except UserError as exc:
+        raise UserError(f"{config_path}: {exc}") from None
+    out = Path(out) if out else Path("results") / Path(config_path).stem
+    run_mechanism(config, settings, out, workers=workers, quiet=quiet)
+    print((out / "report.md").read_text(), end="")
+    return 0
