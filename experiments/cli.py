@@ -116,6 +116,17 @@ def _cmd_simulate(args) -> int:
                             f"({str(exc).split(': ', 1)[1]}); name it with --columns u=NAME") \
                 from None
         raise
+    if args.closed_loop:
+        from experiments.simulation import twin_record, write_twin
+
+        if model.controller is None:
+            raise UserError(f"{args.model}: no controller in the model file; --closed-loop needs "
+                            f"one ('controller:' in a model YAML)")
+        twin = twin_record(model, run, source=str(args.data))
+        write_twin(twin, out)
+        print(twin.summary())
+        print(f"wrote {out}/ (twin.csv, twin.npz, scores.json, figures/twin.png)")
+        return 0
     sim = simulate_record(model, run, init_samples=args.init_samples, source=str(args.data),
                           substeps=args.substeps)
     write(sim, out)
@@ -347,6 +358,9 @@ def parser() -> argparse.ArgumentParser:
                           "the benchmark protocol's); scores start after them")
     simulate.add_argument("--substeps", type=int, metavar="N",
                           help="integration sub-steps per sample (default: the model plant's)")
+    simulate.add_argument("--closed-loop", action="store_true",
+                          help="the machine's twin: the model file's controller on the record's "
+                          "reference; predicts position and input")
     simulate.add_argument("--out", help="output folder (default results/simulate/<data name>)")
     simulate.set_defaults(func=_cmd_simulate)
     export = sub.add_parser("export", help="convert a logged run (.npz) to CSV or MATLAB .mat")
