@@ -55,7 +55,6 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
              ) -> Identified:
     """Fit ``run`` by ``protocol``; cross-test on ``validation`` (same sample time) if given.
     Errors name ``source`` (or ``validation_source``)."""
-    from controllers.lip import LIPFeedforward
     from experiments.suspicions import record_warnings
 
     try:
@@ -77,9 +76,8 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
             cross = cross_test(result, y=validation.y, u=validation.u, ts=validation.ts)
         except UserError as exc:
             raise UserError(f"{validation_source}: {exc}") from None
-    lip = result.model if isinstance(result.model, LIPFeedforward) else None
     return Identified(result, run, source, cross, validation_source,
-                      tuple(record_warnings(run, lip)))
+                      tuple(record_warnings(run, result.model)))
 
 
 def write(result: Identified, out: Path) -> Path:
