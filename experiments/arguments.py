@@ -73,4 +73,7 @@ def simulation(p: argparse.ArgumentParser) -> None:
                    "the benchmark protocol's); scores start after them")
     p.add_argument("--substeps", type=int, metavar="N",
                    help="integration sub-steps per sample (default: the model plant's)")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="the machine's twin: the model file's controller on the record's "
+                   "reference; predicts position and input")
     p.add_argument("--out", help="output folder (default results/simulate/<data name>)")

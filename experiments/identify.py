@@ -55,7 +55,6 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
              ) -> Identified:
     """Fit ``run`` by ``protocol``; cross-test on ``validation`` (same sample time) if given.
     Errors name ``source`` (or ``validation_source``)."""
-    from controllers.lip import LIPFeedforward
     from experiments.record_guards import fit_warnings, refuse_unidentifiable
     from experiments.suspicions import record_warnings
 
@@ -83,15 +82,13 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
             cross = cross_test(result, y=validation.y, u=validation.u, ts=validation.ts)
         except UserError as exc:
             raise UserError(f"{validation_source}: {exc}") from None
-    lip = result.model if isinstance(result.model, LIPFeedforward) else None
-
     def refit(y):  # the mass the same protocol gives on positions y (quantization check)
         try:
             return fit(y=y, u=run.u, ts=run.ts, protocol=protocol).coefficients["mass"]
         except UserError:
             return float("nan")
 
-    warnings = record_warnings(run, lip) + fit_warnings(
+    warnings = record_warnings(run, result.model) + fit_warnings(
         run, protocol.feature_map(), result.coefficients, result.std,
         option="--regression-lowpass-hz", refit=refit)
     return Identified(result, run, source, cross, validation_source, tuple(warnings))

@@ -122,6 +122,91 @@ def simulate_record(model: SimulationModel, run: Run, *, init_samples: int = INI
                       score(run.y, x, init_samples), plant)
 
 
+@dataclass(frozen=True)
+class Twin:
+    """The machine's twin: the model's plant under the model file's controller on the record's
+    reference (and the record's known external input: its ``u_ff`` and ``dither`` where given),
+    from rest at the first reference sample. Predicts the position (m) and the input (N)."""
+
+    model: str
+    record: str
+    t: np.ndarray
+    r: np.ndarray
+    y_measured: np.ndarray
+    y_simulated: np.ndarray
+    u_measured: np.ndarray
+    u_simulated: np.ndarray
+    position: Score
+    input: Score
+
+    def columns(self) -> dict[str, np.ndarray]:
+        return {"t": self.t, "r": self.r, "y_measured": self.y_measured,
+                "y_simulated": self.y_simulated, "u_measured": self.u_measured,
+                "u_simulated": self.u_simulated}
+
+    def summary(self) -> str:
+        p, u = self.position, self.input
+        return (f"{self.model} on {self.record}, closed loop (the model's controller on the "
+                f"record's reference):\n"
+                f"position: RMSE {p.rmse * 1e6:.4g} um, NRMSE {p.nrmse:.4g}, fit "
+                f"{p.fit_percent:.2f} %\n"
+                f"input: RMSE {u.rmse:.4g} N, NRMSE {u.nrmse:.4g}, fit {u.fit_percent:.2f} %")
+
+    def to_json(self) -> dict:
+        return {"model": self.model, "record": self.record, "mode": "closed loop",
+                "position": {**self.position.as_dict(), "unit": "m"},
+                "input": {**self.input.as_dict(), "unit": "N"}}
+
+
+def twin_record(model: SimulationModel, run: Run, *, source: str | None = None) -> Twin:
+    """Re-run the machine: ``model``'s plant and controller on ``run.r``, with the record's
+    known external input (``u_ff + dither`` where finite, else none); scored over all samples
+    (the twin takes nothing from the measured output)."""
+    from clm_sim.loop import simulate
+
+    source = source or str(run.meta.get("source", "record"))
+    ctrl = model.controller
+    if ctrl is None:
+        raise UserError(f"{model.name}: the model has no controller; the closed-loop twin needs "
+                        f"one ('controller:' in a model YAML)")
+    check_ts(ctrl.ts, run.ts, f"{source}: the model's controller ({model.name})")
+    known = np.nan_to_num(run.u_ff, nan=0.0) + np.nan_to_num(run.dither, nan=0.0)
+    try:
+        sim = simulate(model.plant, ctrl, run.r, run.ts,
+                       u_ff=known + ctrl.reference_force(run.r))
+    except UserError as exc:
+        raise UserError(f"{source}: {exc}") from None
+    return Twin(model.name, source, run.t, run.r, run.y, sim.y, run.u, sim.u,
+                score(run.y, sim.y, 0), score(run.u, sim.u, 0))
+
+
+def write_twin(twin: Twin, out: Path) -> None:
+    """``out/twin.csv`` and ``.npz`` (named columns), ``scores.json``, ``figures/twin.png``."""
+    from experiments import plots
+
+    with atomic_folder(out, marker="scores.json", what="a simulation") as tmp:
+        cols = twin.columns()
+        np.savetxt(tmp / "twin.csv", np.column_stack(list(cols.values())), delimiter=",",
+                   header=",".join(cols), comments="", fmt="%.17g")
+        with open(tmp / "twin.npz", "wb") as fh:
+            np.savez_compressed(fh, **cols)
+        (tmp / "scores.json").write_text(json.dumps(twin.to_json(), indent=1))
+        fig = plots._figure(10.0, 6.0)
+        top, bottom = fig.subplots(2, 1, sharex=True)
+        top.plot(twin.t, (twin.y_measured - twin.r) * 1e6, color=plots.PALETTE[0], lw=1.0,
+                 label="measured")
+        top.plot(twin.t, (twin.y_simulated - twin.r) * 1e6, color=plots.PALETTE[1], lw=1.0,
+                 ls="--", label="twin")
+        top.set_ylabel("y − r (µm)")
+        plots._legend_right(top)
+        bottom.plot(twin.t, twin.u_measured, color=plots.PALETTE[0], lw=1.0, label="measured")
+        bottom.plot(twin.t, twin.u_simulated, color=plots.PALETTE[1], lw=1.0, ls="--",
+                    label="twin")
+        bottom.set_ylabel("input (N)")
+        bottom.set_xlabel("time (s)")
+        plots.save(fig, tmp / "figures" / "twin.png")
+
+
 def plot_simulation(sim: Simulation, axes=None):
     """Measured and simulated position (top) and their difference (bottom), in mm against
     time in s; the initialization window shaded. Returns the two axes."""
@@ -178,6 +263,15 @@ def command(args, *, load) -> int:
                             f"({str(exc).split(': ', 1)[1]}); name it with --columns u=NAME") \
                 from None
         raise
+    if args.closed_loop:
+        if model.controller is None:
+            raise UserError(f"{args.model}: no controller in the model file; --closed-loop needs "
+                            f"one ('controller:' in a model YAML)")
+        twin = twin_record(model, run, source=str(args.data))
+        write_twin(twin, out)
+        print(twin.summary())
+        print(f"wrote {out}/ (twin.csv, twin.npz, scores.json, figures/twin.png)")
+        return 0
     sim = simulate_record(model, run, init_samples=args.init_samples, source=str(args.data),
                           substeps=args.substeps)
     write(sim, out)

@@ -236,7 +236,8 @@ DATA_COMMANDS = {
     "identify": lambda data, out: ["identify", data, "--out", out],
     "export": lambda data, out: ["export", data, "--out", out + ".csv"],
     "diagnose": lambda data, out: ["diagnose", data, "--out", out],
-    "simulate": lambda data, out: ["simulate", str(Path(__file__).parents[1] / "experiments"
+    "simulate": lambda data, out: ["simulate", str(Path(__file__).resolve().parents[1]
+                                                   / "experiments"
                                                    / "configs" / "emps_model.yaml"),
                                    data, "--out", out],
 }

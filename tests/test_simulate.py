@@ -159,6 +159,36 @@ def test_the_published_emps_model_scores_as_published():
         assert simulate_record(model, run).score.rmse == pytest.approx(published, rel=0.03)
 
 
+def test_the_closed_loop_twin_of_the_truth_reruns_the_machine(tmp_path, capsys):
+    """The reference simulator's P-P cascade record without dither; the model file holds the
+    truth plant and the cascade as a linear law: the twin predicts position and input."""
+    r = ref.trapezoid_reference(TS, moves=[(0.03, 0.1), (0.0, 0.05)], accel=1.0, dwell=0.1)
+    cascade = ref.Cascade(kp=160.0, kv=1700.0, ts=TS)
+    rec = ref.run_loop(STAGE, cascade, r, TS, resolution=RES)
+    _csv(tmp_path / "rec.csv", Run(t=rec.t, r=rec.r, y=rec.y, u=rec.u))
+    b, a, rb = cascade.law()
+    model = tmp_path / "twin.yaml"
+    model.write_text(json.dumps({"ts": TS, "plant": {"mass": STAGE.mass, "viscous":
+                                 STAGE.viscous, "coulomb": STAGE.coulomb,
+                                 "encoder_resolution": RES},
+                                 "controller": {"ts": TS, "b": list(b), "a": list(a),
+                                                "reference_b": list(rb)}})
+                     .replace("1e-07", "1.0e-7"))  # YAML 1.1 reads 1e-07 as text
+    assert main(["simulate", str(model), str(tmp_path / "rec.csv"), "--closed-loop", "--out",
+                 str(tmp_path / "o")]) == 0
+    scores = json.loads((tmp_path / "o" / "scores.json").read_text())
+    # The encoders differ (truncating there, rounding here): a count of position, and the
+    # count through the cascade's gain kv*(kp + 1/(2 ts)) = 1.1e6 N/m, 0.11 N, of input.
+    assert scores["position"]["rmse"] < 3 * RES
+    assert scores["input"]["rmse"] < 0.5 and scores["input"]["fit_percent"] > 99
+    assert (tmp_path / "o" / "twin.csv").read_text().startswith(
+        "t,r,y_measured,y_simulated,u_measured,u_simulated")
+    no_ctrl = _model(tmp_path / "plain.yaml")
+    assert main(["simulate", str(no_ctrl), str(tmp_path / "rec.csv"), "--closed-loop",
+                 "--out", str(tmp_path / "p")]) == 2
+    assert "no controller" in capsys.readouterr().err
+
+
 # ----------------------------------------------------------------------------- diagnose
 
 def test_the_diagnosis_measures_its_gain_in_the_simulation_too():

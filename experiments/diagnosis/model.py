@@ -34,7 +34,7 @@ from clm_sim.schema import build, load_yaml
 from controllers.pid import PIDDesign, design_pid
 from experiments.config import ExperimentConfig, in_file
 
-MODEL_KEYS = {"name", "description", "plant", "controller"}
+MODEL_KEYS = {"name", "description", "ts", "plant", "controller"}
 DEFAULT_EFFECTS_NAME = "default_clm"
 
 
