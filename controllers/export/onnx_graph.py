@@ -118,21 +118,24 @@ def model(wf: WindowFeedforward):
     c = wf.half + 1  # column of r[k]
     # The physical layer at both instants of the held average, stacked on the batch axis: rows
     # j = k, then j = k+1, each with r[j-1], r[j], r[j+1].
-    near = g.cols("r_window", c - 1, c + 3)
-    pair = g.op("Concat", g.cols(near, 0, 3), g.cols(near, 1, 4), axis=0)
-    xm, x0, xp = g.cols(pair, 0, 1), g.cols(pair, 1, 2), g.cols(pair, 2, 3)
-    v = g.op("Div", g.op("Sub", xp, xm), g.const(2.0 * wf.ts), base="v")
-    a = g.op("Div", g.op("Add", g.op("Sub", xp, g.op("Mul", g.const(2.0), x0)), xm),
-             g.const(wf.ts * wf.ts), base="a")
+    # (Only where something reads them: a PGNN with a filter differences the whole window.)
+    if wf.network is None or wf.half == 0:
+        near = g.cols("r_window", c - 1, c + 3)
+        pair = g.op("Concat", g.cols(near, 0, 3), g.cols(near, 1, 4), axis=0)
+        xm, x0, xp = g.cols(pair, 0, 1), g.cols(pair, 1, 2), g.cols(pair, 2, 3)
+        v = g.op("Div", g.op("Sub", xp, xm), g.const(2.0 * wf.ts), base="v")
+        a = g.op("Div", g.op("Add", g.op("Sub", xp, g.op("Mul", g.const(2.0), x0)), xm),
+                 g.const(wf.ts * wf.ts), base="a")
     th = wf.theta
-    p = g.op("Add", g.op("Add", g.op("Add", g.op("Mul", g.const(th["mass"]), a),
-                                     g.op("Mul", g.const(th["viscous"]), v)),
-                         g.op("Mul", g.const(th["coulomb"]), g.op("Sign", v))),
-             g.op("Mul", g.const(th["stiffness"]), x0), base="physical")
-    base = p
-    for e in wf.effects:
-        p = g.op("Add", p, _effect(g, e, x0, v, base))
-    if wf.network is not None:
+    if wf.network is None:  # a LIP: theta and the effects on the raw differences
+        p = g.op("Add", g.op("Add", g.op("Add", g.op("Mul", g.const(th["mass"]), a),
+                                         g.op("Mul", g.const(th["viscous"]), v)),
+                             g.op("Mul", g.const(th["coulomb"]), g.op("Sign", v))),
+                 g.op("Mul", g.const(th["stiffness"]), x0), base="physical")
+        base = p
+        for e in wf.effects:
+            p = g.op("Add", p, _effect(g, e, x0, v, base))
+    else:
         net = wf.network
     if wf.network is not None and wf.half == 0:  # no feature filter: the raw features
         f = g.op("Concat", a, v, g.op("Sign", v), x0, axis=1, base="features")
@@ -155,6 +158,8 @@ def model(wf: WindowFeedforward):
         f = g.op("Reshape", g.op("Transpose", filtered, perm=[2, 1, 0]),
                  g.const(np.array([-1, 4], np.int64)), base="features")
     if wf.network is not None:
+        # A PGNN: theta on the same (filtered) features the network sees, as fitted.
+        p = g.op("MatMul", f, g.const(wf.theta_vector()[:, None], "theta"), base="physical")
         h = g.op("Div", g.op("Sub", f, g.const(net.input_mean[None, :], "input_mean")),
                  g.const(net.input_std[None, :], "input_std"))
         for wl, bl in net.layers:
