@@ -19,6 +19,8 @@ double-precision FPU.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from clm_sim.effects import (
@@ -30,7 +32,8 @@ from clm_sim.effects import (
     Stribeck,
 )
 from clm_sim.errors import UserError
-from controllers.export.window import WindowFeedforward
+from controllers.export.options import DEFAULT_PREFIX, ExportOptions, safe_text
+from controllers.export.window import DEFAULT_TOL, WindowFeedforward
 
 
 def _num(x: float) -> str:
@@ -50,6 +53,28 @@ def _array(values, per_line: int = 4) -> str:
 def _matrix(rows) -> str:
     return "{\n" + ",\n".join("    " + _array(row, 8).replace("\n", "\n    ")
                               for row in rows) + "\n}"
+
+
+def _c_double(x: float) -> str:
+    """A double literal that reads back to the same bits (no ``R()``)."""
+    text = repr(float(x))
+    return text if ("e" in text or "." in text) else text + ".0"
+
+
+def _limit(x) -> str:
+    return "HUGE_VAL" if x is None else _c_double(x)
+
+
+def _comment_lines(text: str, width: int = 90) -> str:
+    """``text`` (already safe) wrapped into `` *   `` comment lines."""
+    wrapped, line = [], ""
+    for word in text.replace("*/", "* /").split(" "):
+        if len(line) + len(word) > width:
+            wrapped.append(line.rstrip())
+            line = ""
+        line += word + " "
+    wrapped.append(line.rstrip())
+    return "\n".join(f" *   {w}" for w in wrapped)
 
 
 # -- effects as C expressions of y (m), v (m/s) and base (N: the physical force) ---------------
@@ -88,47 +113,68 @@ _ACT = {
 }
 
 _PRELUDE = """\
+/* The maths functions: each overridable by a macro defined before this point (-D or a wrapper
+ * that includes this file), e.g. -DCLM_FF_EXP=TcExp or CMSIS-DSP's versions. */
 #ifdef CLM_FF_FLOAT
 typedef float clm_ff_real;
 #define R(x) ((float)(x))
-#define SIN sinf
-#define EXP expf
-#define POW powf
-#define FABS fabsf
-#define TANH tanhf
-#define LOG1P log1pf
-#define ERF erff
-#define SQRT sqrtf
+#define MATHF(d, f) f
 #else
 typedef double clm_ff_real;
 #define R(x) (x)
-#define SIN sin
-#define EXP exp
-#define POW pow
-#define FABS fabs
-#define TANH tanh
-#define LOG1P log1p
-#define ERF erf
-#define SQRT sqrt
+#define MATHF(d, f) d
+#endif
+#ifndef SIN
+#define SIN MATHF(sin, sinf)
+#endif
+#ifndef EXP
+#define EXP MATHF(exp, expf)
+#endif
+#ifndef POW
+#define POW MATHF(pow, powf)
+#endif
+#ifndef FABS
+#define FABS MATHF(fabs, fabsf)
+#endif
+#ifndef LOG1P
+#define LOG1P MATHF(log1p, log1pf)
+#endif
+#ifndef ERF
+#define ERF MATHF(erf, erff)
+#endif
+#ifndef SQRT
+#define SQRT MATHF(sqrt, sqrtf)
 #endif
 #define SGN(x) ((clm_ff_real)(((x) > R(0.0)) - ((x) < R(0.0))))
+
+/* Finite, by the exponent bits where double is IEEE 754 binary64 (a test that -ffast-math cannot
+ * assume away), else by comparisons. */
+static int is_finite_bits(double x)
+{
+#if DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
+    unsigned long long b;
+    memcpy(&b, &x, sizeof b);
+    return (b & 0x7ff0000000000000ULL) != 0x7ff0000000000000ULL;
+#else
+    return x == x && x - x == 0.0;
+#endif
+}
 """
 
-
-def header(wf: WindowFeedforward) -> str:
-    """``clm_ff.h``: the contract (window, units, model) and the declarations."""
-    desc = wf.describe().replace("*/", "* /")  # a file name must not close the comment
-    wrapped, line = [], ""
-    for word in desc.split(" "):
-        if len(line) + len(word) > 90:
-            wrapped.append(line.rstrip())
-            line = ""
-        line += word + " "
-    wrapped.append(line.rstrip())
-    model = "\n".join(f" *   {w}" for w in wrapped)
+def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str:
+    """``clm_ff.h``: the contract (window, units, model, status) and the declarations (names
+    ``clm_ff``/``CLM_FF`` as written here; :func:`write` puts the prefix in)."""
+    opt = options or ExportOptions()
+    model = _comment_lines(safe_text(wf.describe()))
+    trace = _comment_lines(safe_text(opt.trace_line()))
     nsec = 1
     if wf.network is not None and wf.filter.get("cutoff_hz"):
         nsec = len(wf.forward_filter()[0])
+    exact = ("it equals clm_ff to rounding" if wf.filter.get("tol", DEFAULT_TOL) <= DEFAULT_TOL
+             else "it equals clm_ff to about the --filter-tail share "
+                  f"({wf.filter.get('tol'):.0e}; the FIR cut and the recursion's tail differ)")
+    if wf.network is None or not wf.filter.get("cutoff_hz"):
+        exact = "it computes clm_ff on its window"
     return f"""\
 /* clm_ff.h -- feedforward exported by clm-sim export-ff (do not edit; re-export instead).
  *
@@ -145,33 +191,69 @@ def header(wf: WindowFeedforward) -> str:
  * m, CLM_FF_TS in s, the result in N. The streaming form (clm_ff_stream_*) keeps the window in
  * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k]. For a
  * PGNN it also keeps the forward half of the feature filter as a recursion and the force at
- * k+1 for the next call, about half the work of clm_ff; it equals clm_ff to rounding once the
- * window has been filled from rest (clm_ff_stream_init).
+ * k+1 for the next call, about half the work of clm_ff; {exact} once the window has been
+ * filled (clm_ff_stream_init at rest, clm_ff_stream_start from a window).
+ *
+ * Bad input. clm_ff returns NaN (both builds) for a window holding a NaN or an infinity;
+ * clm_ff_eval returns CLM_FF_REJECTED and 0 N instead. The stream rejects a sample that is not
+ * finite or beyond +-CLM_FF_R_MAX m: it holds the last good sample in its place and reports
+ * CLM_FF_REJECTED, then CLM_FF_DEGRADED until the held sample has left the window
+ * (CLM_FF_WINDOW pushes); after that its force is the exact one again (to the export's
+ * tolerance: the filter's recursion forgets the held sample as its impulse response decays).
+ *
+ * Limits. clm_ff_eval and the stream clamp the force to +-CLM_FF_MAX_FORCE (N); the stream
+ * also limits its change to CLM_FF_MAX_SLEW (N/s) per second; both from the export, changeable
+ * per stream at run time (clm_ff_stream_limits). Every status word is 0 (CLM_FF_OK) or an OR
+ * of the CLM_FF_* bits below.
  *
  * Model:
 {model}
+ * Export:
+{trace}
  *
  * Compile: C99, link -lm. With GCC or Clang on x86-64 a PGNN's clm_ff.c also holds an AVX2 and
  * FMA path (intrinsics, target attributes), taken per call where the CPU has both: no flag
  * needed, and the same results to rounding; -DCLM_FF_PORTABLE leaves it out. -DCLM_FF_FLOAT
- * computes in single precision (see docs/export.md for the error that costs).
+ * computes in single precision (see docs/export.md for the error that costs). The maths
+ * functions are macros (CLM_FF_EXP, CLM_FF_SIN, CLM_FF_POW, CLM_FF_FABS, CLM_FF_LOG1P,
+ * CLM_FF_ERF, CLM_FF_SQRT) a -D can replace (TcMath, CMSIS).
  */
 #ifndef CLM_FF_H
 #define CLM_FF_H
 
-#define CLM_FF_TS {wf.ts!r} /* s: sample time */
+#define CLM_FF_TS {_c_double(wf.ts)} /* s: sample time */
 #define CLM_FF_LAG {wf.lag} /* samples before k read */
 #define CLM_FF_LEAD {wf.lead} /* samples after k read */
 #define CLM_FF_WINDOW (CLM_FF_LAG + 1 + CLM_FF_LEAD)
 #define CLM_FF_HALF {wf.half} /* half-length of the network's feature filter (0: none) */
 #define CLM_FF_NSEC {nsec} /* second-order sections of that filter (state of the stream) */
+#ifndef CLM_FF_MAX_FORCE
+#define CLM_FF_MAX_FORCE {_limit(opt.max_force)} /* N: |force| limit (export default) */
+#endif
+#ifndef CLM_FF_MAX_SLEW
+#define CLM_FF_MAX_SLEW {_limit(opt.max_slew)} /* N/s: the stream's rate limit (export default) */
+#endif
+#ifndef CLM_FF_R_MAX
+#define CLM_FF_R_MAX 1e6 /* m: a stream sample beyond +-this is rejected as not finite is */
+#endif
+
+/* Status bits (0: CLM_FF_OK, the exact force of the product). */
+#define CLM_FF_OK 0u
+#define CLM_FF_REJECTED 1u /* this input was not finite (or out of range): not used */
+#define CLM_FF_DEGRADED 2u /* the window holds a held sample in place of a rejected one */
+#define CLM_FF_CLAMPED 4u  /* the force was limited to +-max_force */
+#define CLM_FF_SLEWED 8u   /* the force's change was limited to max_slew */
 
 #ifdef __cplusplus
 extern "C" {{
 #endif
 
-/* Force (N) to hold over sample k; r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid. */
+/* Force (N) to hold over sample k; r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid.
+ * NaN where the window holds a NaN or an infinity. */
 double clm_ff(const double *r);
+
+/* clm_ff with a status: *u_ff the force clamped to +-CLM_FF_MAX_FORCE (N), 0 if rejected. */
+unsigned clm_ff_eval(const double *r, double *u_ff);
 
 /* Streaming form: state of the caller (one per axis); no allocation. */
 typedef struct {{
@@ -183,12 +265,30 @@ typedef struct {{
     double fwd[4][2 * (CLM_FF_HALF + 1)];
     int fnext;
     double p_next;
+    double last_good;   /* m: the newest sample accepted */
+    int degraded;       /* pushes until a held sample has left the window */
+    double max_force;   /* N */
+    double max_step;    /* N per sample: max_slew * CLM_FF_TS */
+    double u_last;      /* N: the force returned last */
+    unsigned status;    /* of the last call */
 }} clm_ff_stream;
 
-/* Fill the window with the rest position r0 (m): the machine at rest before the motion. */
-void clm_ff_stream_init(clm_ff_stream *s, double r0);
+/* Fill the window with the rest position r0 (m): the machine at rest before the motion; the
+ * limits from the export. CLM_FF_REJECTED (and the stream at 0 m) if r0 is not finite. */
+unsigned clm_ff_stream_init(clm_ff_stream *s, double r0);
 
-/* Push the newest reference sample r[k + CLM_FF_LEAD] (m); returns u_ff[k] (N). */
+/* Start on a moving reference: r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid; the
+ * next push takes r[k+1+CLM_FF_LEAD] and returns u_ff[k+1]. *u_ff: u_ff[k] (N, unlimited; the
+ * slew limit starts from it). CLM_FF_REJECTED (stream unchanged) if the window is not finite. */
+unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff);
+
+/* Set the limits (N, N/s; HUGE_VAL: none). CLM_FF_REJECTED (unchanged) unless both > 0. */
+unsigned clm_ff_stream_limits(clm_ff_stream *s, double max_force, double max_slew);
+
+/* Push the newest reference sample r[k + CLM_FF_LEAD] (m); *u_ff = u_ff[k] (N); the status. */
+unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff);
+
+/* clm_ff_stream_step returning the force (the status stays in s->status). */
 double clm_ff_stream_push(clm_ff_stream *s, double r_newest);
 
 #ifdef __cplusplus
@@ -199,7 +299,8 @@ double clm_ff_stream_push(clm_ff_stream *s, double r_newest);
 
 
 def source(wf: WindowFeedforward) -> str:
-    """``clm_ff.c``: the feedforward, weights as ``static const`` tables."""
+    """``clm_ff.c``: the feedforward, weights as ``static const`` tables (names ``clm_ff``/
+    ``CLM_FF`` and file-local ones unprefixed, as written here; :func:`write` prefixes them)."""
     th = wf.theta
     effects = "".join(f"    p += {_effect_c(e)};\n" for e in wf.effects)
     physical = f"""\
@@ -225,18 +326,29 @@ static clm_ff_real physical(const clm_ff_real f[4])
     return {_num(th['mass'])} * f[0] + {_num(th['viscous'])} * f[1]
         + {_num(th['coulomb'])} * f[2] + {_num(th['stiffness'])} * f[3];
 }}
+
+/* The features of both instants are finite (a NaN or an infinity in the window reaches them:
+ * every instant has a non-zero weight). */
+static int features_finite(const clm_ff_real f0[4], const clm_ff_real f1[4])
+{{
+    return is_finite_bits((double)f0[0] + (double)f0[1] + (double)f0[2] + (double)f0[3]
+                          + (double)f1[0] + (double)f1[1] + (double)f1[2] + (double)f1[3]);
+}}
 """
-    out = [f"/* clm_ff.c -- generated by clm-sim export-ff; see clm_ff.h for the contract. */\n"
-           f'#include "clm_ff.h"\n#include <math.h>\n\n{_PRELUDE}\n{physical}']
+    out = ["/* clm_ff.c -- generated by clm-sim export-ff; see clm_ff.h for the contract. */\n"
+           '#include "clm_ff.h"\n#include <float.h>\n#include <math.h>\n#include <string.h>\n\n'
+           f"{_PRELUDE}\n{physical}"]
     if wf.network is None:
         out.append("""
 double clm_ff(const double *r)
 {
-    return (double)(R(0.5) * (physical(r) + physical(r + 1)));
+    const double u = (double)(R(0.5) * (physical(r) + physical(r + 1)));
+    return is_finite_bits(u) ? u : (double)NAN;
 }
 """)
     else:
         out.append(_network_source(wf))
+    out.append(_STREAM_COMMON)
     if wf.network is not None and wf.filter.get("cutoff_hz"):
         out.append(_fast_stream(wf))
     else:
@@ -244,22 +356,142 @@ double clm_ff(const double *r)
     return "".join(out)
 
 
-_GENERIC_STREAM = """
-void clm_ff_stream_init(clm_ff_stream *s, double r0)
+# What every form shares: the status of a call, the limits, the stateless call with a status.
+_STREAM_COMMON = """
+/* A stream sample it can use: finite and within +-CLM_FF_R_MAX m. */
+static int in_range(double r)
 {
-    int i;
-    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
-        s->buf[i] = r0;
-    s->next = 0;
+    return is_finite_bits(r) && r >= -CLM_FF_R_MAX && r <= CLM_FF_R_MAX;
+}
+
+/* The force (N) clamped to +-max_force, with its status bit. */
+static double clamp(double u, double max_force, unsigned *st)
+{
+    if (u > max_force) {
+        *st |= CLM_FF_CLAMPED;
+        return max_force;
+    }
+    if (u < -max_force) {
+        *st |= CLM_FF_CLAMPED;
+        return -max_force;
+    }
+    return u;
+}
+
+unsigned clm_ff_eval(const double *r, double *u_ff)
+{
+    unsigned st = CLM_FF_OK;
+    const double u = clm_ff(r);
+    if (!is_finite_bits(u)) {
+        *u_ff = 0.0;
+        return CLM_FF_REJECTED;
+    }
+    *u_ff = clamp(u, CLM_FF_MAX_FORCE, &st);
+    return st;
+}
+
+/* The state after init or start: the newest sample, the force last returned, export limits. */
+static void reset(clm_ff_stream *s, double last_good, double u)
+{
+    s->last_good = last_good;
+    s->degraded = 0;
+    s->max_force = CLM_FF_MAX_FORCE;
+    s->max_step = CLM_FF_MAX_SLEW * CLM_FF_TS;
+    s->u_last = u;
+    s->status = CLM_FF_OK;
+}
+
+unsigned clm_ff_stream_limits(clm_ff_stream *s, double max_force, double max_slew)
+{
+    if (!(max_force > 0.0 && max_slew > 0.0)) /* NaN fails too */
+        return CLM_FF_REJECTED;
+    s->max_force = max_force;
+    s->max_step = max_slew * CLM_FF_TS;
+    return CLM_FF_OK;
+}
+
+/* The newest sample, or the last good one in place of a rejected one; the status so far. */
+static unsigned accept(clm_ff_stream *s, double *r_newest)
+{
+    unsigned st = CLM_FF_OK;
+    if (in_range(*r_newest)) {
+        s->last_good = *r_newest;
+    } else {
+        *r_newest = s->last_good;
+        st = CLM_FF_REJECTED;
+        s->degraded = CLM_FF_WINDOW;
+    }
+    if (s->degraded > 0) {
+        st |= CLM_FF_DEGRADED;
+        --s->degraded;
+    }
+    return st;
+}
+
+/* The limits on the force u (N) of a push, its output and status. */
+static unsigned finish(clm_ff_stream *s, double u, unsigned st, double *u_ff)
+{
+    if (u > s->u_last + s->max_step) {
+        u = s->u_last + s->max_step;
+        st |= CLM_FF_SLEWED;
+    } else if (u < s->u_last - s->max_step) {
+        u = s->u_last - s->max_step;
+        st |= CLM_FF_SLEWED;
+    }
+    u = clamp(u, s->max_force, &st);
+    s->u_last = u;
+    s->status = st;
+    *u_ff = u;
+    return st;
 }
 
 double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
 {
+    double u;
+    (void)clm_ff_stream_step(s, r_newest, &u);
+    return u;
+}
+"""
+
+_GENERIC_STREAM = """
+unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
+{
+    unsigned st = CLM_FF_OK;
+    int i;
+    if (!in_range(r0)) {
+        r0 = 0.0;
+        st = CLM_FF_REJECTED;
+    }
+    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
+        s->buf[i] = r0;
+    s->next = 0;
+    reset(s, r0, clm_ff(&s->buf[CLM_FF_LAG]));
+    s->status = st;
+    return st;
+}
+
+unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
+{
+    int i;
+    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
+        if (!in_range(r[i]))
+            return CLM_FF_REJECTED;
+    for (i = 0; i < CLM_FF_WINDOW; ++i)
+        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
+    s->next = 0;
+    *u_ff = clm_ff(r);
+    reset(s, r[CLM_FF_LEAD], *u_ff);
+    return CLM_FF_OK;
+}
+
+unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
+{
+    const unsigned st = accept(s, &r_newest);
     s->buf[s->next] = r_newest;
     s->buf[s->next + CLM_FF_WINDOW] = r_newest;
     s->next = (s->next + 1) % CLM_FF_WINDOW;
     /* The oldest sample is at buf[next]; r[k] is CLM_FF_LAG after it. */
-    return clm_ff(&s->buf[s->next + CLM_FF_LAG]);
+    return finish(s, clm_ff(&s->buf[s->next + CLM_FF_LAG]), st, u_ff);
 }
 """
 
@@ -367,44 +599,97 @@ static double stream_point(const clm_ff_stream *s)
     return (double)(physical(f) + network(f));
 }}
 
-void clm_ff_stream_init(clm_ff_stream *s, double r0)
+/* The raw features [a, v, sign v, y] (double) of the instant n[0], as the product differences. */
+static void differences(const double *n, double x[4])
 {{
-    int i, j, c;
+    x[1] = (n[1] - n[-1]) / (2.0 * CLM_FF_TS);
+    x[0] = (n[1] - 2.0 * n[0] + n[-1]) / (CLM_FF_TS * CLM_FF_TS);
+    x[2] = x[1] > 0.0 ? 1.0 : (x[1] < 0.0 ? -1.0 : 0.0);
+    x[3] = n[0];
+}}
+
+/* The sections in their steady state for the constant features x. */
+static void steady(clm_ff_stream *s, const double x[4])
+{{
+    int j, c;
+    for (c = 0; c < 4; ++c)
+        for (j = 0; j < CLM_FF_NSEC; ++j) {{
+            s->zf[c][j][0] = SOS_ZI[j][0] * x[c];
+            s->zf[c][j][1] = SOS_ZI[j][1] * x[c];
+        }}
+}}
+
+unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
+{{
+    unsigned st = CLM_FF_OK;
+    double x[4];
+    int i;
+    if (!in_range(r0)) {{
+        r0 = 0.0;
+        st = CLM_FF_REJECTED;
+    }}
     for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
         s->buf[i] = r0;
     s->next = 0;
     /* at rest: a = v = sign v = 0, y = r0; the sections in their steady state */
-    for (c = 0; c < 4; ++c)
-        for (j = 0; j < CLM_FF_NSEC; ++j) {{
-            s->zf[c][j][0] = c == 3 ? SOS_ZI[j][0] * r0 : 0.0;
-            s->zf[c][j][1] = c == 3 ? SOS_ZI[j][1] * r0 : 0.0;
-        }}
+    x[0] = x[1] = x[2] = 0.0;
+    x[3] = r0;
+    steady(s, x);
     for (i = 0; i < 2 * (HALF + 1); ++i) {{
         s->fwd[0][i] = s->fwd[1][i] = s->fwd[2][i] = 0.0;
         s->fwd[3][i] = r0;
     }}
     s->fnext = 0;
     s->p_next = stream_point(s);
+    reset(s, r0, s->p_next);
+    s->status = st;
+    return st;
 }}
 
-double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
+unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
 {{
-    const double *r, *n;
+    double x[4], p;
+    int i;
+    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
+        if (!in_range(r[i]))
+            return CLM_FF_REJECTED;
+    for (i = 0; i < CLM_FF_WINDOW; ++i)
+        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
+    s->next = 0;
+    /* The sections started in the steady state of the oldest instant's features, then run over
+     * the window's 2 HALF + 2 instants: what they forget of that start decays as the filter's
+     * impulse response, below the export's tolerance after HALF samples. */
+    differences(r - HALF, x);
+    steady(s, x);
+    s->fnext = 0;
+    for (i = -HALF; i <= HALF; ++i) {{
+        differences(r + i, x);
+        forward(s, x);
+    }}
+    p = stream_point(s);                 /* force at k */
+    differences(r + HALF + 1, x);
+    forward(s, x);
+    s->p_next = stream_point(s);         /* force at k+1 */
+    *u_ff = 0.5 * (p + s->p_next);
+    reset(s, r[CLM_FF_LEAD], *u_ff);
+    return CLM_FF_OK;
+}}
+
+unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
+{{
+    const unsigned st = accept(s, &r_newest);
+    const double *r;
     double x[4], p, u;
     s->buf[s->next] = r_newest;
     s->buf[s->next + CLM_FF_WINDOW] = r_newest;
     s->next = (s->next + 1) % CLM_FF_WINDOW;
     r = &s->buf[s->next + CLM_FF_LAG];   /* r[k] */
-    n = r + CLM_FF_LAG;                  /* r[k + HALF + 1]: the newest instant with differences */
-    x[1] = (n[1] - n[-1]) / (2.0 * CLM_FF_TS);
-    x[0] = (n[1] - 2.0 * n[0] + n[-1]) / (CLM_FF_TS * CLM_FF_TS);
-    x[2] = x[1] > 0.0 ? 1.0 : (x[1] < 0.0 ? -1.0 : 0.0);
-    x[3] = n[0];
+    differences(r + CLM_FF_LAG, x);      /* r[k + HALF + 1]: the newest instant with differences */
     forward(s, x);                       /* forward outputs now cover k+1 .. k+HALF+1 */
     p = stream_point(s);                 /* force at k+1 */
     u = 0.5 * (s->p_next + p);
     s->p_next = p;
-    return u;
+    return finish(s, u, st, u_ff);
 }}
 """
 
@@ -425,6 +710,8 @@ double clm_ff(const double *r)
     clm_ff_real f0[4], f1[4];
     raw_features(r, f0);
     raw_features(r + 1, f1);
+    if (!features_finite(f0, f1))
+        return (double)NAN;
     return (double)(R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1))));
 }
 """
@@ -526,11 +813,15 @@ double clm_ff(const double *r)
     if (CLM_FF_HAS_AVX2()) {
         double net[2];
         filtered_features_avx2(r, f0, f1);
+        if (!features_finite(f0, f1))
+            return (double)NAN;
         NETWORK2_AVX2(f0, f1, net);
         return 0.5 * ((physical(f0) + net[0]) + (physical(f1) + net[1]));
     }
 #endif
     filtered_features(r, f0, f1);
+    if (!features_finite(f0, f1))
+        return (double)NAN;
     return (double)(R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1))));
 }
 """
@@ -549,7 +840,8 @@ _ACT_AVX2 = {
 _EXP_AVX2 = """
 /* e^x, four at a time, to about 2 ulp: x = n ln2 + t, |t| <= ln2/2 (ln2 in two parts, fdlibm's),
  * e^t by its Taylor series to t^13 (truncation below 1e-17), times 2^n built in the exponent
- * bits. x is clamped to +-708 (a tanh or a sigmoid is already at its limit there). */
+ * bits. x is clamped to +-708 (a tanh or a sigmoid is already at its limit there); NaN stays
+ * NaN (as libm's exp). */
 __attribute__((target("avx2,fma")))
 static __m256d exp_avx2(__m256d x)
 {
@@ -559,7 +851,8 @@ static __m256d exp_avx2(__m256d x)
     __m256d n, t, p;
     __m256i e;
     int i;
-    x = _mm256_min_pd(_mm256_max_pd(x, _mm256_set1_pd(-708.0)), _mm256_set1_pd(708.0));
+    /* max and min return their second operand where one is NaN: x second, so NaN stays NaN */
+    x = _mm256_min_pd(_mm256_set1_pd(708.0), _mm256_max_pd(_mm256_set1_pd(-708.0), x));
     n = _mm256_round_pd(_mm256_mul_pd(x, _mm256_set1_pd(1.4426950408889634)),
                         _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
     t = _mm256_fnmadd_pd(n, _mm256_set1_pd(6.93147180369123816490e-01), x);
@@ -681,7 +974,7 @@ def _network_source(wf: WindowFeedforward) -> str:
     m = wf.half
     padded = np.concatenate([[0.0], wf.kernel, [0.0]])  # the FIR with a zero either side
     net = wf.network
-    tables = [f"#define HALF {m}\n"]
+    tables = []
     if m > 0:
         tables += [
             "static const double INV_TS2 = 1.0 / (CLM_FF_TS * CLM_FF_TS);\n"
@@ -706,7 +999,6 @@ def _network_source(wf: WindowFeedforward) -> str:
         layers.append(f"""\
     {{
         clm_ff_real h{li + 1}[{b}];
-        int o, j;
         for (o = 0; o < {b}; ++o) {{
             clm_ff_real x = B{li}[o];
             for (j = 0; j < {a}; ++j)
@@ -723,7 +1015,7 @@ static clm_ff_real network(const clm_ff_real f[4])
 {{
     clm_ff_real h0[4];
     clm_ff_real out = OUT_B;
-    int i;
+    int i, o, j;
     for (i = 0; i < 4; ++i)
         h0[i] = (f[i] - IN_MEAN[i]) / IN_STD[i];
 {body}        for (i = 0; i < {widths[-1]}; ++i)
@@ -737,12 +1029,38 @@ static clm_ff_real network(const clm_ff_real f[4])
             + _FILTERED_FEATURES_AVX2 + _FILTERED_CLM_FF)
 
 
-def write(wf: WindowFeedforward, folder) -> list:
-    """Write ``clm_ff.h`` and ``clm_ff.c`` into ``folder``; returns the paths."""
+# The file-local names of clm_ff.c: macros and tables (upper case) and static functions. Each
+# gets the prefix too, so that two exports compile together in one translation unit (a unity
+# build) as well as side by side.
+_LOCAL_MACROS = ("R", "MATHF", "SIN", "EXP", "POW", "FABS", "LOG1P", "ERF", "SQRT", "SGN",
+                 "KERNEL", "IN_MEAN", "IN_STD", "OUT_W", "OUT_B", "OUT_WP", "SOS", "SOS_ZI",
+                 "BACK", "INV_TS2", "INV_2TS", "HALF", "NETWORK_AVX2", "NETWORK2_AVX2")
+_LOCAL_FUNCTIONS = ("physical", "features_finite", "is_finite_bits", "network", "network_avx2",
+                    "network1_avx2", "network2_avx2", "forward", "backward", "backward_avx2",
+                    "stream_point", "raw_features", "filtered_features", "filtered_features_avx2",
+                    "exp_avx2", "in_range", "clamp", "reset", "accept", "finish", "differences",
+                    "steady")
+_MACRO_RE = re.compile(r"(?<![A-Za-z0-9_])(" + "|".join(_LOCAL_MACROS) + r"|[WB]\d+[TP]?)"
+                       r"(?![A-Za-z0-9_])")
+_FUNCTION_RE = re.compile(r"(?<![A-Za-z0-9_])(" + "|".join(_LOCAL_FUNCTIONS) + r")(?=\s*\()")
+
+
+def prefixed(text: str, prefix: str = DEFAULT_PREFIX) -> str:
+    """C text with every file-local name moved under the export's names (``R`` ->
+    ``CLM_FF_R``, ``network(`` -> ``clm_ff_network(``) and then ``clm_ff``/``CLM_FF`` replaced
+    by ``prefix``/``PREFIX``."""
+    text = _MACRO_RE.sub(r"CLM_FF_\1", text)
+    text = _FUNCTION_RE.sub(r"clm_ff_\1", text)
+    return text.replace("clm_ff", prefix).replace("CLM_FF", prefix.upper())
+
+
+def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -> list:
+    """Write ``<prefix>.h`` and ``<prefix>.c`` into ``folder``; returns the paths."""
     from pathlib import Path
 
+    opt = options or ExportOptions()
     folder = Path(folder)
-    paths = [folder / "clm_ff.h", folder / "clm_ff.c"]
-    paths[0].write_text(header(wf))
-    paths[1].write_text(source(wf))
+    paths = [folder / f"{opt.prefix}.h", folder / f"{opt.prefix}.c"]
+    paths[0].write_text(prefixed(header(wf, opt), opt.prefix))
+    paths[1].write_text(prefixed(source(wf), opt.prefix))
     return paths
