@@ -353,8 +353,8 @@ def test_cli_exports_the_run_lip(run_folder, tmp_path):
     wf = load_feedforward(lip_file)
     assert wf.ts == TS and wf.kind == "lip"
     assert main(["export-ff", str(lip_file), "--to", "c", "--out", str(tmp_path / "c")]) == 0
-    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == ["clm_ff.c", "clm_ff.h",
-                                                                   "export.json"]
+    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == [
+        "clm_ff.c", "clm_ff.h", "clm_ff_kat.csv", "clm_ff_selftest.c", "export.json"]
 
 
 def test_identify_and_diagnosis_files_load(fitted, effects_lip, tmp_path):
@@ -707,7 +707,8 @@ def test_two_prefixed_exports_link_and_run_in_one_program(fitted, tmp_path):
         assert main(["export-ff", str(tmp_path / model), "--to", "c", "--out",
                      str(tmp_path / prefix), "--ts", str(TS), "--prefix", prefix]) == 0
         assert sorted(p.name for p in (tmp_path / prefix).iterdir()) == [
-            f"{prefix}.c", f"{prefix}.h", "export.json"]
+            f"{prefix}.c", f"{prefix}.h", f"{prefix}_kat.csv", f"{prefix}_selftest.c",
+            "export.json"]
         text = (tmp_path / prefix / f"{prefix}.c").read_text()
         assert "clm_ff" not in text and "CLM_FF" not in text
     (tmp_path / "main.c").write_text(TWO_MODELS)
@@ -875,3 +876,43 @@ def test_export_is_traced_and_reproducible(fitted, tmp_path, monkeypatch):
         proto = onnx.load(str(tmp_path / "onnx" / "clm_ff.onnx"))
         meta = {p.key: p.value for p in proto.metadata_props}
         assert meta["model_sha256"] == digest and str(tmp_path) not in str(meta)
+
+
+SELFTEST_MAIN = r"""
+#include <stdio.h>
+#include "clm_ff.h"
+int main(void)
+{
+    static clm_ff_stream scratch;
+    const int failed = clm_ff_selftest(&scratch);
+    printf("%d\n", failed);
+    return failed != 0;
+}
+"""
+
+
+@needs_cc
+@pytest.mark.parametrize("name", ["lip_effects", "pgnn"])
+def test_selftest_passes_in_every_build_and_catches_a_wrong_maths_library(
+        name, fitted, effects_lip, tmp_path):
+    """clm_ff_selftest() compiled with the export: 0 in the default, portable and float builds;
+    a build whose exp (or sin) is not the real one fails it; the vectors file holds the same
+    forces as the product's feedforward on its motion."""
+    import subprocess
+    from controllers.export import selftest
+    model, wf = _model(name, fitted, effects_lip)
+    c_source.write(wf, tmp_path)
+    r, u = selftest.vectors(wf)
+    assert _rel(u, model.feedforward(r, TS)) < REL
+    kat = np.loadtxt(tmp_path / "clm_ff_kat.csv", delimiter=",", skiprows=2)
+    assert np.array_equal(kat[:, 1], r) and np.array_equal(kat[:, 2], u)
+    (tmp_path / "main.c").write_text(SELFTEST_MAIN)
+    wrong = "-DCLM_FF_SIN=cos" if name == "lip_effects" else "-DCLM_FF_EXP=exp2"
+    for flags, passes in (((), True), (("-DCLM_FF_PORTABLE",), True), (("-DCLM_FF_FLOAT",), True),
+                          (("-DCLM_FF_PORTABLE", wrong), False)):
+        exe = tmp_path / "selftest"
+        subprocess.run([compiler(), *STRICT, "-O2", *flags, "-I", str(tmp_path), "-o", str(exe),
+                        str(tmp_path / "main.c"), str(tmp_path / "clm_ff.c"),
+                        str(tmp_path / "clm_ff_selftest.c"), "-lm"], check=True)
+        done = subprocess.run([str(exe)], capture_output=True, text=True)
+        assert (done.returncode == 0) == passes, (flags, done.stdout)

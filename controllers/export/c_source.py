@@ -291,6 +291,11 @@ unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff);
 /* clm_ff_stream_step returning the force (the status stays in s->status). */
 double clm_ff_stream_push(clm_ff_stream *s, double r_newest);
 
+/* Known-answer self-test (clm_ff_selftest.c, vectors in clm_ff_kat.csv): 0 if the compiled code
+ * gives the product's forces on the vectors' motion, else 1 + the first failing sample. scratch:
+ * a stream the test overwrites (re-init yours afterwards). */
+int clm_ff_selftest(clm_ff_stream *scratch);
+
 #ifdef __cplusplus
 }}
 #endif
@@ -1055,12 +1060,15 @@ def prefixed(text: str, prefix: str = DEFAULT_PREFIX) -> str:
 
 
 def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -> list:
-    """Write ``<prefix>.h`` and ``<prefix>.c`` into ``folder``; returns the paths."""
+    """Write ``<prefix>.h``, ``<prefix>.c``, the self-test ``<prefix>_selftest.c`` and its
+    vectors ``<prefix>_kat.csv`` into ``folder``; returns the paths."""
     from pathlib import Path
+
+    from controllers.export import selftest
 
     opt = options or ExportOptions()
     folder = Path(folder)
     paths = [folder / f"{opt.prefix}.h", folder / f"{opt.prefix}.c"]
     paths[0].write_text(prefixed(header(wf, opt), opt.prefix))
     paths[1].write_text(prefixed(source(wf), opt.prefix))
-    return paths
+    return paths + selftest.write(wf, folder, opt.prefix, c=True)

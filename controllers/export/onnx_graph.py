@@ -198,10 +198,13 @@ def model(wf: WindowFeedforward, options: ExportOptions | None = None):
 
 
 def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -> list:
-    """Write ``<prefix>.onnx`` into ``folder``; returns the paths."""
+    """Write ``<prefix>.onnx`` and its known-answer vectors ``<prefix>_kat.csv`` into
+    ``folder``; returns the paths."""
     from pathlib import Path
 
     opt = options or ExportOptions()
     path = Path(folder) / f"{opt.prefix}.onnx"
     path.write_bytes(model(wf, opt).SerializeToString())
-    return [path]
+    from controllers.export import selftest
+
+    return [path, *selftest.write(wf, folder, opt.prefix, c=False)]
