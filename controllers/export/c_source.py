@@ -146,6 +146,9 @@ typedef double clm_ff_real;
 #define SQRT MATHF(sqrt, sqrtf)
 #endif
 #define SGN(x) ((clm_ff_real)(((x) > R(0.0)) - ((x) < R(0.0))))
+#ifndef CLM_FF_INLINE
+#define CLM_FF_INLINE inline /* C99; -DCLM_FF_INLINE= for a compiler without it */
+#endif
 
 /* Finite, by the exponent bits where double is IEEE 754 binary64 (a test that -ffast-math cannot
  * assume away), else by comparisons. */
@@ -310,7 +313,7 @@ def source(wf: WindowFeedforward) -> str:
     effects = "".join(f"    p += {_effect_c(e)};\n" for e in wf.effects)
     physical = f"""\
 /* Force (N) at the sample instant of r[0]: physical layer and effects. */
-static clm_ff_real physical(const double *r)
+static CLM_FF_INLINE clm_ff_real physical(const double *r)
 {{
     const clm_ff_real y = (clm_ff_real)r[0];
     const clm_ff_real v = (clm_ff_real)((r[1] - r[-1]) / (2.0 * CLM_FF_TS));
@@ -361,12 +364,41 @@ double clm_ff(const double *r)
     return "".join(out)
 
 
+# Both forms: step and push around the form's advance (inlined into both).
+_STEP_AND_PUSH_TEXT = """
+unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
+{
+    unsigned st;
+    const double u = advance(s, r_newest, &st);
+    return finish(s, u, st, u_ff);
+}
+
+double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
+{
+    unsigned st;
+    double u = advance(s, r_newest, &st);
+    (void)finish(s, u, st, &u);
+    return u;
+}
+"""
+
+
 # What every form shares: the status of a call, the limits, the stateless call with a status.
 _STREAM_COMMON = """
 /* A stream sample it can use: finite and within +-CLM_FF_R_MAX m. */
 static int in_range(double r)
 {
+#if DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
+    /* |r| <= R_MAX as integers: positive doubles order as their bits, and NaN and inf lie
+     * above every finite value (one compare, and -ffast-math cannot drop it) */
+    const double limit = CLM_FF_R_MAX;
+    unsigned long long b, m;
+    memcpy(&b, &r, sizeof b);
+    memcpy(&m, &limit, sizeof m);
+    return (b & 0x7fffffffffffffffULL) <= m;
+#else
     return is_finite_bits(r) && r >= -CLM_FF_R_MAX && r <= CLM_FF_R_MAX;
+#endif
 }
 
 /* The force (N) clamped to +-max_force, with its status bit. */
@@ -415,46 +447,42 @@ unsigned clm_ff_stream_limits(clm_ff_stream *s, double max_force, double max_sle
     return CLM_FF_OK;
 }
 
-/* The newest sample, or the last good one in place of a rejected one; the status so far. */
-static unsigned accept(clm_ff_stream *s, double *r_newest)
+/* The newest sample, or the last good one in place of a rejected one; *st: the status so far. */
+static CLM_FF_INLINE double accept(clm_ff_stream *s, double r_newest, unsigned *st)
 {
-    unsigned st = CLM_FF_OK;
-    if (in_range(*r_newest)) {
-        s->last_good = *r_newest;
+    *st = CLM_FF_OK;
+    if (in_range(r_newest)) {
+        s->last_good = r_newest;
     } else {
-        *r_newest = s->last_good;
-        st = CLM_FF_REJECTED;
+        r_newest = s->last_good;
+        *st = CLM_FF_REJECTED;
         s->degraded = CLM_FF_WINDOW;
     }
     if (s->degraded > 0) {
-        st |= CLM_FF_DEGRADED;
+        *st |= CLM_FF_DEGRADED;
         --s->degraded;
     }
-    return st;
+    return r_newest;
 }
 
-/* The limits on the force u (N) of a push, its output and status. */
-static unsigned finish(clm_ff_stream *s, double u, unsigned st, double *u_ff)
+/* The limits on the force u (N) of a push (skipped where none is set: no chain of calls through
+ * u_last then), its output and status. */
+static CLM_FF_INLINE unsigned finish(clm_ff_stream *s, double u, unsigned st, double *u_ff)
 {
-    if (u > s->u_last + s->max_step) {
-        u = s->u_last + s->max_step;
-        st |= CLM_FF_SLEWED;
-    } else if (u < s->u_last - s->max_step) {
-        u = s->u_last - s->max_step;
-        st |= CLM_FF_SLEWED;
+    if (s->max_step < HUGE_VAL || s->max_force < HUGE_VAL) {
+        if (u > s->u_last + s->max_step) {
+            u = s->u_last + s->max_step;
+            st |= CLM_FF_SLEWED;
+        } else if (u < s->u_last - s->max_step) {
+            u = s->u_last - s->max_step;
+            st |= CLM_FF_SLEWED;
+        }
+        u = clamp(u, s->max_force, &st);
     }
-    u = clamp(u, s->max_force, &st);
     s->u_last = u;
     s->status = st;
     *u_ff = u;
     return st;
-}
-
-double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
-{
-    double u;
-    (void)clm_ff_stream_step(s, r_newest, &u);
-    return u;
 }
 """
 
@@ -489,16 +517,17 @@ unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
     return CLM_FF_OK;
 }
 
-unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
+/* One push before the limits: the force (N) and *st. */
+static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned *st)
 {
-    const unsigned st = accept(s, &r_newest);
+    r_newest = accept(s, r_newest, st);
     s->buf[s->next] = r_newest;
     s->buf[s->next + CLM_FF_WINDOW] = r_newest;
     s->next = (s->next + 1) % CLM_FF_WINDOW;
     /* The oldest sample is at buf[next]; r[k] is CLM_FF_LAG after it. */
-    return finish(s, clm_ff(&s->buf[s->next + CLM_FF_LAG]), st, u_ff);
+    return clm_ff(&s->buf[s->next + CLM_FF_LAG]);
 }
-"""
+""" + _STEP_AND_PUSH_TEXT
 
 
 def _fast_stream(wf: WindowFeedforward) -> str:
@@ -680,11 +709,12 @@ unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
     return CLM_FF_OK;
 }}
 
-unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
+/* One push before the limits: the force (N) and *st. */
+static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned *st)
 {{
-    const unsigned st = accept(s, &r_newest);
     const double *r;
     double x[4], p, u;
+    r_newest = accept(s, r_newest, st);
     s->buf[s->next] = r_newest;
     s->buf[s->next + CLM_FF_WINDOW] = r_newest;
     s->next = (s->next + 1) % CLM_FF_WINDOW;
@@ -694,9 +724,9 @@ unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
     p = stream_point(s);                 /* force at k+1 */
     u = 0.5 * (s->p_next + p);
     s->p_next = p;
-    return finish(s, u, st, u_ff);
+    return u;
 }}
-"""
+""" + _STEP_AND_PUSH_TEXT
 
 
 _RAW_FEATURES = """
@@ -1040,7 +1070,7 @@ static clm_ff_real network(const clm_ff_real f[4])
 _LOCAL_MACROS = ("R", "MATHF", "SIN", "EXP", "POW", "FABS", "LOG1P", "ERF", "SQRT", "SGN",
                  "KERNEL", "IN_MEAN", "IN_STD", "OUT_W", "OUT_B", "OUT_WP", "SOS", "SOS_ZI",
                  "BACK", "INV_TS2", "INV_2TS", "HALF", "NETWORK_AVX2", "NETWORK2_AVX2")
-_LOCAL_FUNCTIONS = ("physical", "features_finite", "is_finite_bits", "network", "network_avx2",
+_LOCAL_FUNCTIONS = ("physical", "advance", "features_finite", "is_finite_bits", "network", "network_avx2",
                     "network1_avx2", "network2_avx2", "forward", "backward", "backward_avx2",
                     "stream_point", "raw_features", "filtered_features", "filtered_features_avx2",
                     "exp_avx2", "in_range", "clamp", "reset", "accept", "finish", "differences",

@@ -33,7 +33,8 @@ def vectors(wf: WindowFeedforward) -> tuple[np.ndarray, np.ndarray]:
     """``(r, u_ff)``: the motion and the product's feedforward on it (the numpy window form,
     held at the ends)."""
     r = motion(wf)
-    return r, wf.apply(r)
+    with np.errstate(over="ignore"):  # e^x of a saturated unit: inf, and the activation's limit
+        return r, wf.apply(r)
 
 
 def kat_csv(wf: WindowFeedforward) -> str:
