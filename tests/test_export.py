@@ -962,3 +962,88 @@ def test_no_subnormal_state_at_rest_after_a_move(fitted, tmp_path):
     count, total = subprocess.run([str(exe)], capture_output=True, text=True,
                                   check=True).stdout.split()
     assert int(count) == 0 and np.isfinite(float(total))
+
+
+RECIPES = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "clm_ff.h"
+/* The integration recipes of docs/export.md with their delay semantics, over a record r[0..n-1]
+ * (argv[1], doubles; held at its ends) whose generator runs CLM_FF_LEAD samples ahead:
+ * g(k) = r[k + LEAD]. Writes argv[2]: per sample k, four doubles:
+ *   Simulink Tapped Delay, CLM_FF_WINDOW - 1 delays, current input included, oldest first,
+ *     initial condition the rest position -> clm_ff_eval on that vector;
+ *   the same block without the current input (CLM_FF_WINDOW delays: z^-1 .. z^-N);
+ *   a PLC task: cycle k reads g(k), steps the stream, and the feedback's reference is g
+ *     delayed by CLM_FF_LEAD cycles -> the force, and that reference. */
+static double *r;
+static long n;
+static double g(long k)
+{
+    k += CLM_FF_LEAD;
+    return r[k < 0 ? 0 : (k >= n ? n - 1 : k)];
+}
+int main(int argc, char **argv)
+{
+    FILE *f;
+    static double line[CLM_FF_WINDOW + 1], fb_line[CLM_FF_LEAD + 1];
+    static clm_ff_stream s;
+    double *out, vec[CLM_FF_WINDOW + 1];
+    long k, j;
+    if (argc != 3 || !(f = fopen(argv[1], "rb"))) return 1;
+    fseek(f, 0, SEEK_END);
+    n = ftell(f) / (long)sizeof(double);
+    rewind(f);
+    r = malloc(sizeof(double) * (size_t)n);
+    out = malloc(4 * sizeof(double) * (size_t)n);
+    if (fread(r, sizeof(double), (size_t)n, f) != (size_t)n) return 1;
+    fclose(f);
+    for (j = 0; j <= CLM_FF_WINDOW; ++j) line[j] = r[0];    /* initial condition: rest */
+    for (j = 0; j <= CLM_FF_LEAD; ++j) fb_line[j] = r[0];
+    (void)clm_ff_stream_init(&s, r[0]);
+    for (k = 0; k < n; ++k) {
+        const double in = g(k);
+        /* the delay line holds g(k-1) (line[W-1]) .. g(k-W) (line[0]): oldest first */
+        for (j = 0; j < CLM_FF_WINDOW - 1; ++j) vec[j] = line[j + 1];
+        vec[CLM_FF_WINDOW - 1] = in;                         /* with the current input */
+        (void)clm_ff_eval(vec + CLM_FF_LAG, &out[4 * k]);
+        (void)clm_ff_eval(line + CLM_FF_LAG, &out[4 * k + 1]); /* z^-W .. z^-1 only */
+        for (j = 0; j < CLM_FF_WINDOW - 1; ++j) line[j] = line[j + 1];
+        line[CLM_FF_WINDOW - 1] = in;
+        (void)clm_ff_stream_step(&s, in, &out[4 * k + 2]);
+        out[4 * k + 3] = fb_line[0];                          /* g(k - LEAD) */
+        for (j = 0; j < CLM_FF_LEAD - 1; ++j) fb_line[j] = fb_line[j + 1];
+        fb_line[CLM_FF_LEAD - 1] = in;                        /* a delay of LEAD cycles */
+    }
+    f = fopen(argv[2], "wb");
+    fwrite(out, sizeof(double), 4 * (size_t)n, f);
+    fclose(f);
+    return 0;
+}
+"""
+
+
+@needs_cc
+@pytest.mark.parametrize("name", ["lip", "pgnn"])
+def test_integration_recipes_align_the_force_with_its_sample(name, fitted, effects_lip,
+                                                             references, tmp_path):
+    """A C harness that emulates the recipes' delay semantics: the Tapped Delay set as the docs
+    say (current input included, oldest first, rest as initial condition) gives u_ff[k] at
+    sample k; without the current input it is one sample late (the pitfall the docs warn of);
+    the PLC task's stream force at cycle k belongs to the sample its feedback reference is."""
+    import subprocess
+    model, wf = _model(name, fitted, effects_lip)
+    c_source.write(wf, tmp_path)
+    (tmp_path / "recipes.c").write_text(RECIPES)
+    exe = tmp_path / "recipes"
+    subprocess.run([compiler(), "-std=c99", "-O2", "-I", str(tmp_path), "-o", str(exe),
+                    str(tmp_path / "recipes.c"), str(tmp_path / "clm_ff.c"), "-lm"], check=True)
+    r = references["r2"]
+    r.astype("<f8").tofile(tmp_path / "r.bin")
+    subprocess.run([str(exe), str(tmp_path / "r.bin"), str(tmp_path / "out.bin")], check=True)
+    tapped, late, plc, fb_ref = np.fromfile(tmp_path / "out.bin", "<f8").reshape(-1, 4).T
+    want = model.feedforward(r, TS)
+    assert _rel(tapped, want) < REL
+    assert _rel(late[1:], want[:-1]) < REL and _rel(late, want) > 1e-3
+    assert np.array_equal(fb_ref, r)  # the feedback sees r[k] in cycle k ...
+    assert _rel(plc, want) < REL      # ... and the feedforward is u_ff[k]
