@@ -163,6 +163,9 @@ def export(model_path, to: str, out, *, ts: float | None = None,
                         f"{filter_tail!r}")
     options = ExportOptions(prefix=DEFAULT_PREFIX if prefix is None else prefix,
                             max_force=max_force, max_slew=max_slew)  # checked before reading
+    if to == "onnx" and (max_force is not None or max_slew is not None):
+        raise UserError("--max-force/--max-slew: the limits are part of the C export only (an "
+                        "ONNX runtime applies its own)")
     writer = c_source.write
     if to == "onnx":
         try:

@@ -377,7 +377,8 @@ def test_identify_and_diagnosis_files_load(fitted, effects_lip, tmp_path):
 
 @pytest.mark.parametrize("case", ["missing", "foreign", "foreign_pt", "unknown_to",
                                   "unwritable", "out_is_a_file", "foreign_folder",
-                                  "filter_tail_zero", "filter_tail_large"])
+                                  "filter_tail_zero", "filter_tail_large", "bad_prefix",
+                                  "max_force_nan", "max_slew_negative", "limits_onnx"])
 def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, capsys):
     lip_file = tmp_path / "lip.json"
     lip_file.write_text(json.dumps(fitted["lip"].to_json()))
@@ -408,6 +409,14 @@ def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, ca
         extra = ["--filter-tail", "0"]
     elif case == "filter_tail_large":
         extra = ["--filter-tail", "0.5"]
+    elif case == "bad_prefix":
+        extra = ["--prefix", "Axis-1"]
+    elif case == "max_force_nan":
+        extra = ["--max-force", "nan"]
+    elif case == "max_slew_negative":
+        extra = ["--max-slew", "-5"]
+    elif case == "limits_onnx":
+        to, extra = "onnx", ["--max-force", "10"]
     before = sorted(p.name for p in tmp_path.rglob("*"))
     code = main(["export-ff", str(model), "--to", to, "--out", str(out), *extra])
     err = capsys.readouterr().err.strip().splitlines()

@@ -57,15 +57,21 @@ def content_hash(path) -> str:
 
 
 def _commit() -> str:
-    """The product's git commit (short), or ``unknown`` outside a checkout."""
+    """The product's git commit (12 hex digits, ``-dirty`` with uncommitted changes to tracked
+    files), or ``unknown`` where the product is not a checkout of its own (an installed copy that
+    happens to sit inside someone else's repository must not report that one's commit)."""
     root = Path(__file__).resolve().parents[2]
+    if not ((root / "pyproject.toml").is_file() and (root / "clm_sim").is_dir()):
+        return "unknown"
     try:
-        done = subprocess.run(["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"],
+        done = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty",
+                               "--abbrev=12", "--match=no-tag-matches-this"],
                               capture_output=True, text=True, timeout=10)
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     out = done.stdout.strip()
-    return out if done.returncode == 0 and re.fullmatch(r"[0-9a-f]{7,40}", out) else "unknown"
+    ok = done.returncode == 0 and re.fullmatch(r"[0-9a-f]{7,40}(-dirty)?", out)
+    return out if ok else "unknown"
 
 
 def export_date() -> str:
@@ -118,6 +124,6 @@ class ExportOptions:
                 "model_sha256": self.model_sha256}
 
     def trace_line(self) -> str:
-        lim = (f"; limits {self.max_force or 'none'} N, {self.max_slew or 'none'} N/s")
+        lim = (f"; limits {self.max_force or 'none'} N, {self.max_slew or 'none'} N per s")
         return (f"clm-sim {self.version}, commit {self.commit}, exported {self.date}; model file "
                 f"{self.model_name}, sha256 {self.model_sha256}{lim}; names {self.prefix}")
