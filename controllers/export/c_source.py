@@ -835,7 +835,9 @@ static void filtered_features_avx2(const double *r, double f0[4], double f1[4])
     _mm256_storeu_pd(lane[6], y0); _mm256_storeu_pd(lane[7], y1);
     for (j = 0; j < 8; ++j)
         sum[j] = (lane[j][0] + lane[j][1]) + (lane[j][2] + lane[j][3]);
-    for (; i < 2 * HALF + 2; ++i) { /* the last instants when 2 HALF + 2 is not a multiple of 4 */
+    /* the last instants when 2 HALF + 2 is not a multiple of 4 (a constant start: with an open
+     * one, gcc -ffast-math warned of a loop it had misread) */
+    for (i = 4 * ((2 * HALF + 2) / 4); i < 2 * HALF + 2; ++i) {
         const double *q = r + i - HALF;
         const double dv = q[1] - q[-1], da = (q[1] - 2.0 * q[0]) + q[-1];
         const double s = dv > 0.0 ? 1.0 : (dv < 0.0 ? -1.0 : 0.0);
