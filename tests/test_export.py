@@ -677,7 +677,7 @@ def test_export_time_limits_and_the_eval_clamp(fitted, references, tmp_path):
     assert np.max(np.abs(np.diff(s))) <= 1e5 * TS * (1 + 1e-12)
 
 
-# -- names: --prefix, escaping ----------------------------------------------------------------------
+# -- names: --prefix, escaping -----------------------------------------------------------------
 TWO_MODELS = r"""
 #include <stdio.h>
 #include "ax.h"

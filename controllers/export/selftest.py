@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controllers.export.c_names import prefixed
 from controllers.export.window import WindowFeedforward
 
 # Tolerance of the self-test, as a share of the vectors' largest force: the double build agrees
@@ -106,8 +107,6 @@ int clm_ff_selftest(clm_ff_stream *scratch)
 
 def write(wf: WindowFeedforward, folder, prefix: str, c: bool) -> list[Path]:
     """``<prefix>_kat.csv`` and, for C, ``<prefix>_selftest.c`` in ``folder``."""
-    from controllers.export.c_source import prefixed
-
     folder = Path(folder)
     paths = [folder / f"{prefix}_kat.csv"]
     paths[0].write_text(kat_csv(wf))
