@@ -467,6 +467,9 @@ def test_filter_tail_shortens_the_window_at_a_bounded_cost(fitted, references, t
     info = json.loads((out / "export.json").read_text())
     exact = from_pgnn(model, TS, "test")
     assert info["filter_tail"] == 1e-9 and info["lead"] < exact.lead - 100
+    # the header's claim follows the option: the stream equals clm_ff to about the share
+    assert "to about the --filter-tail share" in (out / "clm_ff.h").read_text()
+    assert "equals clm_ff to rounding" in c_source.header(exact)
     c = CompiledFeedforward(out)
     assert (c.lag, c.lead) == (info["lag"], info["lead"])
     r = references["r2"]
@@ -624,6 +627,9 @@ def test_start_from_a_window_on_a_moving_reference(name, fitted, effects_lip, re
     assert _rel(u[k0:], want[k0:]) < REL
     if name == "lip":
         assert np.array_equal(u[k0:], want[k0:])
+    bad = _padded(wf, r)
+    bad[wf.lag + k0 - wf.lag] = np.nan  # the oldest sample of the window at k0
+    assert compiled[name].stream_status(bad, start=k0)[2] == REJECTED
 
 
 @needs_cc

@@ -58,6 +58,8 @@ unsigned clm_ff_record_status(const double *rp, long n, long k0, double max_forc
     }
     st = clm_ff_stream_start(&s, rp + CLM_FF_LAG + k0, &out[k0]);
     status[k0] = st;
+    if (st != CLM_FF_OK)
+        return st; /* refused: the stream was not filled */
     if (!(max_force < 0.0))
         st |= clm_ff_stream_limits(&s, max_force, max_slew);
     for (k = k0 + 1; k < n; ++k)
