@@ -182,8 +182,9 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
  * m, CLM_FF_TS in s, the result in N. The streaming form (clm_ff_stream_*) keeps the window in
  * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k]. For a
  * PGNN it also keeps the forward half of the feature filter as a recursion and the force at
- * k+1 for the next call, about half the work of clm_ff; {exact} once the window has been
- * filled (clm_ff_stream_init at rest, clm_ff_stream_start from a window).
+ * k+1 for the next call, about half the work of clm_ff. Once the window has been filled
+ * (clm_ff_stream_init at rest, clm_ff_stream_start from a window),
+ * {exact}.
  *
  * Bad input. clm_ff returns NaN (both builds) for a window holding a NaN or an infinity;
  * clm_ff_eval returns CLM_FF_REJECTED and 0 N instead. The stream rejects a sample that is not
@@ -193,7 +194,7 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
  * tolerance: the filter's recursion forgets the held sample as its impulse response decays).
  *
  * Limits. clm_ff_eval and the stream clamp the force to +-CLM_FF_MAX_FORCE (N); the stream
- * also limits its change to CLM_FF_MAX_SLEW (N/s) per second; both from the export, changeable
+ * also limits its rate of change to CLM_FF_MAX_SLEW (N/s); both from the export, changeable
  * per stream at run time (clm_ff_stream_limits). Every status word is 0 (CLM_FF_OK) or an OR
  * of the CLM_FF_* bits below.
  *
@@ -205,7 +206,8 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
  * Compile: C99, link -lm. With GCC or Clang on x86-64 a PGNN's clm_ff.c also holds an AVX2 and
  * FMA path (intrinsics, target attributes), taken per call where the CPU has both: no flag
  * needed, and the same results to rounding; -DCLM_FF_PORTABLE leaves it out. -DCLM_FF_FLOAT
- * computes in single precision (see docs/export.md for the error that costs). The maths
+ * computes in single precision, but for the position differences and the stream's recursion
+ * (see docs/export.md for the error that costs). The maths
  * functions are macros (CLM_FF_EXP, CLM_FF_SIN, CLM_FF_POW, CLM_FF_FABS, CLM_FF_LOG1P,
  * CLM_FF_ERF, CLM_FF_SQRT) a -D can replace (TcMath, CMSIS).
  */
