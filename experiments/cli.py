@@ -69,7 +69,8 @@ def _cmd_export(args) -> int:
 def _cmd_export_ff(args) -> int:
     from experiments.export_ff import export
 
-    files = export(args.model, args.to, args.out, ts=args.ts, filter_tail=args.filter_tail)
+    files = export(args.model, args.to, args.out, ts=args.ts, filter_tail=args.filter_tail,
+                   prefix=args.prefix, max_force=args.max_force, max_slew=args.max_slew)
     print(f"wrote {', '.join(str(f) for f in files)} (see docs/export.md)")
     return 0
 
@@ -170,6 +171,11 @@ def parser() -> argparse.ArgumentParser:
                      help="PGNN: cut the feature filter where its discarded tail is below TOL of "
                           "its sum (default 1e-15, exact to rounding; larger: a shorter window "
                           "and look-ahead, less exact; see docs/export.md)")
+    eff.add_argument("--prefix", help="names of the public symbols, macros and files "
+                     "(default clm_ff; two exports with different prefixes link together)")
+    eff.add_argument("--max-force", type=float, metavar="N", help="C: |force| limit (N)")
+    eff.add_argument("--max-slew", type=float, metavar="N_PER_S",
+                     help="C: the stream's rate limit (N/s; changeable at run time)")
     eff.set_defaults(func=_cmd_export_ff)
     sweep = sub.add_parser("sweep", help="run a grid of experiments (a config with a 'sweep:' "
                            "section) in parallel, resumably")

@@ -22,6 +22,7 @@ from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.outdir import atomic_folder
 from clm_sim.schema import build_effect
 from controllers.export import c_source
+from controllers.export.options import DEFAULT_PREFIX, ExportOptions, safe_text
 from controllers.export.window import DEFAULT_TOL, WindowFeedforward, from_lip, from_pgnn
 from controllers.lip import LIPFeedforward
 
@@ -54,9 +55,12 @@ def _sample_time(path: Path, stored, option: float | None) -> float:
     if ts is None:
         raise UserError(f"{path}: the file carries no sample time; pass --ts (s)")
     try:
-        return sample_time(ts, "sample time")  # a finite, plausible number (not true, 1e-300)
+        ts = sample_time(ts, "sample time")  # a finite, plausible number (not true, 1e-300)
     except UserError as exc:
         raise UserError(f"{path}: {exc}") from None
+    # A rate from time stamps (a diagnosis's record) reads 9.999999999999999e-05 for 1e-4: kept
+    # to 12 significant digits, far below any clock's accuracy.
+    return float(f"{float(ts):.12g}")
 
 
 def _read_json(path: Path) -> dict:
@@ -80,7 +84,7 @@ def _lip(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
                                     features=features)
     except (UserError, TypeError, ValueError) as exc:
         raise UserError(f"{path}: {exc}") from None
-    return from_lip(lip, _sample_time(path, data.get("ts"), ts), str(path))
+    return from_lip(lip, _sample_time(path, data.get("ts"), ts), path.name)
 
 
 def _diagnosis(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
@@ -93,7 +97,7 @@ def _diagnosis(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
         lip = LIPFeedforward.fitted(theta=model, effects=_effects(model.get("effects") or []))
     except (UserError, TypeError, ValueError) as exc:
         raise UserError(f"{path}: extended_model: {exc}") from None
-    return from_lip(lip, _sample_time(path, stored, ts), f"{path} (extended model)")
+    return from_lip(lip, _sample_time(path, stored, ts), f"{path.name} (extended model)")
 
 
 def _pgnn(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward:
@@ -108,7 +112,7 @@ def _pgnn(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward
     except pickle.UnpicklingError as exc:  # a foreign .pt (load names only the errors it expects)
         raise UserError(f"{path}: cannot read PGNN model ({str(exc).splitlines()[0]})") from None
     data = _read_json(stem.with_suffix(".json"))
-    return from_pgnn(model, _sample_time(path, data.get("ts"), ts), str(stem.with_suffix(".pt")),
+    return from_pgnn(model, _sample_time(path, data.get("ts"), ts), stem.with_suffix(".pt").name,
                      tol=filter_tail)
 
 
@@ -142,12 +146,15 @@ def _load(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward
 
 
 def export(model_path, to: str, out, *, ts: float | None = None,
-           filter_tail: float | None = None) -> list[Path]:
+           filter_tail: float | None = None, prefix: str | None = None,
+           max_force: float | None = None, max_slew: float | None = None) -> list[Path]:
     """Export the feedforward at ``model_path`` as ``to`` (``c`` or ``onnx``) into folder
     ``out`` (replaced as a whole; an earlier export there is replaced). ``filter_tail``: where a
     PGNN's feature filter is cut (the discarded tail's share of its sum; default 1e-15, i.e.
     rounding): a larger value shortens the window and the look-ahead and costs accuracy
-    (docs/export.md). Returns the files."""
+    (docs/export.md). ``prefix``: the names of every public symbol and macro and of the files
+    (default ``clm_ff``); ``max_force`` (N) and ``max_slew`` (N/s): the output limits the C
+    starts with (``None``: none). Returns the files."""
     if to not in TARGETS:
         raise UserError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
     if filter_tail is None:
@@ -155,6 +162,11 @@ def export(model_path, to: str, out, *, ts: float | None = None,
     if not (isinstance(filter_tail, (int, float)) and 0 < filter_tail <= MAX_FILTER_TAIL):
         raise UserError(f"--filter-tail: expected a number in (0, {MAX_FILTER_TAIL:g}], got "
                         f"{filter_tail!r}")
+    options = ExportOptions(prefix=DEFAULT_PREFIX if prefix is None else prefix,
+                            max_force=max_force, max_slew=max_slew)  # checked before reading
+    if to == "onnx" and (max_force is not None or max_slew is not None):
+        raise UserError("--max-force/--max-slew: the limits are part of the C export only (an "
+                        "ONNX runtime applies its own)")
     writer = c_source.write
     if to == "onnx":
         try:
@@ -165,16 +177,20 @@ def export(model_path, to: str, out, *, ts: float | None = None,
                 from None
         writer = onnx_graph.write
     wf = load_feedforward(model_path, ts, float(filter_tail))
+    options = ExportOptions.traced(model_path, prefix=options.prefix, max_force=max_force,
+                                   max_slew=max_slew)
     out = Path(out)
     try:
         with atomic_folder(out, marker="export.json", what="an exported feedforward",
                            subdirs=()) as tmp:
-            names = [p.name for p in writer(wf, tmp)]
+            names = [p.name for p in writer(wf, tmp, options)]
             (tmp / "export.json").write_text(json.dumps({
-                "model": str(model_path), "kind": wf.kind, "to": to, "ts": wf.ts,
+                "model": options.model_name, "kind": wf.kind, "to": to, "ts": wf.ts,
                 "lag": wf.lag, "lead": wf.lead,
                 "filter_tail": wf.filter.get("tol") if wf.filter.get("cutoff_hz") else None,
-                "files": names, "description": wf.describe()},
+                "prefix": options.prefix, "max_force": max_force, "max_slew": max_slew,
+                "trace": options.trace(), "files": names,
+                "description": safe_text(wf.describe())},
                 indent=1))
     except OSError as exc:
         raise UserError(f"{out}: cannot write the export ({exc.strerror or exc})") from None

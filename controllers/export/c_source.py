@@ -13,8 +13,13 @@ Beside the portable C, the PGNN's sums and network have a second path with AVX2 
 intrinsics (GCC or Clang on x86-64), taken per call where the CPU has both, so that the ``-O2``
 build anyone compiles runs four doubles per instruction instead of SSE2's two
 (``-DCLM_FF_PORTABLE`` leaves it out). ``-DCLM_FF_FLOAT`` makes the arithmetic single precision
-(the weights stay decimal literals rounded once to float; portable path) for a target without a
-double-precision FPU.
+(the weights stay decimal literals rounded once to float; portable path); the position
+differences and the stream's recursion stay in double (docs/export.md says why and what a target
+without double would need).
+
+The streaming form, the status and the limits are in :mod:`controllers.export.c_stream`, the
+names and ``--prefix`` in :mod:`controllers.export.c_names`, the self-test in
+:mod:`controllers.export.selftest`.
 """
 
 from __future__ import annotations
@@ -30,49 +35,57 @@ from clm_sim.effects import (
     Stribeck,
 )
 from clm_sim.errors import UserError
-from controllers.export.window import WindowFeedforward
+from controllers.export import selftest
+from controllers.export.c_literals import c_array, c_matrix, c_real
+from controllers.export.c_names import prefixed
+from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
+from controllers.export.options import ExportOptions, safe_text
+from controllers.export.window import DEFAULT_TOL, WindowFeedforward
 
 
-def _num(x: float) -> str:
-    """A double literal that reads back to the same bits, as a ``real`` (float or double)."""
+def _c_double(x: float) -> str:
+    """A double literal that reads back to the same bits (no ``R()``)."""
     text = repr(float(x))
-    if "e" not in text and "." not in text and "inf" not in text and "nan" not in text:
-        text += ".0"
-    return f"R({text})"
+    return text if ("e" in text or "." in text) else text + ".0"
 
 
-def _array(values, per_line: int = 4) -> str:
-    vals = [_num(v) for v in np.ravel(values)]
-    lines = [", ".join(vals[i:i + per_line]) for i in range(0, len(vals), per_line)]
-    return "{\n    " + ",\n    ".join(lines) + "\n}"
+def _limit(x) -> str:
+    return "HUGE_VAL" if x is None else _c_double(x)
 
 
-def _matrix(rows) -> str:
-    return "{\n" + ",\n".join("    " + _array(row, 8).replace("\n", "\n    ")
-                              for row in rows) + "\n}"
+def _comment_lines(text: str, width: int = 90) -> str:
+    """``text`` (already safe) wrapped into `` *   `` comment lines."""
+    wrapped, line = [], ""
+    for word in text.replace("*/", "* /").split(" "):
+        if len(line) + len(word) > width:
+            wrapped.append(line.rstrip())
+            line = ""
+        line += word + " "
+    wrapped.append(line.rstrip())
+    return "\n".join(f" *   {w}" for w in wrapped)
 
 
 # -- effects as C expressions of y (m), v (m/s) and base (N: the physical force) ---------------
 def _effect_c(e) -> str:
     if isinstance(e, Cogging):
-        return (f"{_num(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {_num(e.period)} "
-                f"+ {_num(e.phase)})")
+        return (f"{c_real(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {c_real(e.period)} "
+                f"+ {c_real(e.phase)})")
     if isinstance(e, ForceRipple):
-        return (f"-{_num(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {_num(e.period)} "
-                f"+ {_num(e.phase)}) * base")
+        return (f"-{c_real(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {c_real(e.period)} "
+                f"+ {c_real(e.phase)}) * base")
     if isinstance(e, CableSlab):
-        horner = _num(e.coefficients[-1])
+        horner = c_real(e.coefficients[-1])
         for c in reversed(e.coefficients[:-1]):
-            horner = f"({_num(c)} + (y - {_num(e.center)}) * {horner})"
+            horner = f"({c_real(c)} + (y - {c_real(e.center)}) * {horner})"
         return horner
     if isinstance(e, Stribeck):
-        return (f"{_num(e.peak)} * SGN(v) * EXP(-POW(FABS(v) / {_num(e.velocity)}, "
-                f"{_num(e.exponent)}))")
+        return (f"{c_real(e.peak)} * SGN(v) * EXP(-POW(FABS(v) / {c_real(e.velocity)}, "
+                f"{c_real(e.exponent)}))")
     if isinstance(e, FrictionAsymmetry):
-        return (f"(v > R(0.0) ? {_num(e.coulomb_pos)} + {_num(e.viscous_pos)} * v : "
-                f"(v < R(0.0) ? -{_num(e.coulomb_neg)} + {_num(e.viscous_neg)} * v : R(0.0)))")
+        return (f"(v > R(0.0) ? {c_real(e.coulomb_pos)} + {c_real(e.viscous_pos)} * v : "
+                f"(v < R(0.0) ? -{c_real(e.coulomb_neg)} + {c_real(e.viscous_neg)} * v : R(0.0)))")
     if isinstance(e, ForceOffset):
-        return _num(e.force_n)
+        return c_real(e.force_n)
     raise UserError(f"export: effect {e.type!r} has no C form")
 
 
@@ -88,47 +101,71 @@ _ACT = {
 }
 
 _PRELUDE = """\
+/* The maths functions: each overridable by a macro defined before this point (-D or a wrapper
+ * that includes this file), e.g. -DCLM_FF_EXP=TcExp or CMSIS-DSP's versions. */
 #ifdef CLM_FF_FLOAT
 typedef float clm_ff_real;
 #define R(x) ((float)(x))
-#define SIN sinf
-#define EXP expf
-#define POW powf
-#define FABS fabsf
-#define TANH tanhf
-#define LOG1P log1pf
-#define ERF erff
-#define SQRT sqrtf
+#define MATHF(d, f) f
 #else
 typedef double clm_ff_real;
 #define R(x) (x)
-#define SIN sin
-#define EXP exp
-#define POW pow
-#define FABS fabs
-#define TANH tanh
-#define LOG1P log1p
-#define ERF erf
-#define SQRT sqrt
+#define MATHF(d, f) d
+#endif
+#ifndef SIN
+#define SIN MATHF(sin, sinf)
+#endif
+#ifndef EXP
+#define EXP MATHF(exp, expf)
+#endif
+#ifndef POW
+#define POW MATHF(pow, powf)
+#endif
+#ifndef FABS
+#define FABS MATHF(fabs, fabsf)
+#endif
+#ifndef LOG1P
+#define LOG1P MATHF(log1p, log1pf)
+#endif
+#ifndef ERF
+#define ERF MATHF(erf, erff)
+#endif
+#ifndef SQRT
+#define SQRT MATHF(sqrt, sqrtf)
 #endif
 #define SGN(x) ((clm_ff_real)(((x) > R(0.0)) - ((x) < R(0.0))))
+#ifndef CLM_FF_INLINE
+#define CLM_FF_INLINE inline /* C99; -DCLM_FF_INLINE= for a compiler without it */
+#endif
+
+/* Finite, by the exponent bits where double is IEEE 754 binary64 (a test that -ffast-math cannot
+ * assume away), else by comparisons. */
+static int is_finite_bits(double x)
+{
+#if DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
+    unsigned long long b;
+    memcpy(&b, &x, sizeof b);
+    return (b & 0x7ff0000000000000ULL) != 0x7ff0000000000000ULL;
+#else
+    return x == x && x - x == 0.0;
+#endif
+}
 """
 
-
-def header(wf: WindowFeedforward) -> str:
-    """``clm_ff.h``: the contract (window, units, model) and the declarations."""
-    desc = wf.describe().replace("*/", "* /")  # a file name must not close the comment
-    wrapped, line = [], ""
-    for word in desc.split(" "):
-        if len(line) + len(word) > 90:
-            wrapped.append(line.rstrip())
-            line = ""
-        line += word + " "
-    wrapped.append(line.rstrip())
-    model = "\n".join(f" *   {w}" for w in wrapped)
+def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str:
+    """``clm_ff.h``: the contract (window, units, model, status) and the declarations (names
+    ``clm_ff``/``CLM_FF`` as written here; :func:`write` puts the prefix in)."""
+    opt = options or ExportOptions()
+    model = _comment_lines(safe_text(wf.describe()))
+    trace = _comment_lines(safe_text(opt.trace_line()))
     nsec = 1
     if wf.network is not None and wf.filter.get("cutoff_hz"):
         nsec = len(wf.forward_filter()[0])
+    exact = ("it equals clm_ff to rounding" if wf.filter.get("tol", DEFAULT_TOL) <= DEFAULT_TOL
+             else "it equals clm_ff to about the --filter-tail share "
+                  f"({wf.filter.get('tol'):.0e}; the FIR cut and the recursion's tail differ)")
+    if wf.network is None or not wf.filter.get("cutoff_hz"):
+        exact = "it computes clm_ff on its window"
     return f"""\
 /* clm_ff.h -- feedforward exported by clm-sim export-ff (do not edit; re-export instead).
  *
@@ -145,33 +182,71 @@ def header(wf: WindowFeedforward) -> str:
  * m, CLM_FF_TS in s, the result in N. The streaming form (clm_ff_stream_*) keeps the window in
  * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k]. For a
  * PGNN it also keeps the forward half of the feature filter as a recursion and the force at
- * k+1 for the next call, about half the work of clm_ff; it equals clm_ff to rounding once the
- * window has been filled from rest (clm_ff_stream_init).
+ * k+1 for the next call, about half the work of clm_ff. Once the window has been filled
+ * (clm_ff_stream_init at rest, clm_ff_stream_start from a window),
+ * {exact}.
+ *
+ * Bad input. clm_ff returns NaN (both builds) for a window holding a NaN or an infinity;
+ * clm_ff_eval returns CLM_FF_REJECTED and 0 N instead. The stream rejects a sample that is not
+ * finite or beyond +-CLM_FF_R_MAX m: it holds the last good sample in its place and reports
+ * CLM_FF_REJECTED, then CLM_FF_DEGRADED until the held sample has left the window
+ * (CLM_FF_WINDOW pushes); after that its force is the exact one again (to the export's
+ * tolerance: the filter's recursion forgets the held sample as its impulse response decays).
+ *
+ * Limits. clm_ff_eval and the stream clamp the force to +-CLM_FF_MAX_FORCE (N); the stream
+ * also limits its rate of change to CLM_FF_MAX_SLEW (N/s); both from the export, changeable
+ * per stream at run time (clm_ff_stream_limits). Every status word is 0 (CLM_FF_OK) or an OR
+ * of the CLM_FF_* bits below.
  *
  * Model:
 {model}
+ * Export:
+{trace}
  *
  * Compile: C99, link -lm. With GCC or Clang on x86-64 a PGNN's clm_ff.c also holds an AVX2 and
  * FMA path (intrinsics, target attributes), taken per call where the CPU has both: no flag
  * needed, and the same results to rounding; -DCLM_FF_PORTABLE leaves it out. -DCLM_FF_FLOAT
- * computes in single precision (see docs/export.md for the error that costs).
+ * computes in single precision, but for the position differences and the stream's recursion
+ * (see docs/export.md for the error that costs). The maths
+ * functions are macros (CLM_FF_EXP, CLM_FF_SIN, CLM_FF_POW, CLM_FF_FABS, CLM_FF_LOG1P,
+ * CLM_FF_ERF, CLM_FF_SQRT) a -D can replace (TcMath, CMSIS).
  */
 #ifndef CLM_FF_H
 #define CLM_FF_H
 
-#define CLM_FF_TS {wf.ts!r} /* s: sample time */
+#define CLM_FF_TS {_c_double(wf.ts)} /* s: sample time */
 #define CLM_FF_LAG {wf.lag} /* samples before k read */
 #define CLM_FF_LEAD {wf.lead} /* samples after k read */
 #define CLM_FF_WINDOW (CLM_FF_LAG + 1 + CLM_FF_LEAD)
 #define CLM_FF_HALF {wf.half} /* half-length of the network's feature filter (0: none) */
 #define CLM_FF_NSEC {nsec} /* second-order sections of that filter (state of the stream) */
+#ifndef CLM_FF_MAX_FORCE
+#define CLM_FF_MAX_FORCE {_limit(opt.max_force)} /* N: |force| limit (export default) */
+#endif
+#ifndef CLM_FF_MAX_SLEW
+#define CLM_FF_MAX_SLEW {_limit(opt.max_slew)} /* N/s: the stream's rate limit (export default) */
+#endif
+#ifndef CLM_FF_R_MAX
+#define CLM_FF_R_MAX 1e6 /* m: a stream sample beyond +-this is rejected as not finite is */
+#endif
+
+/* Status bits (0: CLM_FF_OK, the exact force of the product). */
+#define CLM_FF_OK 0u
+#define CLM_FF_REJECTED 1u /* this input was not finite (or out of range): not used */
+#define CLM_FF_DEGRADED 2u /* the window holds a held sample in place of a rejected one */
+#define CLM_FF_CLAMPED 4u  /* the force was limited to +-max_force */
+#define CLM_FF_SLEWED 8u   /* the force's change was limited to max_slew */
 
 #ifdef __cplusplus
 extern "C" {{
 #endif
 
-/* Force (N) to hold over sample k; r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid. */
+/* Force (N) to hold over sample k; r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid.
+ * NaN where the window holds a NaN or an infinity. */
 double clm_ff(const double *r);
+
+/* clm_ff with a status: *u_ff the force clamped to +-CLM_FF_MAX_FORCE (N), 0 if rejected. */
+unsigned clm_ff_eval(const double *r, double *u_ff);
 
 /* Streaming form: state of the caller (one per axis); no allocation. */
 typedef struct {{
@@ -183,13 +258,36 @@ typedef struct {{
     double fwd[4][2 * (CLM_FF_HALF + 1)];
     int fnext;
     double p_next;
+    double last_good;   /* m: the newest sample accepted */
+    int degraded;       /* pushes until a held sample has left the window */
+    double max_force;   /* N */
+    double max_step;    /* N per sample: max_slew * CLM_FF_TS */
+    double u_last;      /* N: the force returned last */
+    unsigned status;    /* of the last call */
 }} clm_ff_stream;
 
-/* Fill the window with the rest position r0 (m): the machine at rest before the motion. */
-void clm_ff_stream_init(clm_ff_stream *s, double r0);
+/* Fill the window with the rest position r0 (m): the machine at rest before the motion; the
+ * limits from the export. CLM_FF_REJECTED (and the stream at 0 m) if r0 is not finite. */
+unsigned clm_ff_stream_init(clm_ff_stream *s, double r0);
 
-/* Push the newest reference sample r[k + CLM_FF_LEAD] (m); returns u_ff[k] (N). */
+/* Start on a moving reference: r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid; the
+ * next push takes r[k+1+CLM_FF_LEAD] and returns u_ff[k+1]. *u_ff: u_ff[k] (N, unlimited; the
+ * slew limit starts from it). CLM_FF_REJECTED (stream unchanged) if the window is not finite. */
+unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff);
+
+/* Set the limits (N, N/s; HUGE_VAL: none). CLM_FF_REJECTED (unchanged) unless both > 0. */
+unsigned clm_ff_stream_limits(clm_ff_stream *s, double max_force, double max_slew);
+
+/* Push the newest reference sample r[k + CLM_FF_LEAD] (m); *u_ff = u_ff[k] (N); the status. */
+unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff);
+
+/* clm_ff_stream_step returning the force (the status stays in s->status). */
 double clm_ff_stream_push(clm_ff_stream *s, double r_newest);
+
+/* Known-answer self-test (clm_ff_selftest.c, vectors in clm_ff_kat.csv): 0 if the compiled code
+ * gives the product's forces on the vectors' motion, else 1 + the first failing sample. scratch:
+ * a stream the test overwrites (re-init yours afterwards). */
+int clm_ff_selftest(clm_ff_stream *scratch);
 
 #ifdef __cplusplus
 }}
@@ -199,204 +297,61 @@ double clm_ff_stream_push(clm_ff_stream *s, double r_newest);
 
 
 def source(wf: WindowFeedforward) -> str:
-    """``clm_ff.c``: the feedforward, weights as ``static const`` tables."""
+    """``clm_ff.c``: the feedforward, weights as ``static const`` tables (names ``clm_ff``/
+    ``CLM_FF`` and file-local ones unprefixed, as written here; :func:`write` prefixes them)."""
     th = wf.theta
     effects = "".join(f"    p += {_effect_c(e)};\n" for e in wf.effects)
     physical = f"""\
 /* Force (N) at the sample instant of r[0]: physical layer and effects. */
-static clm_ff_real physical(const double *r)
+static CLM_FF_INLINE clm_ff_real physical(const double *r)
 {{
     const clm_ff_real y = (clm_ff_real)r[0];
     const clm_ff_real v = (clm_ff_real)((r[1] - r[-1]) / (2.0 * CLM_FF_TS));
     const clm_ff_real a = (clm_ff_real)((r[1] - 2.0 * r[0] + r[-1]) / (CLM_FF_TS * CLM_FF_TS));
-    clm_ff_real p = {_num(th['mass'])} * a + {_num(th['viscous'])} * v
-        + {_num(th['coulomb'])} * SGN(v) + {_num(th['stiffness'])} * y;
+    clm_ff_real p = {c_real(th['mass'])} * a + {c_real(th['viscous'])} * v
+        + {c_real(th['coulomb'])} * SGN(v) + {c_real(th['stiffness'])} * y;
     const clm_ff_real base = p;
     (void)base;
 {effects}    return p;
 }}
 """
-    out = [f"/* clm_ff.c -- generated by clm-sim export-ff; see clm_ff.h for the contract. */\n"
-           f'#include "clm_ff.h"\n#include <math.h>\n\n{_PRELUDE}\n{physical}']
+    if wf.network is not None:
+        # A PGNN: theta on the same (filtered) features the network sees, as fitted.
+        physical = f"""\
+/* Physical layer (N) of the features f = [a, v, sign v, y] the network sees. */
+static clm_ff_real physical(const clm_ff_real f[4])
+{{
+    return {c_real(th['mass'])} * f[0] + {c_real(th['viscous'])} * f[1]
+        + {c_real(th['coulomb'])} * f[2] + {c_real(th['stiffness'])} * f[3];
+}}
+
+/* The features of both instants are finite (a NaN or an infinity in the window reaches them:
+ * every instant has a non-zero weight). */
+static int features_finite(const clm_ff_real f0[4], const clm_ff_real f1[4])
+{{
+    return is_finite_bits((double)f0[0] + (double)f0[1] + (double)f0[2] + (double)f0[3]
+                          + (double)f1[0] + (double)f1[1] + (double)f1[2] + (double)f1[3]);
+}}
+"""
+    out = ["/* clm_ff.c -- generated by clm-sim export-ff; see clm_ff.h for the contract. */\n"
+           '#include "clm_ff.h"\n#include <float.h>\n#include <math.h>\n#include <string.h>\n\n'
+           f"{_PRELUDE}\n{physical}"]
     if wf.network is None:
         out.append("""
 double clm_ff(const double *r)
 {
-    return (double)(R(0.5) * (physical(r) + physical(r + 1)));
+    const double u = (double)(R(0.5) * (physical(r) + physical(r + 1)));
+    return is_finite_bits(u) ? u : (double)NAN;
 }
 """)
     else:
         out.append(_network_source(wf))
+    out.append(STREAM_COMMON)
     if wf.network is not None and wf.filter.get("cutoff_hz"):
-        out.append(_fast_stream(wf))
+        out.append(fast_stream(wf))
     else:
-        out.append(_GENERIC_STREAM)
+        out.append(GENERIC_STREAM)
     return "".join(out)
-
-
-_GENERIC_STREAM = """
-void clm_ff_stream_init(clm_ff_stream *s, double r0)
-{
-    int i;
-    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
-        s->buf[i] = r0;
-    s->next = 0;
-}
-
-double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
-{
-    s->buf[s->next] = r_newest;
-    s->buf[s->next + CLM_FF_WINDOW] = r_newest;
-    s->next = (s->next + 1) % CLM_FF_WINDOW;
-    /* The oldest sample is at buf[next]; r[k] is CLM_FF_LAG after it. */
-    return clm_ff(&s->buf[s->next + CLM_FF_LAG]);
-}
-"""
-
-
-def _fast_stream(wf: WindowFeedforward) -> str:
-    """The PGNN's streaming form: forward sections recursively, backward half as an FIR. The
-    sections and their state stay in double whatever ``clm_ff_real`` is (a recursion is where
-    single precision would accumulate)."""
-    sos, zi, g = wf.forward_filter()
-    return f"""
-static const double SOS[CLM_FF_NSEC][6] = {_matrix(sos).replace("R(", "(")};
-static const double SOS_ZI[CLM_FF_NSEC][2] = {_matrix(zi).replace("R(", "(")};
-/* Causal impulse response of the sections, run backwards over the next HALF samples. */
-static const clm_ff_real BACK[HALF + 1] = {_array(g)};
-
-/* Push raw features x[4] = [a, v, sign v, y] of the newest instant through the sections. */
-static void forward(clm_ff_stream *s, const double x[4])
-{{
-    int c, j;
-    for (c = 0; c < 4; ++c) {{
-        double xc = x[c];
-        for (j = 0; j < CLM_FF_NSEC; ++j) {{ /* transposed direct form II, as scipy's sosfilt */
-            const double y = SOS[j][0] * xc + s->zf[c][j][0];
-            s->zf[c][j][0] = SOS[j][1] * xc - SOS[j][4] * y + s->zf[c][j][1];
-            s->zf[c][j][1] = SOS[j][2] * xc - SOS[j][5] * y;
-            xc = y;
-        }}
-        s->fwd[c][s->fnext] = xc;
-        s->fwd[c][s->fnext + HALF + 1] = xc;
-    }}
-    s->fnext = (s->fnext + 1) % (HALF + 1);
-}}
-
-#ifdef CLM_FF_AVX2
-/* The backward FIR with AVX2 and FMA: four taps at a time, two chains per feature. */
-__attribute__((target("avx2,fma")))
-static void backward_avx2(const double *w0, const double *w1, const double *w2,
-                          const double *w3, double f[4])
-{{
-    __m256d a0 = _mm256_setzero_pd(), v0 = a0, s0 = a0, y0 = a0;
-    __m256d a1 = a0, v1 = a0, s1 = a0, y1 = a0;
-    double lane[8][4];
-    int i, j;
-    for (i = 0; i + 8 <= HALF + 1; i += 8) {{
-        const __m256d g0 = _mm256_loadu_pd(BACK + i), g1 = _mm256_loadu_pd(BACK + i + 4);
-        a0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w0 + i), a0);
-        v0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w1 + i), v0);
-        s0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w2 + i), s0);
-        y0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w3 + i), y0);
-        a1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w0 + i + 4), a1);
-        v1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w1 + i + 4), v1);
-        s1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w2 + i + 4), s1);
-        y1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w3 + i + 4), y1);
-    }}
-    _mm256_storeu_pd(lane[0], _mm256_add_pd(a0, a1));
-    _mm256_storeu_pd(lane[1], _mm256_add_pd(v0, v1));
-    _mm256_storeu_pd(lane[2], _mm256_add_pd(s0, s1));
-    _mm256_storeu_pd(lane[3], _mm256_add_pd(y0, y1));
-    for (j = 0; j < 4; ++j)
-        f[j] = (lane[j][0] + lane[j][1]) + (lane[j][2] + lane[j][3]);
-    for (; i <= HALF; ++i) {{
-        f[0] += BACK[i] * w0[i]; f[1] += BACK[i] * w1[i];
-        f[2] += BACK[i] * w2[i]; f[3] += BACK[i] * w3[i];
-    }}
-}}
-#endif
-
-/* The backward FIR over the forward outputs held: the filtered features f. */
-static void backward(const clm_ff_stream *s, clm_ff_real f[4])
-{{
-    const double *w0 = s->fwd[0] + s->fnext, *w1 = s->fwd[1] + s->fnext;
-    const double *w2 = s->fwd[2] + s->fnext, *w3 = s->fwd[3] + s->fnext;
-    clm_ff_real a0 = R(0.0), v0 = R(0.0), s0 = R(0.0), y0 = R(0.0);
-    clm_ff_real a1 = R(0.0), v1 = R(0.0), s1 = R(0.0), y1 = R(0.0);
-    int i;
-#ifdef CLM_FF_AVX2
-    if (CLM_FF_HAS_AVX2()) {{
-        backward_avx2(w0, w1, w2, w3, f);
-        return;
-    }}
-#endif
-    for (i = 0; i + 1 <= HALF; i += 2) {{ /* two chains per feature: the additions overlap */
-        const clm_ff_real g0 = BACK[i], g1 = BACK[i + 1];
-        a0 += g0 * (clm_ff_real)w0[i]; v0 += g0 * (clm_ff_real)w1[i];
-        s0 += g0 * (clm_ff_real)w2[i]; y0 += g0 * (clm_ff_real)w3[i];
-        a1 += g1 * (clm_ff_real)w0[i + 1]; v1 += g1 * (clm_ff_real)w1[i + 1];
-        s1 += g1 * (clm_ff_real)w2[i + 1]; y1 += g1 * (clm_ff_real)w3[i + 1];
-    }}
-    for (; i <= HALF; ++i) {{
-        a0 += BACK[i] * (clm_ff_real)w0[i]; v0 += BACK[i] * (clm_ff_real)w1[i];
-        s0 += BACK[i] * (clm_ff_real)w2[i]; y0 += BACK[i] * (clm_ff_real)w3[i];
-    }}
-    f[0] = a0 + a1; f[1] = v0 + v1; f[2] = s0 + s1; f[3] = y0 + y1;
-}}
-
-/* Force at the oldest instant of the forward outputs held (physical part at r). */
-static double stream_point(const clm_ff_stream *s, const double *r)
-{{
-    clm_ff_real f[4];
-    backward(s, f);
-#ifdef CLM_FF_AVX2
-    if (CLM_FF_HAS_AVX2())
-        return physical(r) + NETWORK_AVX2(f);
-#endif
-    return (double)(physical(r) + network(f));
-}}
-
-void clm_ff_stream_init(clm_ff_stream *s, double r0)
-{{
-    int i, j, c;
-    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
-        s->buf[i] = r0;
-    s->next = 0;
-    /* at rest: a = v = sign v = 0, y = r0; the sections in their steady state */
-    for (c = 0; c < 4; ++c)
-        for (j = 0; j < CLM_FF_NSEC; ++j) {{
-            s->zf[c][j][0] = c == 3 ? SOS_ZI[j][0] * r0 : 0.0;
-            s->zf[c][j][1] = c == 3 ? SOS_ZI[j][1] * r0 : 0.0;
-        }}
-    for (i = 0; i < 2 * (HALF + 1); ++i) {{
-        s->fwd[0][i] = s->fwd[1][i] = s->fwd[2][i] = 0.0;
-        s->fwd[3][i] = r0;
-    }}
-    s->fnext = 0;
-    s->p_next = stream_point(s, &s->buf[CLM_FF_LAG + 1]);
-}}
-
-double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
-{{
-    const double *r, *n;
-    double x[4], p, u;
-    s->buf[s->next] = r_newest;
-    s->buf[s->next + CLM_FF_WINDOW] = r_newest;
-    s->next = (s->next + 1) % CLM_FF_WINDOW;
-    r = &s->buf[s->next + CLM_FF_LAG];   /* r[k] */
-    n = r + CLM_FF_LAG;                  /* r[k + HALF + 1]: the newest instant with differences */
-    x[1] = (n[1] - n[-1]) / (2.0 * CLM_FF_TS);
-    x[0] = (n[1] - 2.0 * n[0] + n[-1]) / (CLM_FF_TS * CLM_FF_TS);
-    x[2] = x[1] > 0.0 ? 1.0 : (x[1] < 0.0 ? -1.0 : 0.0);
-    x[3] = n[0];
-    forward(s, x);                       /* forward outputs now cover k+1 .. k+HALF+1 */
-    p = stream_point(s, r + 1);          /* force at k+1 */
-    u = 0.5 * (s->p_next + p);
-    s->p_next = p;
-    return u;
-}}
-"""
 
 
 _RAW_FEATURES = """
@@ -415,7 +370,9 @@ double clm_ff(const double *r)
     clm_ff_real f0[4], f1[4];
     raw_features(r, f0);
     raw_features(r + 1, f1);
-    return (double)(R(0.5) * ((physical(r) + network(f0)) + (physical(r + 1) + network(f1))));
+    if (!features_finite(f0, f1))
+        return (double)NAN;
+    return (double)(R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1))));
 }
 """
 
@@ -494,7 +451,9 @@ static void filtered_features_avx2(const double *r, double f0[4], double f1[4])
     _mm256_storeu_pd(lane[6], y0); _mm256_storeu_pd(lane[7], y1);
     for (j = 0; j < 8; ++j)
         sum[j] = (lane[j][0] + lane[j][1]) + (lane[j][2] + lane[j][3]);
-    for (; i < 2 * HALF + 2; ++i) { /* the last instants when 2 HALF + 2 is not a multiple of 4 */
+    /* the last instants when 2 HALF + 2 is not a multiple of 4 (a constant start: with an open
+     * one, gcc -ffast-math warned of a loop it had misread) */
+    for (i = 4 * ((2 * HALF + 2) / 4); i < 2 * HALF + 2; ++i) {
         const double *q = r + i - HALF;
         const double dv = q[1] - q[-1], da = (q[1] - 2.0 * q[0]) + q[-1];
         const double s = dv > 0.0 ? 1.0 : (dv < 0.0 ? -1.0 : 0.0);
@@ -516,12 +475,16 @@ double clm_ff(const double *r)
     if (CLM_FF_HAS_AVX2()) {
         double net[2];
         filtered_features_avx2(r, f0, f1);
+        if (!features_finite(f0, f1))
+            return (double)NAN;
         NETWORK2_AVX2(f0, f1, net);
-        return 0.5 * ((physical(r) + net[0]) + (physical(r + 1) + net[1]));
+        return 0.5 * ((physical(f0) + net[0]) + (physical(f1) + net[1]));
     }
 #endif
     filtered_features(r, f0, f1);
-    return (double)(R(0.5) * ((physical(r) + network(f0)) + (physical(r + 1) + network(f1))));
+    if (!features_finite(f0, f1))
+        return (double)NAN;
+    return (double)(R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1))));
 }
 """
 
@@ -539,7 +502,8 @@ _ACT_AVX2 = {
 _EXP_AVX2 = """
 /* e^x, four at a time, to about 2 ulp: x = n ln2 + t, |t| <= ln2/2 (ln2 in two parts, fdlibm's),
  * e^t by its Taylor series to t^13 (truncation below 1e-17), times 2^n built in the exponent
- * bits. x is clamped to +-708 (a tanh or a sigmoid is already at its limit there). */
+ * bits. x is clamped to +-708 (a tanh or a sigmoid is already at its limit there); NaN stays
+ * NaN (as libm's exp). */
 __attribute__((target("avx2,fma")))
 static __m256d exp_avx2(__m256d x)
 {
@@ -549,7 +513,8 @@ static __m256d exp_avx2(__m256d x)
     __m256d n, t, p;
     __m256i e;
     int i;
-    x = _mm256_min_pd(_mm256_max_pd(x, _mm256_set1_pd(-708.0)), _mm256_set1_pd(708.0));
+    /* max and min return their second operand where one is NaN: x second, so NaN stays NaN */
+    x = _mm256_min_pd(_mm256_set1_pd(708.0), _mm256_max_pd(_mm256_set1_pd(-708.0), x));
     n = _mm256_round_pd(_mm256_mul_pd(x, _mm256_set1_pd(1.4426950408889634)),
                         _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
     t = _mm256_fnmadd_pd(n, _mm256_set1_pd(6.93147180369123816490e-01), x);
@@ -605,12 +570,12 @@ def _network_avx2(net) -> str:
         wt[:, :n_out] = w.T
         bp = np.zeros(n_pad)
         bp[:n_out] = b
-        tables.append(f"static const double W{li}T[{n_in}][{n_pad}] = {_matrix(wt)};\n")
-        tables.append(f"static const double B{li}P[{n_pad}] = {_array(bp)};\n")
+        tables.append(f"static const double W{li}T[{n_in}][{n_pad}] = {c_matrix(wt)};\n")
+        tables.append(f"static const double B{li}P[{n_pad}] = {c_array(bp)};\n")
     n_last = _pad4(widths[-1])
     wp = np.zeros(n_last)
     wp[:widths[-1]] = net.out_w
-    tables.append(f"static const double OUT_WP[{n_last}] = {_array(wp)};\n")
+    tables.append(f"static const double OUT_WP[{n_last}] = {c_array(wp)};\n")
     exp = _EXP_AVX2 if "exp_avx2" in _ACT_AVX2[net.activation] else ""
     return ("\n#ifdef CLM_FF_AVX2\n" + exp + "\n" + "\n".join(tables).replace("R(", "(")
             + _network_avx2_function(net, widths, "network_avx2", 1)
@@ -671,7 +636,7 @@ def _network_source(wf: WindowFeedforward) -> str:
     m = wf.half
     padded = np.concatenate([[0.0], wf.kernel, [0.0]])  # the FIR with a zero either side
     net = wf.network
-    tables = [f"#define HALF {m}\n"]
+    tables = []
     if m > 0:
         tables += [
             "static const double INV_TS2 = 1.0 / (CLM_FF_TS * CLM_FF_TS);\n"
@@ -679,24 +644,23 @@ def _network_source(wf: WindowFeedforward) -> str:
             "/* The feature filter's FIR h[-HALF .. HALF] with a zero either side: the weight of the\n"
             " * instant r[k-HALF+i] is KERNEL[i+1] for the features at k, KERNEL[i] for those at\n"
             " * k+1 (i = 0 .. 2 HALF + 1). */\n"
-            f"static const clm_ff_real KERNEL[2 * HALF + 3] = {_array(padded)};\n"]
-    tables += [f"static const clm_ff_real IN_MEAN[4] = {_array(net.input_mean)};\n",
-               f"static const clm_ff_real IN_STD[4] = {_array(net.input_std)};\n"]
+            f"static const clm_ff_real KERNEL[2 * HALF + 3] = {c_array(padded)};\n"]
+    tables += [f"static const clm_ff_real IN_MEAN[4] = {c_array(net.input_mean)};\n",
+               f"static const clm_ff_real IN_STD[4] = {c_array(net.input_std)};\n"]
     widths = [4]
     for li, (w, b) in enumerate(net.layers):
         tables.append(f"static const clm_ff_real W{li}[{w.shape[0]}][{w.shape[1]}] = "
-                      f"{_matrix(w)};\n")
-        tables.append(f"static const clm_ff_real B{li}[{len(b)}] = {_array(b)};\n")
+                      f"{c_matrix(w)};\n")
+        tables.append(f"static const clm_ff_real B{li}[{len(b)}] = {c_array(b)};\n")
         widths.append(w.shape[0])
-    tables.append(f"static const clm_ff_real OUT_W[{len(net.out_w)}] = {_array(net.out_w)};\n")
-    tables.append(f"static const clm_ff_real OUT_B = {_num(net.out_b)};\n")
+    tables.append(f"static const clm_ff_real OUT_W[{len(net.out_w)}] = {c_array(net.out_w)};\n")
+    tables.append(f"static const clm_ff_real OUT_B = {c_real(net.out_b)};\n")
     layers = []
     for li in range(len(net.layers)):
         a, b = widths[li], widths[li + 1]
         layers.append(f"""\
     {{
         clm_ff_real h{li + 1}[{b}];
-        int o, j;
         for (o = 0; o < {b}; ++o) {{
             clm_ff_real x = B{li}[o];
             for (j = 0; j < {a}; ++j)
@@ -713,7 +677,7 @@ static clm_ff_real network(const clm_ff_real f[4])
 {{
     clm_ff_real h0[4];
     clm_ff_real out = OUT_B;
-    int i;
+    int i, o, j;
     for (i = 0; i < 4; ++i)
         h0[i] = (f[i] - IN_MEAN[i]) / IN_STD[i];
 {body}        for (i = 0; i < {widths[-1]}; ++i)
@@ -727,12 +691,14 @@ static clm_ff_real network(const clm_ff_real f[4])
             + _FILTERED_FEATURES_AVX2 + _FILTERED_CLM_FF)
 
 
-def write(wf: WindowFeedforward, folder) -> list:
-    """Write ``clm_ff.h`` and ``clm_ff.c`` into ``folder``; returns the paths."""
+def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -> list:
+    """Write ``<prefix>.h``, ``<prefix>.c``, the self-test ``<prefix>_selftest.c`` and its
+    vectors ``<prefix>_kat.csv`` into ``folder``; returns the paths."""
     from pathlib import Path
 
+    opt = options or ExportOptions()
     folder = Path(folder)
-    paths = [folder / "clm_ff.h", folder / "clm_ff.c"]
-    paths[0].write_text(header(wf))
-    paths[1].write_text(source(wf))
-    return paths
+    paths = [folder / f"{opt.prefix}.h", folder / f"{opt.prefix}.c"]
+    paths[0].write_text(prefixed(header(wf, opt), opt.prefix))
+    paths[1].write_text(prefixed(source(wf), opt.prefix))
+    return paths + selftest.write(wf, folder, opt.prefix, c=True)

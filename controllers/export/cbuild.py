@@ -37,7 +37,8 @@ class CompiledFeedforward:
             workdir = self._tmp.name
         lib = Path(workdir) / "libclm_ff.so"
         folder = Path(folder)
-        cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", *flags, "-shared",
+        cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wconversion",
+               "-Wshadow", *flags, "-shared",
                "-fPIC", "-o", str(lib), str(folder / "clm_ff.c"), "-I", str(folder),
                str(Path(__file__).with_name("clm_ff_harness.c")), "-lm"]
         done = subprocess.run(cmd, capture_output=True, text=True)
@@ -56,6 +57,12 @@ class CompiledFeedforward:
             fn = getattr(self.lib, name)
             fn.restype = ctypes.c_long
             fn.argtypes = [dp, ctypes.c_long, ctypes.c_long, ctypes.c_long, dp, ctypes.c_long]
+        up = ctypes.POINTER(ctypes.c_uint)
+        self.lib.clm_ff_record_status.restype = ctypes.c_uint
+        self.lib.clm_ff_record_status.argtypes = [dp, ctypes.c_long, ctypes.c_long,
+                                                  ctypes.c_double, ctypes.c_double, dp, up]
+        self.lib.clm_ff_eval_windows.restype = None
+        self.lib.clm_ff_eval_windows.argtypes = [dp, ctypes.c_long, ctypes.c_long, dp, up]
         self.lag = int(self.lib.clm_ff_lag())
         self.lead = int(self.lib.clm_ff_lead())
 
@@ -75,6 +82,32 @@ class CompiledFeedforward:
         out = np.empty(len(r))
         self.lib.clm_ff_record(self._ptr(r), len(r), self._ptr(out))
         return out
+
+    def stream_status(self, r_padded: np.ndarray, *, start: int | None = None,
+                      max_force: float | None = None, max_slew: float | None = None):
+        """The streaming form over ``r_padded`` (``r[k] = r_padded[k + lag]``, held ends
+        included, any values, NaN too): started at rest (``start=None``) or from the window of
+        sample ``start``; limits (N, N/s) set after that. Returns ``(u_ff, status, init_status)``
+        for the ``len(r_padded) - lag - lead`` samples (before ``start``: NaN, status 0)."""
+        rp = np.ascontiguousarray(r_padded, dtype=np.float64)
+        n = len(rp) - self.lag - self.lead
+        out = np.full(n, np.nan)
+        status = np.zeros(n, dtype=np.uintc)
+        limit = -1.0 if max_force is None else float(max_force)
+        slew = float("inf") if max_slew is None else float(max_slew)
+        init = self.lib.clm_ff_record_status(
+            self._ptr(rp), n, -1 if start is None else int(start), limit, slew, self._ptr(out),
+            status.ctypes.data_as(ctypes.POINTER(ctypes.c_uint)))
+        return out, status, int(init)
+
+    def eval(self, windows: np.ndarray):
+        """``clm_ff_eval`` per row of ``windows``: ``(u_ff, status)``."""
+        w = np.ascontiguousarray(windows, dtype=np.float64)
+        out = np.empty(len(w))
+        status = np.zeros(len(w), dtype=np.uintc)
+        self.lib.clm_ff_eval_windows(self._ptr(w), len(w), w.shape[1], self._ptr(out),
+                                     status.ctypes.data_as(ctypes.POINTER(ctypes.c_uint)))
+        return out, status
 
     def time_blocks(self, r: np.ndarray, repeats: int, block: int = 256,
                     stream: bool = False) -> np.ndarray:

@@ -32,6 +32,52 @@ void clm_ff_record(const double *r, long n, double *out)
     }
 }
 
+/* The streaming form over a padded record rp[0 .. n+LAG+LEAD-1] (r[k] = rp[k + LAG], any value
+ * allowed, NaN too), with its status: started at rest at rp[0] (k0 < 0) or from the window of
+ * sample k0 (out[k0] from clm_ff_stream_start); limits set after that unless max_force < 0.
+ * Returns the status of init/start/limits (OR). */
+unsigned clm_ff_record_status(const double *rp, long n, long k0, double max_force,
+                              double max_slew, double *out, unsigned *status)
+{
+    clm_ff_stream s;
+    unsigned st;
+    long k, j;
+    if (k0 < 0) {
+        st = clm_ff_stream_init(&s, rp[0]);
+        if (!(max_force < 0.0)) /* -1: none; NaN and 0 reach clm_ff_stream_limits */
+            st |= clm_ff_stream_limits(&s, max_force, max_slew);
+        for (j = 0; j < n + CLM_FF_LEAD; ++j) {
+            double u;
+            const unsigned sj = clm_ff_stream_step(&s, rp[CLM_FF_LAG + j], &u);
+            if (j >= CLM_FF_LEAD) {
+                out[j - CLM_FF_LEAD] = u;
+                status[j - CLM_FF_LEAD] = sj;
+            }
+        }
+        return st;
+    }
+    st = clm_ff_stream_start(&s, rp + CLM_FF_LAG + k0, &out[k0]);
+    status[k0] = st;
+    if (st != CLM_FF_OK)
+        return st; /* refused: the stream was not filled */
+    if (!(max_force < 0.0))
+        st |= clm_ff_stream_limits(&s, max_force, max_slew);
+    for (k = k0 + 1; k < n; ++k)
+        status[k] = clm_ff_stream_step(&s, rp[CLM_FF_LAG + k + CLM_FF_LEAD], &out[k]);
+    return st;
+}
+
+/* clm_ff_eval on n windows: out[b], status[b]. */
+void clm_ff_eval_windows(const double *windows, long n, long width, double *out,
+                         unsigned *status)
+{
+    long b;
+    if (width != CLM_FF_WINDOW)
+        return;
+    for (b = 0; b < n; ++b)
+        status[b] = clm_ff_eval(windows + b * width + CLM_FF_LAG, &out[b]);
+}
+
 static double now_s(void)
 {
     struct timespec t;

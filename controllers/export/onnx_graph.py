@@ -22,11 +22,14 @@ from clm_sim.effects import (
     Stribeck,
 )
 from clm_sim.errors import UserError
+from controllers.export.options import ExportOptions, safe_text
 from controllers.export.window import WindowFeedforward
 
-# The opset the graph is written in: the current one of onnx 1.23 (onnxruntime 1.32 runs it), or
-# the newest an older onnx knows.
-OPSET = 28
+# The opset the graph is written in: 17, which most runtimes accept (every operator used here is
+# defined there), and the IR version of that opset (onnx's table: opset 17 is
+# IR 8), so that the file is consistent for older loaders.
+OPSET = 17
+IR_VERSION = 8
 
 
 class _Graph:
@@ -64,9 +67,8 @@ class _Graph:
 
 def _effect(g: _Graph, e, y: str, v: str, base: str) -> str:
     """Force (N) of effect ``e`` as graph nodes of ``y`` (m), ``v`` (m/s), ``base`` (N)."""
-    two_pi = g.const(2.0 * np.pi)
     if isinstance(e, (Cogging, ForceRipple)):
-        arg = g.op("Div", g.op("Mul", two_pi, y), g.const(e.period))
+        arg = g.op("Div", g.op("Mul", g.const(2.0 * np.pi), y), g.const(e.period))
         sin = g.op("Sin", g.op("Add", arg, g.const(e.phase)))
         if isinstance(e, Cogging):
             return g.op("Mul", g.const(e.amplitude), sin)
@@ -108,8 +110,9 @@ def _activation(g: _Graph, name: str, x: str) -> str:
     raise UserError(f"export: activation {name!r} has no ONNX form here (use --to c)")
 
 
-def model(wf: WindowFeedforward):
-    """The ONNX ``ModelProto`` of ``wf`` (checked by ``onnx.checker``)."""
+def model(wf: WindowFeedforward, options: ExportOptions | None = None):
+    """The ONNX ``ModelProto`` of ``wf`` at opset :data:`OPSET` (checked by ``onnx.checker``,
+    full check), with the trace of ``options`` in its metadata."""
     import onnx
     from onnx import TensorProto, helper
 
@@ -118,21 +121,24 @@ def model(wf: WindowFeedforward):
     c = wf.half + 1  # column of r[k]
     # The physical layer at both instants of the held average, stacked on the batch axis: rows
     # j = k, then j = k+1, each with r[j-1], r[j], r[j+1].
-    near = g.cols("r_window", c - 1, c + 3)
-    pair = g.op("Concat", g.cols(near, 0, 3), g.cols(near, 1, 4), axis=0)
-    xm, x0, xp = g.cols(pair, 0, 1), g.cols(pair, 1, 2), g.cols(pair, 2, 3)
-    v = g.op("Div", g.op("Sub", xp, xm), g.const(2.0 * wf.ts), base="v")
-    a = g.op("Div", g.op("Add", g.op("Sub", xp, g.op("Mul", g.const(2.0), x0)), xm),
-             g.const(wf.ts * wf.ts), base="a")
+    # (Only where something reads them: a PGNN with a filter differences the whole window.)
+    if wf.network is None or wf.half == 0:
+        near = g.cols("r_window", c - 1, c + 3)
+        pair = g.op("Concat", g.cols(near, 0, 3), g.cols(near, 1, 4), axis=0)
+        xm, x0, xp = g.cols(pair, 0, 1), g.cols(pair, 1, 2), g.cols(pair, 2, 3)
+        v = g.op("Div", g.op("Sub", xp, xm), g.const(2.0 * wf.ts), base="v")
+        a = g.op("Div", g.op("Add", g.op("Sub", xp, g.op("Mul", g.const(2.0), x0)), xm),
+                 g.const(wf.ts * wf.ts), base="a")
     th = wf.theta
-    p = g.op("Add", g.op("Add", g.op("Add", g.op("Mul", g.const(th["mass"]), a),
-                                     g.op("Mul", g.const(th["viscous"]), v)),
-                         g.op("Mul", g.const(th["coulomb"]), g.op("Sign", v))),
-             g.op("Mul", g.const(th["stiffness"]), x0), base="physical")
-    base = p
-    for e in wf.effects:
-        p = g.op("Add", p, _effect(g, e, x0, v, base))
-    if wf.network is not None:
+    if wf.network is None:  # a LIP: theta and the effects on the raw differences
+        p = g.op("Add", g.op("Add", g.op("Add", g.op("Mul", g.const(th["mass"]), a),
+                                         g.op("Mul", g.const(th["viscous"]), v)),
+                             g.op("Mul", g.const(th["coulomb"]), g.op("Sign", v))),
+                 g.op("Mul", g.const(th["stiffness"]), x0), base="physical")
+        base = p
+        for e in wf.effects:
+            p = g.op("Add", p, _effect(g, e, x0, v, base))
+    else:
         net = wf.network
     if wf.network is not None and wf.half == 0:  # no feature filter: the raw features
         f = g.op("Concat", a, v, g.op("Sign", v), x0, axis=1, base="features")
@@ -155,6 +161,8 @@ def model(wf: WindowFeedforward):
         f = g.op("Reshape", g.op("Transpose", filtered, perm=[2, 1, 0]),
                  g.const(np.array([-1, 4], np.int64)), base="features")
     if wf.network is not None:
+        # A PGNN: theta on the same (filtered) features the network sees, as fitted.
+        p = g.op("MatMul", f, g.const(wf.theta_vector()[:, None], "theta"), base="physical")
         h = g.op("Div", g.op("Sub", f, g.const(net.input_mean[None, :], "input_mean")),
                  g.const(net.input_std[None, :], "input_std"))
         for wl, bl in net.layers:
@@ -169,27 +177,34 @@ def model(wf: WindowFeedforward):
     second = g.op("Gather", pair, g.const(np.array(1, np.int64)), axis=0)
     g.nodes.append(helper.make_node("Mul", [g.const(0.5), g.op("Add", first, second)],
                                     ["u_ff"]))
+    used = {name for node in g.nodes for name in node.input}
+    opt = options or ExportOptions()
     graph = helper.make_graph(
-        g.nodes, "clm_ff",
+        g.nodes, opt.prefix,
         [helper.make_tensor_value_info("r_window", TensorProto.DOUBLE, ["batch", width])],
         [helper.make_tensor_value_info("u_ff", TensorProto.DOUBLE, ["batch"])],
-        initializer=g.inits)
-    opset = min(OPSET, onnx.defs.onnx_opset_version())
-    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)],
-                              producer_name="clm-sim export-ff", doc_string=wf.describe())
-    proto.ir_version = 10
+        initializer=[t for t in g.inits if t.name in used])  # no unused initializer
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                              producer_name="clm-sim export-ff", producer_version=opt.version,
+                              doc_string=safe_text(wf.describe()))
+    proto.ir_version = IR_VERSION
     meta = {"ts": repr(wf.ts), "lag": str(wf.lag), "lead": str(wf.lead),
             "units": "r_window: m (r[k-lag] .. r[k+lead]); u_ff: N, held over sample k; ts: s",
-            "kind": wf.kind, "model": wf.describe()}
+            "kind": wf.kind, "model": safe_text(wf.describe()),
+            **{k: safe_text(v) for k, v in opt.trace().items()}}
     helper.set_model_props(proto, meta)
     onnx.checker.check_model(proto, full_check=True)
     return proto
 
 
-def write(wf: WindowFeedforward, folder) -> list:
-    """Write ``clm_ff.onnx`` into ``folder``; returns the paths."""
+def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -> list:
+    """Write ``<prefix>.onnx`` and its known-answer vectors ``<prefix>_kat.csv`` into
+    ``folder``; returns the paths."""
     from pathlib import Path
 
-    path = Path(folder) / "clm_ff.onnx"
-    path.write_bytes(model(wf).SerializeToString())
-    return [path]
+    opt = options or ExportOptions()
+    path = Path(folder) / f"{opt.prefix}.onnx"
+    path.write_bytes(model(wf, opt).SerializeToString())
+    from controllers.export import selftest
+
+    return [path, *selftest.write(wf, folder, opt.prefix, c=False)]

@@ -5,7 +5,7 @@ instants (:mod:`clm_sim.features`): ``u_ff[k] = (p[k] + p[k+1])/2``. ``p[j]`` re
 differences ``v[j] = (r[j+1] - r[j-1])/(2 ts)``, ``a[j] = (r[j+1] - 2 r[j] + r[j-1])/ts**2``:
 
 * LIP: ``p = m a + fv v + fc sign v + fk r`` (+ effects of ``(r, v, that force)``): lag 1, lead 2;
-* PGNN: ``p = theta . [a, v, sign v, r] + f_NN(filter([a, v, sign v, r]))`` where ``filter`` is
+* PGNN: ``p = theta . filter(T) + f_NN(filter(T))``, ``T = [a, v, sign v, r]``, where ``filter`` is
   the zero-phase Butterworth of the regression (``sosfiltfilt``). That filter is an IIR run
   forwards and backwards, so ``p[j]`` depends on the whole record. Its impulse response decays
   geometrically; :func:`filtfilt_kernel` cuts it where the discarded tail is below ``tol``
@@ -131,6 +131,8 @@ class WindowFeedforward:
                                 "it has no window form and is not exportable")
         if (self.kernel is None) != (self.network is None):
             raise ValueError("kernel and network go together")
+        if self.network is not None and self.effects:
+            raise ValueError("a PGNN carries no effects")
 
     @property
     def half(self) -> int:
@@ -173,21 +175,31 @@ class WindowFeedforward:
         r0 = w[:, c]
         v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
         a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
-        p = th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v) + th["stiffness"] * r0
-        base = p
-        for e in self.effects:
-            p = p + e.force(r0, v, base)
-        if self.network is None:
+        if self.network is None:  # a LIP: theta and the effects on the raw differences
+            p = (th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v)
+                 + th["stiffness"] * r0)
+            base = p
+            for e in self.effects:
+                p = p + e.force(r0, v, base)
             return p
-        if m == 0:  # no feature filter: the network sees the raw features
-            return p + self.network(np.column_stack([a, v, np.sign(v), r0]))
-        # The features at every instant of the window, differenced as the product does, then
-        # the filter's FIR.
-        va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
-        aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
-        h = self.kernel
-        f = np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
-        return p + self.network(f)
+        if m == 0:  # no feature filter: the raw features
+            f = np.column_stack([a, v, np.sign(v), r0])
+        else:
+            # The features at every instant of the window, differenced as the product does,
+            # then the filter's FIR.
+            va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
+            aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
+            h = self.kernel
+            f = np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
+        # A PGNN: theta . filt(T) + f_NN(filt(T)), both parts on the filtered features (as
+        # fitted, PGNNFeedforward.predict_parts); a PGNN carries no effects.
+        return f @ self.theta_vector() + self.network(f)
+
+    def theta_vector(self) -> np.ndarray:
+        """``theta`` in the order of the features ``[a, v, sign v, y]``: mass, viscous, coulomb,
+        stiffness."""
+        th = self.theta
+        return np.array([th["mass"], th["viscous"], th["coulomb"], th["stiffness"]])
 
     def __call__(self, windows: np.ndarray) -> np.ndarray:
         """``u_ff[k]`` (N) from windows (B, lag+1+lead) = ``r[k-lag .. k+lead]`` (m)."""

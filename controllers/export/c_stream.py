@@ -1,0 +1,384 @@
+"""The streaming form of the generated C and what every form shares: the status of a call, the
+limits, bad samples held, the stateless call with a status (``clm_ff_eval``), the stream's init,
+start from a window, step and push. The LIP (and a PGNN without feature filter) pushes into a
+ring buffer and calls ``clm_ff``; a PGNN runs the forward half of its zero-phase filter as a
+recursion and only the backward half as an FIR (:func:`fast_stream`). Names as written here;
+:func:`controllers.export.c_source.prefixed` prefixes them."""
+
+from __future__ import annotations
+
+from controllers.export.c_literals import c_array, c_matrix
+from controllers.export.window import WindowFeedforward
+
+# Both forms: step and push around the form's advance (inlined into both).
+STEP_AND_PUSH = """
+unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
+{
+    unsigned st;
+    const double u = advance(s, r_newest, &st);
+    return finish(s, u, st, u_ff);
+}
+
+double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
+{
+    unsigned st;
+    double u = advance(s, r_newest, &st);
+    (void)finish(s, u, st, &u);
+    return u;
+}
+"""
+
+
+# What every form shares: the status of a call, the limits, the stateless call with a status.
+STREAM_COMMON = """
+/* A stream sample it can use: finite and within +-CLM_FF_R_MAX m. */
+static int in_range(double r)
+{
+#if DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
+    /* |r| <= R_MAX as integers: positive doubles order as their bits, and NaN and inf lie
+     * above every finite value (one compare, and -ffast-math cannot drop it) */
+    const double limit = CLM_FF_R_MAX;
+    unsigned long long b, m;
+    memcpy(&b, &r, sizeof b);
+    memcpy(&m, &limit, sizeof m);
+    return (b & 0x7fffffffffffffffULL) <= m;
+#else
+    return is_finite_bits(r) && r >= -CLM_FF_R_MAX && r <= CLM_FF_R_MAX;
+#endif
+}
+
+/* The force (N) clamped to +-max_force, with its status bit. */
+static double clamp(double u, double max_force, unsigned *st)
+{
+    if (u > max_force) {
+        *st |= CLM_FF_CLAMPED;
+        return max_force;
+    }
+    if (u < -max_force) {
+        *st |= CLM_FF_CLAMPED;
+        return -max_force;
+    }
+    return u;
+}
+
+unsigned clm_ff_eval(const double *r, double *u_ff)
+{
+    unsigned st = CLM_FF_OK;
+    const double u = clm_ff(r);
+    if (!is_finite_bits(u)) {
+        *u_ff = 0.0;
+        return CLM_FF_REJECTED;
+    }
+    *u_ff = clamp(u, CLM_FF_MAX_FORCE, &st);
+    return st;
+}
+
+/* The state after init or start: the newest sample, the force last returned, export limits. */
+static void reset(clm_ff_stream *s, double last_good, double u)
+{
+    s->last_good = last_good;
+    s->degraded = 0;
+    s->max_force = CLM_FF_MAX_FORCE;
+    s->max_step = CLM_FF_MAX_SLEW * CLM_FF_TS;
+    s->u_last = u;
+    s->status = CLM_FF_OK;
+}
+
+unsigned clm_ff_stream_limits(clm_ff_stream *s, double max_force, double max_slew)
+{
+    if (!(max_force > 0.0 && max_slew > 0.0)) /* NaN fails too */
+        return CLM_FF_REJECTED;
+    s->max_force = max_force;
+    s->max_step = max_slew * CLM_FF_TS;
+    return CLM_FF_OK;
+}
+
+/* The newest sample, or the last good one in place of a rejected one; *st: the status so far. */
+static CLM_FF_INLINE double accept(clm_ff_stream *s, double r_newest, unsigned *st)
+{
+    *st = CLM_FF_OK;
+    if (in_range(r_newest)) {
+        s->last_good = r_newest;
+    } else {
+        r_newest = s->last_good;
+        *st = CLM_FF_REJECTED;
+        s->degraded = CLM_FF_WINDOW;
+    }
+    if (s->degraded > 0) {
+        *st |= CLM_FF_DEGRADED;
+        --s->degraded;
+    }
+    return r_newest;
+}
+
+/* The limits on the force u (N) of a push (skipped where none is set: no chain of calls through
+ * u_last then), its output and status. */
+static CLM_FF_INLINE unsigned finish(clm_ff_stream *s, double u, unsigned st, double *u_ff)
+{
+    if (s->max_step < HUGE_VAL || s->max_force < HUGE_VAL) {
+        if (u > s->u_last + s->max_step) {
+            u = s->u_last + s->max_step;
+            st |= CLM_FF_SLEWED;
+        } else if (u < s->u_last - s->max_step) {
+            u = s->u_last - s->max_step;
+            st |= CLM_FF_SLEWED;
+        }
+        u = clamp(u, s->max_force, &st);
+    }
+    s->u_last = u;
+    s->status = st;
+    *u_ff = u;
+    return st;
+}
+"""
+
+GENERIC_STREAM = """
+unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
+{
+    unsigned st = CLM_FF_OK;
+    int i;
+    if (!in_range(r0)) {
+        r0 = 0.0;
+        st = CLM_FF_REJECTED;
+    }
+    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
+        s->buf[i] = r0;
+    s->next = 0;
+    reset(s, r0, clm_ff(&s->buf[CLM_FF_LAG]));
+    s->status = st;
+    return st;
+}
+
+unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
+{
+    int i;
+    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
+        if (!in_range(r[i]))
+            return CLM_FF_REJECTED;
+    for (i = 0; i < CLM_FF_WINDOW; ++i)
+        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
+    s->next = 0;
+    *u_ff = clm_ff(r);
+    reset(s, r[CLM_FF_LEAD], *u_ff);
+    return CLM_FF_OK;
+}
+
+/* One push before the limits: the force (N) and *st. */
+static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned *st)
+{
+    r_newest = accept(s, r_newest, st);
+    s->buf[s->next] = r_newest;
+    s->buf[s->next + CLM_FF_WINDOW] = r_newest;
+    s->next = (s->next + 1) % CLM_FF_WINDOW;
+    /* The oldest sample is at buf[next]; r[k] is CLM_FF_LAG after it. */
+    return clm_ff(&s->buf[s->next + CLM_FF_LAG]);
+}
+""" + STEP_AND_PUSH
+
+
+def fast_stream(wf: WindowFeedforward) -> str:
+    """The PGNN's streaming form: forward sections recursively, backward half as an FIR. The
+    sections and their state stay in double whatever ``clm_ff_real`` is (a recursion is where
+    single precision would accumulate)."""
+    sos, zi, g = wf.forward_filter()
+    return f"""
+static const double SOS[CLM_FF_NSEC][6] = {c_matrix(sos).replace("R(", "(")};
+static const double SOS_ZI[CLM_FF_NSEC][2] = {c_matrix(zi).replace("R(", "(")};
+/* Causal impulse response of the sections, run backwards over the next HALF samples. */
+static const clm_ff_real BACK[HALF + 1] = {c_array(g)};
+
+/* A state of the sections below 1e-200 in magnitude is set to 0. At rest after a move the
+ * states of a, v and sign v decay geometrically and would turn subnormal within seconds and stay
+ * (each push then some 20 % slower on x86, more elsewhere); flushed, they reach an exact 0 and
+ * the outputs with them. What this changes of a force is far below its rounding. */
+static CLM_FF_INLINE double flush_tiny(double z)
+{{
+    return fabs(z) < 1e-200 ? 0.0 : z;
+}}
+
+/* Push raw features x[4] = [a, v, sign v, y] of the newest instant through the sections. */
+static void forward(clm_ff_stream *s, const double x[4])
+{{
+    int c, j;
+    for (c = 0; c < 4; ++c) {{
+        double xc = x[c];
+        for (j = 0; j < CLM_FF_NSEC; ++j) {{ /* transposed direct form II, as scipy's sosfilt */
+            const double y = SOS[j][0] * xc + s->zf[c][j][0];
+            s->zf[c][j][0] = flush_tiny(SOS[j][1] * xc - SOS[j][4] * y + s->zf[c][j][1]);
+            s->zf[c][j][1] = flush_tiny(SOS[j][2] * xc - SOS[j][5] * y);
+            xc = y;
+        }}
+        s->fwd[c][s->fnext] = xc;
+        s->fwd[c][s->fnext + HALF + 1] = xc;
+    }}
+    s->fnext = (s->fnext + 1) % (HALF + 1);
+}}
+
+#ifdef CLM_FF_AVX2
+/* The backward FIR with AVX2 and FMA: four taps at a time, two chains per feature. */
+__attribute__((target("avx2,fma")))
+static void backward_avx2(const double *w0, const double *w1, const double *w2,
+                          const double *w3, double f[4])
+{{
+    __m256d a0 = _mm256_setzero_pd(), v0 = a0, s0 = a0, y0 = a0;
+    __m256d a1 = a0, v1 = a0, s1 = a0, y1 = a0;
+    double lane[8][4];
+    int i, j;
+    for (i = 0; i + 8 <= HALF + 1; i += 8) {{
+        const __m256d g0 = _mm256_loadu_pd(BACK + i), g1 = _mm256_loadu_pd(BACK + i + 4);
+        a0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w0 + i), a0);
+        v0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w1 + i), v0);
+        s0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w2 + i), s0);
+        y0 = _mm256_fmadd_pd(g0, _mm256_loadu_pd(w3 + i), y0);
+        a1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w0 + i + 4), a1);
+        v1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w1 + i + 4), v1);
+        s1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w2 + i + 4), s1);
+        y1 = _mm256_fmadd_pd(g1, _mm256_loadu_pd(w3 + i + 4), y1);
+    }}
+    _mm256_storeu_pd(lane[0], _mm256_add_pd(a0, a1));
+    _mm256_storeu_pd(lane[1], _mm256_add_pd(v0, v1));
+    _mm256_storeu_pd(lane[2], _mm256_add_pd(s0, s1));
+    _mm256_storeu_pd(lane[3], _mm256_add_pd(y0, y1));
+    for (j = 0; j < 4; ++j)
+        f[j] = (lane[j][0] + lane[j][1]) + (lane[j][2] + lane[j][3]);
+    for (; i <= HALF; ++i) {{
+        f[0] += BACK[i] * w0[i]; f[1] += BACK[i] * w1[i];
+        f[2] += BACK[i] * w2[i]; f[3] += BACK[i] * w3[i];
+    }}
+}}
+#endif
+
+/* The backward FIR over the forward outputs held: the filtered features f. */
+static void backward(const clm_ff_stream *s, clm_ff_real f[4])
+{{
+    const double *w0 = s->fwd[0] + s->fnext, *w1 = s->fwd[1] + s->fnext;
+    const double *w2 = s->fwd[2] + s->fnext, *w3 = s->fwd[3] + s->fnext;
+    clm_ff_real a0 = R(0.0), v0 = R(0.0), s0 = R(0.0), y0 = R(0.0);
+    clm_ff_real a1 = R(0.0), v1 = R(0.0), s1 = R(0.0), y1 = R(0.0);
+    int i;
+#ifdef CLM_FF_AVX2
+    if (CLM_FF_HAS_AVX2()) {{
+        backward_avx2(w0, w1, w2, w3, f);
+        return;
+    }}
+#endif
+    for (i = 0; i + 1 <= HALF; i += 2) {{ /* two chains per feature: the additions overlap */
+        const clm_ff_real g0 = BACK[i], g1 = BACK[i + 1];
+        a0 += g0 * (clm_ff_real)w0[i]; v0 += g0 * (clm_ff_real)w1[i];
+        s0 += g0 * (clm_ff_real)w2[i]; y0 += g0 * (clm_ff_real)w3[i];
+        a1 += g1 * (clm_ff_real)w0[i + 1]; v1 += g1 * (clm_ff_real)w1[i + 1];
+        s1 += g1 * (clm_ff_real)w2[i + 1]; y1 += g1 * (clm_ff_real)w3[i + 1];
+    }}
+    for (; i <= HALF; ++i) {{
+        a0 += BACK[i] * (clm_ff_real)w0[i]; v0 += BACK[i] * (clm_ff_real)w1[i];
+        s0 += BACK[i] * (clm_ff_real)w2[i]; y0 += BACK[i] * (clm_ff_real)w3[i];
+    }}
+    f[0] = a0 + a1; f[1] = v0 + v1; f[2] = s0 + s1; f[3] = y0 + y1;
+}}
+
+/* Force at the oldest instant of the forward outputs held. */
+static double stream_point(const clm_ff_stream *s)
+{{
+    clm_ff_real f[4];
+    backward(s, f);
+#ifdef CLM_FF_AVX2
+    if (CLM_FF_HAS_AVX2())
+        return physical(f) + NETWORK_AVX2(f);
+#endif
+    return (double)(physical(f) + network(f));
+}}
+
+/* The raw features [a, v, sign v, y] (double) of the instant n[0], as the product differences. */
+static void differences(const double *n, double x[4])
+{{
+    x[1] = (n[1] - n[-1]) / (2.0 * CLM_FF_TS);
+    x[0] = (n[1] - 2.0 * n[0] + n[-1]) / (CLM_FF_TS * CLM_FF_TS);
+    x[2] = x[1] > 0.0 ? 1.0 : (x[1] < 0.0 ? -1.0 : 0.0);
+    x[3] = n[0];
+}}
+
+/* The sections in their steady state for the constant features x. */
+static void steady(clm_ff_stream *s, const double x[4])
+{{
+    int j, c;
+    for (c = 0; c < 4; ++c)
+        for (j = 0; j < CLM_FF_NSEC; ++j) {{
+            s->zf[c][j][0] = SOS_ZI[j][0] * x[c];
+            s->zf[c][j][1] = SOS_ZI[j][1] * x[c];
+        }}
+}}
+
+unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
+{{
+    unsigned st = CLM_FF_OK;
+    double x[4];
+    int i;
+    if (!in_range(r0)) {{
+        r0 = 0.0;
+        st = CLM_FF_REJECTED;
+    }}
+    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
+        s->buf[i] = r0;
+    s->next = 0;
+    /* at rest: a = v = sign v = 0, y = r0; the sections in their steady state */
+    x[0] = x[1] = x[2] = 0.0;
+    x[3] = r0;
+    steady(s, x);
+    for (i = 0; i < 2 * (HALF + 1); ++i) {{
+        s->fwd[0][i] = s->fwd[1][i] = s->fwd[2][i] = 0.0;
+        s->fwd[3][i] = r0;
+    }}
+    s->fnext = 0;
+    s->p_next = stream_point(s);
+    reset(s, r0, s->p_next);
+    s->status = st;
+    return st;
+}}
+
+unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
+{{
+    double x[4], p;
+    int i;
+    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
+        if (!in_range(r[i]))
+            return CLM_FF_REJECTED;
+    for (i = 0; i < CLM_FF_WINDOW; ++i)
+        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
+    s->next = 0;
+    /* The sections started in the steady state of the oldest instant's features, then run over
+     * the window's 2 HALF + 2 instants: what they forget of that start decays as the filter's
+     * impulse response, below the export's tolerance after HALF samples. */
+    differences(r - HALF, x);
+    steady(s, x);
+    s->fnext = 0;
+    for (i = -HALF; i <= HALF; ++i) {{
+        differences(r + i, x);
+        forward(s, x);
+    }}
+    p = stream_point(s);                 /* force at k */
+    differences(r + HALF + 1, x);
+    forward(s, x);
+    s->p_next = stream_point(s);         /* force at k+1 */
+    *u_ff = 0.5 * (p + s->p_next);
+    reset(s, r[CLM_FF_LEAD], *u_ff);
+    return CLM_FF_OK;
+}}
+
+/* One push before the limits: the force (N) and *st. */
+static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned *st)
+{{
+    const double *r;
+    double x[4], p, u;
+    r_newest = accept(s, r_newest, st);
+    s->buf[s->next] = r_newest;
+    s->buf[s->next + CLM_FF_WINDOW] = r_newest;
+    s->next = (s->next + 1) % CLM_FF_WINDOW;
+    r = &s->buf[s->next + CLM_FF_LAG];   /* r[k] */
+    differences(r + CLM_FF_LAG, x);      /* r[k + HALF + 1]: the newest instant with differences */
+    forward(s, x);                       /* forward outputs now cover k+1 .. k+HALF+1 */
+    p = stream_point(s);                 /* force at k+1 */
+    u = 0.5 * (s->p_next + p);
+    s->p_next = p;
+    return u;
+}}
+""" + STEP_AND_PUSH

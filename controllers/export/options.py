@@ -1,0 +1,129 @@
+"""What an export is asked for beyond the model: the names (``prefix``), the output limits and
+the trace (product version, commit, date, the model's content hash). Shared by the C and the
+ONNX writers; every name and text they put into generated code goes through :func:`safe_text`
+or :func:`check_prefix`."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from clm_sim.errors import UserError
+
+DEFAULT_PREFIX = "clm_ff"
+# C keywords and the C library's reserved spellings a prefix must not become.
+_RESERVED = {"auto", "break", "case", "char", "const", "continue", "default", "do", "double",
+             "else", "enum", "extern", "float", "for", "goto", "if", "inline", "int", "long",
+             "register", "restrict", "return", "short", "signed", "sizeof", "static", "struct",
+             "switch", "typedef", "union", "unsigned", "void", "volatile", "while", "main"}
+_PREFIX = re.compile(r"[a-z][a-z0-9_]{0,30}")
+# What may appear of a name or a description inside a C comment or an ONNX string: letters,
+# digits, space and plain punctuation. No backslash (line splicing), no '?' (trigraphs such as
+# ??/ are a backslash), no '*' or '/' together (comment ends), no quote, no control character.
+_SAFE = re.compile(r"[^A-Za-z0-9 _.,:;=+()\[\]<>%#@^~|&!-]")
+
+
+def check_prefix(prefix: str) -> str:
+    """``prefix`` if it can name every public symbol (``<prefix>_...``, macros ``<PREFIX>_...``):
+    a lower-case C identifier of 1 to 31 characters, not a keyword; else a ``UserError``."""
+    if not isinstance(prefix, str) or not _PREFIX.fullmatch(prefix) or prefix in _RESERVED:
+        raise UserError(f"--prefix: expected a lower-case C name (a letter, then letters, digits "
+                        f"or _, at most 31), got {prefix!r}")
+    return prefix
+
+
+def safe_text(text: str) -> str:
+    """``text`` with every character outside a safe set (see ``_SAFE``) replaced by ``_``: what
+    a file name or a description may put into a generated comment or string."""
+    return _SAFE.sub("_", str(text))
+
+
+def content_hash(path) -> str:
+    """SHA-256 of the model's bytes (a PGNN: its ``.pt`` then its ``.json``), hex."""
+    path = Path(path)
+    digest = hashlib.sha256()
+    files = [path]
+    pair = [path.with_suffix(".pt"), path.with_suffix(".json")]
+    if path.suffix in (".pt", ".json") and all(f.is_file() for f in pair):
+        files = pair
+    for f in files:
+        digest.update(f.read_bytes())
+    return digest.hexdigest()
+
+
+def _commit() -> str:
+    """The product's git commit (12 hex digits, ``-dirty`` with uncommitted changes to tracked
+    files), or ``unknown`` where the product is not a checkout of its own (an installed copy that
+    happens to sit inside someone else's repository must not report that one's commit)."""
+    root = Path(__file__).resolve().parents[2]
+    if not ((root / "pyproject.toml").is_file() and (root / "clm_sim").is_dir()):
+        return "unknown"
+    try:
+        done = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty",
+                               "--abbrev=12", "--match=no-tag-matches-this"],
+                              capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    out = done.stdout.strip()
+    ok = done.returncode == 0 and re.fullmatch(r"[0-9a-f]{7,40}(-dirty)?", out)
+    return out if ok else "unknown"
+
+
+def export_date() -> str:
+    """UTC date and time of the export; ``SOURCE_DATE_EPOCH`` (s) fixes it for reproducible
+    bytes."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    try:
+        stamp = int(epoch) if epoch is not None else time.time()
+    except ValueError:
+        raise UserError(f"SOURCE_DATE_EPOCH: expected whole seconds, got {epoch!r}") from None
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(stamp))
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """prefix: the names' prefix (``clm_ff``); max_force (N) and max_slew (N/s): the export's
+    output limits (``None``: none); model_name, model_sha256, version, commit, date: the trace."""
+
+    prefix: str = DEFAULT_PREFIX
+    max_force: float | None = None
+    max_slew: float | None = None
+    model_name: str = "unknown"
+    model_sha256: str = "unknown"
+    version: str = "unknown"
+    commit: str = "unknown"
+    date: str = "unknown"
+
+    def __post_init__(self):
+        check_prefix(self.prefix)
+        for key in ("max_force", "max_slew"):
+            value = getattr(self, key)
+            if value is not None and not (isinstance(value, (int, float))
+                                          and 0 < float(value) < float("inf")):
+                raise UserError(f"--{key.replace('_', '-')}: expected a positive number, "
+                                f"got {value!r}")
+
+    @classmethod
+    def traced(cls, model_path, **kwargs) -> "ExportOptions":
+        """Options with the trace of the model file at ``model_path`` filled in."""
+        from clm_sim import __version__
+
+        path = Path(model_path)
+        return cls(model_name=safe_text(path.name), model_sha256=content_hash(path),
+                   version=__version__, commit=_commit(), date=export_date(), **kwargs)
+
+    def trace(self) -> dict:
+        """The trace as written into export.json and the ONNX metadata."""
+        return {"product": "clm-sim", "version": self.version, "commit": self.commit,
+                "date": self.date, "model_file": self.model_name,
+                "model_sha256": self.model_sha256}
+
+    def trace_line(self) -> str:
+        lim = (f"; limits {self.max_force or 'none'} N, {self.max_slew or 'none'} N per s")
+        return (f"clm-sim {self.version}, commit {self.commit}, exported {self.date}; model file "
+                f"{self.model_name}, sha256 {self.model_sha256}{lim}; names {self.prefix}")
