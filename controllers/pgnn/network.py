@@ -31,8 +31,7 @@ DTYPE = torch.float64
 
 
 def _sigmoid_derivative(pre, out):
-    s = torch.sigmoid(pre)
-    return s * (1 - s)
+    return out * (1 - out)
 
 
 def _softplus_derivative(pre, out):
@@ -51,11 +50,18 @@ def _gelu_derivative(pre, out):
             + pre * torch.exp(-0.5 * pre * pre) * (2 * torch.pi) ** -0.5)
 
 
+def _tanh_derivative(pre, out):
+    return 1 - out * out
+
+
+def _relu_derivative(pre, out):
+    return (pre > 0).to(DTYPE)
+
+
 # d act / d pre as a function of the pre-activation and the activation's output, per name.
-DERIVATIVES = {"tanh": lambda pre, out: 1 - out * out,
-               "sigmoid": lambda pre, out: out * (1 - out),
+DERIVATIVES = {"tanh": _tanh_derivative, "sigmoid": _sigmoid_derivative,
                "softplus": _softplus_derivative, "silu": _silu_derivative,
-               "gelu": _gelu_derivative, "relu": lambda pre, out: (pre > 0).to(DTYPE)}
+               "gelu": _gelu_derivative, "relu": _relu_derivative}
 
 
 class MLP(nn.Module):
@@ -71,7 +77,7 @@ class MLP(nn.Module):
         self.hidden = nn.ModuleList(nn.Linear(a, b, dtype=DTYPE)
                                     for a, b in itertools.pairwise(widths))
         self.act = ACTIVATIONS[activation]()
-        self.act_derivative = DERIVATIVES[activation]
+        self.activation = activation
         self.out = nn.Linear(widths[-1], 1, dtype=DTYPE)
 
     def forward(self, z: torch.Tensor, last_hidden: bool = False) -> torch.Tensor:
@@ -89,6 +95,14 @@ class PGNNNetwork(nn.Module):
         super().__init__()
         self.theta = nn.Parameter(torch.zeros(n_physical, dtype=DTYPE))
         self.mlp = MLP(n_inputs, tuple(hidden), activation)
+        # (name, shape, offset) of each nonlinear parameter in the flat vector beta: the layout
+        # is fixed by the architecture, so it is read once, not at every evaluation.
+        pieces, i = [], 0
+        for k, v in self.mlp.named_parameters():
+            if not k.startswith("out."):
+                pieces.append((k, v.shape, i))
+                i += v.numel()
+        self._pieces = tuple(pieces)
 
     def forward(self, phi: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         return phi @ self.theta + self.mlp(z)
@@ -97,7 +111,7 @@ class PGNNNetwork(nn.Module):
     def nonlinear_names(self) -> list[str]:
         """Names (in ``mlp``) of the parameters that enter the output nonlinearly: every
         hidden layer's weights and biases."""
-        return [k for k, _ in self.mlp.named_parameters() if not k.startswith("out.")]
+        return [k for k, _, _ in self._pieces]
 
     def get_nonlinear(self) -> np.ndarray:
         """The nonlinear parameters as one float64 vector (order of :meth:`nonlinear_names`)."""
@@ -119,13 +133,7 @@ class PGNNNetwork(nn.Module):
     def _split(self, beta: np.ndarray) -> dict[str, torch.Tensor]:
         """Named tensors (views) of a flat nonlinear-parameter vector: the one place it is cut."""
         b = torch.from_numpy(np.ascontiguousarray(beta, dtype=np.float64))
-        out, i = {}, 0
-        for k in self.nonlinear_names():
-            shape = self.mlp.get_parameter(k).shape
-            n = shape.numel()
-            out[k] = b[i:i + n].reshape(shape)
-            i += n
-        return out
+        return {k: b[i:i + shape.numel()].view(shape) for k, shape, i in self._pieces}
 
     def hidden_outputs(self, beta: np.ndarray, z: torch.Tensor) -> np.ndarray:
         """Last hidden layer's outputs (N, n) at nonlinear parameters ``beta``."""
@@ -161,15 +169,12 @@ class PGNNNetwork(nn.Module):
         n = zs.shape[0]
         if out is None:
             out = np.empty((n, len(beta)))
-        offsets, i = {}, 0
-        for k in self.nonlinear_names():
-            offsets[k] = i
-            i += self.mlp.get_parameter(k).numel()
+        offsets = {k: i for k, _, i in self._pieces}
         with torch.no_grad():
             grad = torch.from_numpy(np.ascontiguousarray(w_out, dtype=np.float64))
             for li in range(len(pres) - 1, -1, -1):
                 # Sensitivity of f_NN to this layer's pre-activations (N, width).
-                delta = grad * self.mlp.act_derivative(pres[li], outs[li])
+                delta = grad * DERIVATIVES[self.mlp.activation](pres[li], outs[li])
                 inputs = outs[li - 1] if li > 0 else zs
                 w_at, b_at = offsets[f"hidden.{li}.weight"], offsets[f"hidden.{li}.bias"]
                 width, fan_in = delta.shape[1], inputs.shape[1]
