@@ -102,9 +102,12 @@ def main(argv=None):
         unit = np.where(spread > 0, spread, np.inf)
         cost = max(abs(b["cost"] - a["cost"]) / a["cost"] for a, b in zip(o, n))
         rel = float(np.max(np.abs(t_new - t_old) / np.abs(t_old)))
-        print(f"| {key[0]} | {key[1]} | {cost:.1e} | {rel:.1e} "
-              f"| {np.max(np.abs(t_new - t_old) / unit):.2f} "
-              f"| {np.max(np.abs(t_new.mean(0) - t_old.mean(0)) / unit):.2f} "
+        if len(idx) > 1:
+            spreads = (f"| {np.max(np.abs(t_new - t_old) / unit):.2f} "
+                       f"| {np.max(np.abs(t_new.mean(0) - t_old.mean(0)) / unit):.2f} ")
+        else:  # one seed has no spread
+            spreads = "| - | - "
+        print(f"| {key[0]} | {key[1]} | {cost:.1e} | {rel:.1e} " + spreads +
               f"| {sum(a['stop'] != b['stop'] for a, b in zip(o, n))}/{len(idx)} "
               f"| {sum(a['iterations'] != b['iterations'] for a, b in zip(o, n))}/{len(idx)} |")
 
