@@ -278,7 +278,8 @@ def main(argv=None):
                     and abs(old["cost"] - mine["cost"]) <= 1e-6 * old["cost"])
             rows["today"].append(old["cpu_s"] / mine["cpu_s"])
             print(f"seed {i} today        : {old['cpu_s']:7.2f} s, {old['iterations']:4d} it, "
-                  f"{old['stop']}, cost {old['cost']:.9g} N² -> {'same end point' if same else 'DIFFERS'}",
+                  f"{old['stop']}, cost {old['cost']:.9g} N² -> "
+                  f"{'same end point' if same else 'DIFFERS'}",
                   flush=True)
         if args.no_peers:
             continue

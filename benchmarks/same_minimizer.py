@@ -87,8 +87,8 @@ def main(argv=None):
         np.savez(npz, phi=data.phi, target=data.target, ts=data.ts)
         old = run_fits(Path(tmp), npz, theta_lip, jobs)
         new = run_fits(ROOT, npz, theta_lip, jobs)
-    print(f"{len(jobs)} fits, {args.baseline} against this checkout; CPU {sum(o['cpu_s'] for o in old):.1f} s "
-          f"against {sum(n['cpu_s'] for n in new):.1f} s")
+    print(f"{len(jobs)} fits, {args.baseline} against this checkout; CPU "
+          f"{sum(o['cpu_s'] for o in old):.1f} s against {sum(n['cpu_s'] for n in new):.1f} s")
     print("| row | n_l | max rel. cost diff | max rel. θ diff | max θ diff / seed spread "
           "| mean θ diff / seed spread | stop differs | iterations differ |")
     print("|---|---|---|---|---|---|---|---|")
