@@ -40,21 +40,27 @@ class OptimResult:
     grad_norm: float = float("nan")
 
 
-def first_order_measure(r: np.ndarray, J: np.ndarray) -> float:
+def first_order_measure(r: np.ndarray, J: np.ndarray, normal: np.ndarray | None = None,
+                        g: np.ndarray | None = None) -> float:
     """Relative decrease of ``V = ||r||**2`` that the Gauss-Newton model predicts for its full step,
     ``r' J (J'J)^+ J' r / r'r`` (in [0, 1]; 0 at a stationary point). It is the squared cosine of
     the angle between ``r`` and the range of ``J``, so it does not depend on how the parameters
     are scaled; directions whose curvature is below 1e-12 of the largest (after Marquardt scaling)
-    count as flat and are left out."""
+    count as flat and are left out. ``normal`` (``J'J``) and ``g`` (``J'r``): these products when
+    the caller has them already."""
     d = np.sqrt(np.einsum("ij,ij->j", J, J))
     # A column below 1e-12 of the largest is flat too; left in, its denormal-sized entries can
     # make LAPACK's eigensolver fail to converge (seen with saturated neurons).
     live = d > 1e-12 * d.max() if d.max() > 0 else np.zeros(d.shape, bool)
     if not live.any():
         return 0.0
-    J, d = J[:, live], d[live]
-    g = J.T @ r
-    w, V = _symmetric_eigen((J.T @ J) / np.outer(d, d))
+    if normal is None:
+        normal = J.T @ J
+    if g is None:
+        g = J.T @ r
+    if not live.all():
+        normal, g, d = normal[np.ix_(live, live)], g[live], d[live]
+    w, V = _symmetric_eigen(normal / np.outer(d, d))
     keep = w > w[-1] * 1e-12
     proj = V[:, keep].T @ (g / d)
     return float(proj @ (proj / w[keep]) / max(float(r @ r), 1e-300))
@@ -92,7 +98,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     while True:
         A = J.T @ J
         g = J.T @ r
-        if ftol is not None and first_order_measure(r, J) <= ftol:
+        if ftol is not None and first_order_measure(r, J, A, g) <= ftol:
             stop = "converged"
             break
         if it >= max_iter:
@@ -138,9 +144,10 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         if decrease < rtol:
             stop = "small_decrease"
             break
+    A, g = J.T @ J, J.T @ r
     return OptimResult(p=p, cost=cost, iterations=it, evaluations=evals, stop=stop,
-                       first_order=first_order_measure(r, J),
-                       grad_norm=float(np.linalg.norm(2.0 * (J.T @ r))))
+                       first_order=first_order_measure(r, J, A, g),
+                       grad_norm=float(np.linalg.norm(2.0 * g)))
 
 
 def adam(fun, p0: np.ndarray, *, max_iter: int = 1000, lr: float = 1e-3, betas=(0.9, 0.999),

@@ -183,6 +183,36 @@ def test_jacobian_matches_finite_differences(data, training, lam, extra, hidden)
     np.testing.assert_allclose(2 * Jr.T @ r, grad_fd, atol=1e-6 * np.abs(grad_fd).max())
 
 
+@pytest.mark.parametrize("hidden,activation", [
+    (5, "tanh"), ((4, 3), "tanh"), (4, "sigmoid"), ((3, 3), "softplus"), (4, "silu"),
+    ((4, 2, 3), "gelu"), (4, "relu")])
+def test_closed_form_network_jacobian_is_torch_func(data, hidden, activation):
+    """The training's backpropagation in closed form against torch.func's per-sample reverse
+    mode (the framework's derivative, an independent computation), every depth and activation."""
+    from torch.func import functional_call, jacrev, vmap
+
+    small = TrainingData(data.phi[:300], data.target[:300])
+    model = PGNNFeedforward(hidden=hidden, activation=activation)
+    net = model.new_network(small, np.random.default_rng(5))
+    beta = net.get_nonlinear()
+    w_out = np.random.default_rng(6).standard_normal(net.mlp.out.in_features)
+    z = torch.from_numpy(small.phi)
+    params, w = net._split(beta), torch.from_numpy(w_out)
+
+    def f(p, zi):
+        return functional_call(net.mlp, p, (zi[None],), {"last_hidden": True}, strict=False)[0] @ w
+
+    grads = vmap(jacrev(f), in_dims=(None, 0))(params, z)
+    want = torch.cat([grads[k].reshape(len(z), -1) for k in net.nonlinear_names()], 1).numpy()
+    zs = (z - net.mlp.input_mean) / net.mlp.input_std
+    got = net.network_jacobian(beta, w_out, zs)
+    # Same derivative, other summation order: agreement to a few ulps of the largest entry
+    # (relu's derivative at exactly 0 never occurs with these continuous draws).
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * np.abs(want).max())
+    h = net.layer_outputs(beta, zs)[1][-1].numpy()
+    np.testing.assert_array_equal(h, net.hidden_outputs(beta, z))
+
+
 def test_reduced_cost_is_the_full_cost_at_its_linear_solution(data):
     """Variable projection: the reduced cost at beta equals the full cost at (x*(beta), beta),
     and there the full gradient with respect to the linear parameters vanishes."""

@@ -48,13 +48,20 @@ class SeparableCost:
     :func:`controllers.optim.levenberg_marquardt`; ``||r||**2`` is the training cost at the best
     linear parameters for ``beta``, which :meth:`linear` returns. ``pinned``: physical
     parameters held at given values (index in THETA order -> value) while the rest is fitted
-    (the profile of the cost over those parameters, :mod:`controllers.pgnn.profile`)."""
+    (the profile of the cost over those parameters, :mod:`controllers.pgnn.profile`).
+
+    The linear system, the Jacobian and their scratch arrays are allocated once, here: an
+    evaluation writes into them (the Jacobian returned is that buffer, valid until the next
+    call with ``jacobian=True``), and the blocks that do not depend on ``beta`` (the physical
+    columns, the constant, the deviation and decay rows, the targets) are filled once."""
 
     def __init__(self, net: PGNNNetwork, phi: np.ndarray, target: np.ndarray,
                  theta_lip: np.ndarray, weights: Weights, fit_theta: bool,
                  pinned: dict[int, float] | None = None):
         self.net, self.phi, self.t = net, phi, target
         self.z = torch.from_numpy(np.ascontiguousarray(phi))
+        # The network's input scaling (its first operation), once for all evaluations.
+        self.zs = (self.z - net.mlp.input_mean) / net.mlp.input_std
         self.theta_lip, self.w, self.fit_theta = theta_lip, weights, fit_theta
         self.n = len(target)
         self.sq = 1.0 / np.sqrt(self.n)
@@ -69,59 +76,98 @@ class SeparableCost:
         self.decayed = np.concatenate([
             np.full(net.mlp.get_parameter(k).numel(), k.endswith("weight"))
             for k in net.nonlinear_names()])
+        self.n_beta = len(self.decayed)
+        self._layout()
         self._cache = (None, None)
 
     # -- the linear problem for fixed beta ---------------------------------------------------
-    def _system(self, h: np.ndarray):
-        """Blocks ``(name, A, c)`` of the linear least-squares problem in ``x`` for hidden
-        outputs ``h``; ``x = (theta?, w, b)``."""
+    def _layout(self) -> None:
+        """Rows of the linear least-squares problem in ``x = (theta?, w, b)``, by cost term:
+        ``self.blocks`` (name, rows), the matrix ``self._A`` with every block that does not
+        depend on the hidden outputs filled, the targets ``self._c``, and the Jacobian buffer."""
         n, w = self.n, self.w
+        k = self.n_theta + self.n_hidden + 1
         ones = np.ones((n, 1))
-        cols = (np.hstack([self.phi[:, self.free], h, ones]) if self.fit_theta
-                else np.hstack([h, ones]))
         base = self.t - self.pinned_force if self.fit_theta else self.t - self.lip_pred
-        k = cols.shape[1]
-        blocks = [("data", cols * self.sq, base * self.sq)]
+        parts = [("data", n, base * self.sq, self.sq)]
         if w.pinn > 0:
             s = np.sqrt(w.pinn) * self.sq
-            blocks.append(("pinn", cols * s,
-                           (self.lip_pred - self.pinned_force if self.fit_theta
-                            else np.zeros(n)) * s))
+            parts.append(("pinn", n, (self.lip_pred - self.pinned_force if self.fit_theta
+                                      else np.zeros(n)) * s, s))
         if self.fit_theta and np.any(w.lam_diag > 0):
-            lam, free = w.lam_diag[self.free], self.free
-            R = np.zeros((len(free), k))
-            R[:, :len(free)] = np.diag(np.sqrt(lam))
-            blocks.append(("deviation", R, np.sqrt(lam) * self.theta_lip[free]))
+            lam = w.lam_diag[self.free]
+            parts.append(("deviation", len(self.free), np.sqrt(lam) * self.theta_lip[self.free],
+                          None))
         if w.orthogonal > 0:
-            net_cols = np.hstack([h, ones])
-            R = np.zeros((4, k))
-            R[:, self.n_theta:] = np.sqrt(w.orthogonal) * self.sq * (self.q_phi.T @ net_cols)
-            blocks.append(("orthogonal", R, np.zeros(4)))
+            parts.append(("orthogonal", 4, np.zeros(4), np.sqrt(w.orthogonal) * self.sq))
         if w.weight_decay > 0:
-            R = np.zeros((self.n_hidden, k))
-            R[:, self.n_theta:self.n_theta + self.n_hidden] = np.sqrt(w.weight_decay) * \
-                np.eye(self.n_hidden)
-            blocks.append(("weight_decay", R, np.zeros(self.n_hidden)))
-        return blocks
+            parts.append(("weight_decay", self.n_hidden, np.zeros(self.n_hidden), None))
+        m = sum(p[1] for p in parts)
+        self._A = np.zeros((m, k))
+        self._As = np.empty((m, k))
+        self._c = np.concatenate([p[2] for p in parts])
+        self.blocks, self._factor, i = [], {}, 0
+        for name, rows, _, factor in parts:
+            sl = slice(i, i + rows)
+            self.blocks.append((name, sl))
+            self._factor[name] = factor
+            A = self._A[sl]
+            if name in ("data", "pinn"):
+                if self.fit_theta:
+                    A[:, :self.n_theta] = self.phi[:, self.free] * factor
+                A[:, -1:] = ones * factor
+            elif name == "deviation":
+                A[:, :len(self.free)] = np.diag(np.sqrt(w.lam_diag[self.free]))
+            elif name == "weight_decay":
+                A[:, self.n_theta:self.n_theta + self.n_hidden] = \
+                    np.sqrt(w.weight_decay) * np.eye(self.n_hidden)
+            i += rows
+        if w.orthogonal > 0:
+            self._net_cols = np.ones((n, self.n_hidden + 1))
+        # Jacobian: the linear-system rows (projected), then the hidden-weight decay rows.
+        n_decay = int(self.decayed.sum()) if w.weight_decay > 0 else 0
+        self._J = np.zeros((m + n_decay, self.n_beta))
+        if n_decay:
+            self._J[m + np.arange(n_decay), np.flatnonzero(self.decayed)] = \
+                np.sqrt(w.weight_decay)
+        self._jf = np.empty((n, self.n_beta))
+        self._proj = np.empty((m, self.n_beta))
+
+    def _fill(self, h: np.ndarray) -> np.ndarray:
+        """``self._A`` for hidden outputs ``h`` (N, n): the blocks that depend on them."""
+        cols = slice(self.n_theta, self.n_theta + self.n_hidden)
+        for name, sl in self.blocks:
+            if name in ("data", "pinn"):
+                np.multiply(h, self._factor[name], out=self._A[sl, cols])
+            elif name == "orthogonal":
+                self._net_cols[:, :-1] = h
+                self._A[sl, self.n_theta:] = self._factor[name] * (self.q_phi.T @ self._net_cols)
+        return self._A
+
+    def _system(self, h: np.ndarray):
+        """Blocks ``(name, A, c)`` of the linear least-squares problem in ``x`` for hidden
+        outputs ``h``; ``x = (theta?, w, b)`` (views of buffers the next evaluation rewrites)."""
+        A = self._fill(h)
+        return [(name, A[sl], self._c[sl]) for name, sl in self.blocks]
 
     def _solve(self, beta: np.ndarray):
         key = beta.tobytes()
         if self._cache[0] == key:
             return self._cache[1]
-        h = self.net.hidden_outputs(beta, self.z)
-        blocks = self._system(h)
-        A = np.vstack([b[1] for b in blocks])
-        c = np.concatenate([b[2] for b in blocks])
+        layers = self.net.layer_outputs(beta, self.zs)
+        h = layers[1][-1].numpy()
+        A, c = self._fill(h), self._c
         # Column scaling, then an SVD: the minimum-norm solution in scaled coordinates when
         # columns are (nearly) dependent, e.g. a network that mimics a physical regressor.
         scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
-        U, s, Vt = np.linalg.svd(A / scale, full_matrices=False)
+        U, s, Vt = np.linalg.svd(np.divide(A, scale, out=self._As), full_matrices=False)
         keep = s > s[0] * 1e-12
-        U, s, Vt = U[:, keep], s[keep], Vt[keep]
+        if not keep.all():
+            U, s, Vt = U[:, keep], s[keep], Vt[keep]
         x = (Vt.T @ ((U.T @ c) / s)) / scale
         r_lin = A @ x - c
-        out = {"h": h, "blocks": blocks, "x": x, "U": U, "r_lin": r_lin}
+        out = {"h": h, "layers": layers, "x": x, "U": U, "r_lin": r_lin}
         self._cache = (key, out)
         return out
 
@@ -141,11 +187,10 @@ class SeparableCost:
     def terms(self, beta: np.ndarray) -> dict[str, float]:
         """Each cost term (N**2) at ``beta`` and its best linear parameters."""
         sol = self._solve(beta)
-        out, i = dict.fromkeys(TERMS, 0.0), 0
-        for name, A, _ in sol["blocks"]:
-            part = sol["r_lin"][i:i + len(A)]
+        out = dict.fromkeys(TERMS, 0.0)
+        for name, sl in self.blocks:
+            part = sol["r_lin"][sl]
             out[name] += float(part @ part)
-            i += len(A)
         if self.w.weight_decay > 0:
             d = self._decay_rows(beta)
             out["weight_decay"] += float(d @ d)
@@ -153,39 +198,40 @@ class SeparableCost:
 
     def __call__(self, beta: np.ndarray, jacobian: bool):
         sol = self._solve(beta)
-        parts = [sol["r_lin"]]
-        if self.w.weight_decay > 0:
-            parts.append(self._decay_rows(beta))
-        r = np.concatenate(parts)
+        r = (np.concatenate([sol["r_lin"], self._decay_rows(beta)]) if self.w.weight_decay > 0
+             else sol["r_lin"].copy())
         if not jacobian:
             return r
-        _, w_out, _ = self.linear(beta)
-        J = self._beta_rows(sol["blocks"], beta, w_out)
-        J = J - sol["U"] @ (sol["U"].T @ J)  # Kaufman: project out the range of A
-        return r, self._with_decay(J, beta)
+        w_out = sol["x"][self.n_theta:self.n_theta + self.n_hidden]
+        m = len(self._c)
+        J = self._J[:m]
+        self._beta_rows(beta, w_out, sol["layers"], out=J)
+        # Kaufman: project out the range of A.
+        U = sol["U"]
+        J -= np.matmul(U, U.T @ J, out=self._proj)
+        return r, self._J
 
-    def _beta_rows(self, blocks, beta, w_out) -> np.ndarray:
+    def _beta_rows(self, beta, w_out, layers=None, out=None) -> np.ndarray:
         """``d (A(beta) x) / d beta`` for the linear-system rows, at output weights ``w_out``."""
-        jf = self.net.network_jacobian(beta, w_out, self.z)  # d f_NN / d beta, (N, p)
-        rows = []
-        for name, A, _ in blocks:
-            if name == "data":
-                rows.append(jf * self.sq)
-            elif name == "pinn":
-                rows.append(jf * (np.sqrt(self.w.pinn) * self.sq))
+        jf = self.net.network_jacobian(beta, w_out, self.zs, layers, out=self._jf)
+        if out is None:
+            out = np.zeros((len(self._c), len(beta)))
+        for name, sl in self.blocks:
+            if name in ("data", "pinn"):
+                np.multiply(jf, self._factor[name], out=out[sl])
             elif name == "orthogonal":
-                rows.append(np.sqrt(self.w.orthogonal) * self.sq * (self.q_phi.T @ jf))
+                out[sl] = self._factor[name] * (self.q_phi.T @ jf)
             else:  # deviation and output-weight decay rows do not depend on beta
-                rows.append(np.zeros((len(A), len(beta))))
-        return np.vstack(rows)
+                out[sl] = 0.0
+        return out
 
     def _with_decay(self, J: np.ndarray, beta: np.ndarray) -> np.ndarray:
         """``J`` with the rows of the hidden-weight decay (which depend on beta only)."""
         if not self.w.weight_decay > 0:
             return J
-        Jd = np.zeros((int(self.decayed.sum()), J.shape[1]))
-        Jd[np.arange(len(Jd)), J.shape[1] - len(beta) + np.flatnonzero(self.decayed)] = \
-            np.sqrt(self.w.weight_decay)
+        decay = self._J[len(self._c):]
+        Jd = np.zeros((len(decay), J.shape[1]))
+        Jd[:, J.shape[1] - len(beta):] = decay
         return np.vstack([J, Jd])
 
     @property
@@ -196,13 +242,12 @@ class SeparableCost:
         """The same cost over all parameters ``p = (x, beta)`` (no elimination): the problem
         the earlier fits solved, for comparison. Jacobian ``[A, d(A x)/d beta]``."""
         x, beta = p[:self.n_linear], p[self.n_linear:]
-        h = self.net.hidden_outputs(beta, self.z)
-        blocks = self._system(h)
-        A = np.vstack([b[1] for b in blocks])
-        r = A @ x - np.concatenate([b[2] for b in blocks])
+        layers = self.net.layer_outputs(beta, self.zs)
+        A = self._fill(layers[1][-1].numpy())
+        r = A @ x - self._c
         if self.w.weight_decay > 0:
             r = np.concatenate([r, self._decay_rows(beta)])
         if not jacobian:
             return r
-        J = np.hstack([A, self._beta_rows(blocks, beta, x[self.n_theta:-1])])
+        J = np.hstack([A, self._beta_rows(beta, x[self.n_theta:-1], layers)])
         return r, self._with_decay(J, beta)
