@@ -47,6 +47,9 @@ LIMITS = {
                       "will not"),
     "restarts": Limit(100, "restarts", "each restart is a full fit"),
     "fits": Limit(1000, "fits", "seeds times restarts summed over the rows: minutes each"),
+    "total_samples": Limit(2e8, "samples", "a closed-loop replay simulates ~1e6 samples per "
+                           "second and core with its feedforward: 2e8 samples are ~3 minutes "
+                           "of one core (the paper table: 2.7e7)"),
 }
 
 
@@ -87,6 +90,21 @@ def check_limits(config: "ExperimentConfig") -> None:
         _limit(f"{key}.pgnn.restarts", "restarts", spec.pgnn.restarts)
         fits += spec.seeds * spec.pgnn.restarts
     _limit("feedforwards", "fits", fits)
+    if config.data is None:  # a data: config simulates nothing
+        total, detail = simulated_samples(config)
+        _limit("config", "total_samples", total, f" simulated ({detail})")
+
+
+def simulated_samples(config: "ExperimentConfig") -> tuple[float, str]:
+    """The samples a config simulates in all (the training run, and every reference replayed
+    once per seed of every row), and how they add up; from the references' closed form."""
+    training = config.references[config.training.reference].duration_s() \
+        * config.training.repeats / config.ts
+    replay = sum(config.references[name].duration_s() for name in config.replay) / config.ts
+    runs = sum(spec.seeds for spec in config.feedforwards)
+    total = training + runs * replay
+    return total, (f"{training:.3g} in training + {runs} replays x {replay:.3g} samples of "
+                   f"{', '.join(config.replay) or 'no reference'}")
 
 
 def _default_references() -> dict[str, PointToPoint]:
