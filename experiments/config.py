@@ -47,6 +47,9 @@ LIMITS = {
                       "will not"),
     "restarts": Limit(100, "restarts", "each restart is a full fit"),
     "fits": Limit(1000, "fits", "seeds times restarts summed over the rows: minutes each"),
+    "parameters": Limit(2e4, "", "a fit's Jacobian holds samples x parameters numbers: 2e4 "
+                        "parameters on the 6250 samples of a 50 s training run at 8 ms "
+                        "are 1 GB"),
     "total_samples": Limit(2e8, "samples", "a closed-loop replay simulates ~1e6 samples per "
                            "second and core with its feedforward: 2e8 samples are ~3 minutes "
                            "of one core (the paper table: 2.7e7)"),
@@ -86,6 +89,10 @@ def check_limits(config: "ExperimentConfig") -> None:
         widths = (spec.hidden,) if isinstance(spec.hidden, int) else spec.hidden
         _limit(f"{key}.hidden", "layers", len(widths))
         _limit(f"{key}.hidden", "hidden", max(widths))
+        sizes = (4, *widths, 1)
+        _limit(f"{key}.hidden", "parameters",
+               sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:])) + 4,
+               f" network parameters (hidden {list(widths)})")
         _limit(f"{key}.pgnn.max_iter", "max_iter", spec.pgnn.max_iter)
         _limit(f"{key}.pgnn.restarts", "restarts", spec.pgnn.restarts)
         fits += spec.seeds * spec.pgnn.restarts
