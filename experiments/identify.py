@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from clm_sim.errors import UserError
@@ -80,9 +80,10 @@ def identify(run, *, source: str, regression_lowpass_hz: float | None = None) ->
         raise UserError(f"{source}: the fit gives non-finite parameters "
                         f"({', '.join(sorted(set(bad))) or 'residual'}); the record's values are "
                         f"too large or degenerate for a least-squares fit")
-    def refit(y):
+    def refit(y, cutoff):
         try:
-            return LIPFeedforward(features=features).fit(y=y, u=run.u, ts=run.ts).theta_["mass"]
+            band = replace(features, regression_lowpass_hz=cutoff)
+            return LIPFeedforward(features=band).fit(y=y, u=run.u, ts=run.ts).theta_["mass"]
         except UserError:
             return float("nan")
 
