@@ -7,6 +7,7 @@ into one line, exit 1."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -191,3 +192,26 @@ def test_an_internal_error_is_one_line_exit_1(monkeypatch, tmp_path, capsys):
                           capsys)
     assert code == 1 and any("Traceback" in line for line in err) and len(err) > 1
 
+
+
+def test_an_internal_error_in_a_real_process_is_one_line_exit_1(tmp_path):
+    """The same through a real process (signals received in their own thread, the exit
+    without interpreter shutdown): stderr is the one line, exit 1."""
+    import subprocess
+    import sys
+
+    t = np.arange(300) * 1e-3
+    save_npz(Run(t=t, r=np.sin(t), y=np.sin(t), u=np.cos(t)), tmp_path / "ok.npz")
+    code = ("import sys, experiments.identify as m\n"
+            "def boom(*a, **k): raise KeyError('injected')\n"
+            "m.identify = boom\n"
+            "from experiments.cli import main\n"
+            "sys.argv = ['clm-sim', 'identify', sys.argv[1], '--out', sys.argv[2]]\n"
+            "sys.exit(main())\n")
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "ok.npz"),
+                           str(tmp_path / "o")], capture_output=True, text=True, cwd=root,
+                          env={**os.environ, "PYTHONPATH": str(root)}, timeout=120)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert "internal error in 'identify'" in lines[0] and "KeyError" in lines[0]
