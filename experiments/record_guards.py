@@ -8,8 +8,8 @@ that cannot carry it.
   the Nyquist frequency or below what the record can resolve, a position quantized so coarsely
   that its acceleration is noisy enough to bias the mass low (errors in the regressor: measured
   on a smooth copy of the record quantized alike), a mass that moves when the regression band
-  is halved (noise of another origin: sampling jitter behind uniform time stamps), a mass no linear motor has or that the record leaves
-  undetermined.
+  is halved (noise of another origin: sampling jitter behind uniform time stamps), a mass no
+  linear motor has or that the record leaves undetermined.
 """
 
 from __future__ import annotations
