@@ -13,7 +13,8 @@ from clm_sim.loop import Dither
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import MAX_LAYERS, MAX_WIDTH, PGNNSettings, check_settings
+from controllers.pgnn_settings import (MAX_LAYERS, MAX_PARAMETERS, MAX_WIDTH, PGNNSettings,
+                                       check_settings, parameter_count)
 from controllers.pid import PIDDesign
 
 
@@ -47,7 +48,8 @@ LIMITS = {
                       "will not"),
     "restarts": Limit(100, "restarts", "each restart is a full fit"),
     "fits": Limit(1000, "fits", "seeds times restarts summed over the rows: minutes each"),
-    "parameters": Limit(2e4, "", "a fit's Jacobian holds samples x parameters numbers: 2e4 "
+    "parameters": Limit(MAX_PARAMETERS, "", "a fit's Jacobian holds samples x parameters "
+                        "numbers: 2e4 "
                         "parameters on the 6250 samples of a 50 s training run at 8 ms "
                         "are 1 GB"),
     "total_samples": Limit(2e8, "samples", "a closed-loop replay simulates ~1e6 samples per "
@@ -89,9 +91,7 @@ def check_limits(config: "ExperimentConfig") -> None:
         widths = (spec.hidden,) if isinstance(spec.hidden, int) else spec.hidden
         _limit(f"{key}.hidden", "layers", len(widths))
         _limit(f"{key}.hidden", "hidden", max(widths))
-        sizes = (4, *widths, 1)
-        _limit(f"{key}.hidden", "parameters",
-               sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:])) + 4,
+        _limit(f"{key}.hidden", "parameters", parameter_count(tuple(widths)),
                f" network parameters (hidden {list(widths)})")
         _limit(f"{key}.pgnn.max_iter", "max_iter", spec.pgnn.max_iter)
         _limit(f"{key}.pgnn.restarts", "restarts", spec.pgnn.restarts)
