@@ -294,11 +294,12 @@ def _row(name, train_mass, held_mass, record, measured=True):
 
     from experiments.studies.emps_benchmark import Row
 
-    sim = lambda m: simulate_record(  # noqa: E731
-        SimulationModel(dataclasses.replace(_truth(), mass=STAGE.mass * m), None, name, TS),
-        record)
-    return Row(name, "record", _truth(), 0.0, sim(train_mass), sim(train_mass), 0.0, 0.0,
-               measured=measured, held_out=sim(held_mass) if held_mass else None)
+    sim = lambda m, run: simulate_record(  # noqa: E731
+        SimulationModel(dataclasses.replace(_truth(), mass=STAGE.mass * m), None, name, TS), run)
+    held = record.slice(2 * len(record) // 3)
+    return Row(name, "record", _truth(), 0.0, sim(train_mass, record), sim(train_mass, record),
+               0.0, 0.0, measured=measured,
+               held_out=sim(held_mass, held) if held_mass else None)
 
 
 def test_the_verdict_follows_the_held_out_rule_not_the_in_sample_one(record):

@@ -302,6 +302,14 @@ def _params(p: Plant) -> str:
             f"OF {_offset(p):+.2f}" + (f"; {', '.join(extra)}" if extra else ""))
 
 
+def _span(y, t) -> str:
+    """The stroke and the peak speed of a measured position (m; speed from sample differences)."""
+    import numpy as np
+
+    v = np.abs(np.diff(y)) / (t[1] - t[0])
+    return f"positions {y.min():.3f} to {y.max():.3f} m, peak speed {v.max():.3f} m/s"
+
+
 def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command: str) -> str:
     pub = rows[0]
     product = rows[1:]
@@ -341,7 +349,9 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
         f"{'better' if rel(by_held) < 0 else 'worse'} than the published model by "
         f"{abs(rel(by_held)):.0f} % ({mm(by_held) - mm(pub):+.2f} mm).",
         f"Held-out ranking (mm): {ranking(lambda r: r.held_out.score.rmse, candidates)}; the "
-        f"published model {ho(pub)}.",
+        f"published model {ho(pub)}. The two parts: estimation "
+        f"{_span(pub.train.y_measured[:n_train - n_held], pub.train.t)}, held out "
+        f"{_span(pub.held_out.y_measured, pub.train.t)}.",
         f"For contrast, the in-sample rule (lowest training RMSE of the fit on the whole "
         f"training record) would pick **{by_train.name}**: {mm(by_train):.2f} mm on test. "
         f"In-sample ranking (mm): "
