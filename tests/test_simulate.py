@@ -314,3 +314,13 @@ def test_the_verdict_follows_the_held_out_rule_not_the_in_sample_one(record):
     assert "in-sample rule (lowest training RMSE of the fit on the whole training record) " \
            "would pick **overfit**" in page
     assert "| stop † | record |" in page and page.count("| – |") >= 1
+
+
+def test_a_benchmark_split_outside_0_1_is_one_line(tmp_path):
+    from clm_sim.errors import UserError
+    from experiments.studies.emps_benchmark import load_benchmark
+
+    path = tmp_path / "b.yaml"
+    path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, estimation_fraction: 1}\n")
+    with pytest.raises(UserError, match="estimation_fraction"):
+        load_benchmark(path)
