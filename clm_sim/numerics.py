@@ -19,6 +19,7 @@ Nothing here imports numpy or torch: the kernels must be pinned before they load
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import platform
 import sys
@@ -86,9 +87,13 @@ def kernels() -> dict:
     out: dict = {}
     try:
         import threadpoolctl
-        out["blas"] = [{k: info.get(k) for k in ("internal_api", "version", "architecture")}
-                       | {"library": os.path.basename(info["filepath"])}
-                       for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas"]
+        # sorted: threadpoolctl lists the loaded libraries in load order, which varies
+        out["blas"] = sorted(([{k: info.get(k) for k in ("internal_api", "version",
+                                                          "architecture")}
+                               | {"library": os.path.basename(info["filepath"])}
+                               for info in threadpoolctl.threadpool_info()
+                               if info["user_api"] == "blas"]),
+                             key=lambda d: json.dumps(d, sort_keys=True, default=str))
     except ImportError:
         pass
     if "torch" in sys.modules:

@@ -30,6 +30,8 @@ MAX_TS = 0.01  # s: a servo record sampled slower than 100 Hz has its time stamp
 MIN_TS = 1e-7  # s: no servo samples faster than 10 MHz; such time stamps are in other units
 MAX_POSITION_M = 10.0  # m: longer than any linear-motor stroke; larger values are in mm or counts
 MAX_FORCE_N = 1e6  # N: 50 times the peak force of the largest linear motors; larger is not N
+MAX_RECORD_BYTES = 2 ** 30  # a record file (or an .npz's arrays) larger is refused before reading
+GENFROMTXT_BYTES = 50 * 2 ** 20  # CSVs with empty cells are read by genfromtxt up to this size
 
 
 @dataclass(frozen=True)
@@ -166,10 +168,7 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             if any(n and n[0] in "0123456789-+." for n in names):
                 raise UserError(f"{path}: the first line must be a header of column names "
                                 f"(t, r, y, u), got numbers")
-            with warnings.catch_warnings():  # "empty input" is reported below, in one line
-                warnings.simplefilter("ignore", UserWarning)
-                data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
-                                     invalid_raise=True, ndmin=2, encoding="utf-8")
+            data = _read_csv_rows(path)
             if data.size == 0:
                 raise UserError(f"{path}: no data rows after the header")
             if data.shape[1] != len(names):
@@ -179,6 +178,10 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
         if suffix == ".npz":
             # Our own handle, closed even when a truncated archive makes np.load raise.
             with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
+                unpacked = sum(i.file_size for i in z.zip.infolist())
+                if unpacked > MAX_RECORD_BYTES:  # a small archive may unpack to terabytes
+                    raise UserError(f"{path}: its arrays unpack to {unpacked / 2 ** 30:.3g} GB, "
+                                    f"above the {MAX_RECORD_BYTES / 2 ** 30:g} GB of a record")
                 raw = {k: np.asarray(z[k]) for k in z.files}
             return raw, _meta(raw.pop("meta", None))
         if suffix == ".mat":
@@ -193,6 +196,26 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
         raise UserError(f"{path}: cannot read as {suffix[1:].upper()} ({_first_line(exc)})") \
             from None
     raise UserError(f"{path}: unknown record format {suffix!r}; expected .csv, .npz or .mat")
+
+
+def _read_csv_rows(path: Path) -> np.ndarray:
+    """The numbers below a CSV's header, (rows, columns) float64. ``np.loadtxt`` reads in C
+    into the final array (about the array's size in memory; ``genfromtxt`` needs ~9 times the
+    file); only where it fails (an empty cell, read as NaN and refused by name later) does the
+    slower ``genfromtxt`` read it, for files up to ``GENFROMTXT_BYTES``."""
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            fh.readline()
+            with warnings.catch_warnings():  # "empty input" is reported by the caller
+                warnings.simplefilter("ignore", UserWarning)
+                return np.loadtxt(fh, delimiter=",", dtype=float, ndmin=2)
+    except ValueError:
+        if path.stat().st_size > GENFROMTXT_BYTES:
+            raise
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
+                             invalid_raise=True, ndmin=2, encoding="utf-8")
 
 
 def _first_line(exc: BaseException) -> str:
@@ -270,6 +293,12 @@ def load_record(path, columns: dict[str, str] | None = None,
     path = Path(path)
     if not path.exists():
         raise UserError(f"{path}: file not found")
+    if not path.is_file():  # a device (/dev/zero), a pipe or a folder never ends or is no record
+        raise UserError(f"{path}: not a regular file; a record is a .csv, .npz or .mat file")
+    size = path.stat().st_size
+    if size > MAX_RECORD_BYTES:
+        raise UserError(f"{path}: {size / 2 ** 30:.3g} GB, above the {MAX_RECORD_BYTES / 2 ** 30:g} "
+                        f"GB a record may have (1e7 samples of t, r, y, u as CSV are ~0.8 GB)")
     raw, file_meta = _read_columns(path)
     columns = dict(columns or {})
     out = {}

@@ -57,11 +57,19 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+MAX_BYTES = 16 * 2 ** 20  # a config is kilobytes
+
+
 def load_yaml(path) -> dict:
     """Read a YAML mapping safely (no Python tags); one-line errors for a missing file, bad
     syntax or a duplicated key."""
     path = Path(path)
     try:
+        if path.exists() and not path.is_dir() and not path.is_file():
+            raise UserError(f"{path}: not a regular file (a device or a pipe is no config)")
+        if path.is_file() and path.stat().st_size > MAX_BYTES:
+            raise UserError(f"{path}: {path.stat().st_size} bytes; a config has at most "
+                            f"{MAX_BYTES}")
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise UserError(f"{path}: file not found") from None

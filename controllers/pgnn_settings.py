@@ -132,6 +132,13 @@ CONSTRAINTS = {
 
 MAX_WIDTH = 1024  # neurons: a hidden layer this wide is beyond what a force record identifies
 MAX_LAYERS = 8  # deeper networks are beyond what a force record identifies
+MAX_PARAMETERS = 20_000  # a fit's Jacobian: samples x parameters (6250 x 2e4 doubles: 1 GB)
+
+
+def parameter_count(widths: tuple[int, ...]) -> int:
+    """Weights and biases of a network of hidden ``widths`` on the 4 features, plus theta."""
+    sizes = (4, *widths, 1)
+    return sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:])) + 4
 
 
 def checked_widths(value, key: str) -> tuple[int, ...]:
@@ -144,6 +151,9 @@ def checked_widths(value, key: str) -> tuple[int, ...]:
         shown = repr(value) if len(repr(value)) < 60 else repr(value)[:60] + "..."
         raise UserError(f"{key}: expected 1 to {MAX_LAYERS} layers of 1 to {MAX_WIDTH} "
                         f"neurons, got {shown}")
+    if parameter_count(tuple(widths)) > MAX_PARAMETERS:
+        raise UserError(f"{key}: {list(widths)} has {parameter_count(tuple(widths))} "
+                        f"parameters, above the limit of {MAX_PARAMETERS} of a config")
     return tuple(widths)
 
 

@@ -13,7 +13,8 @@ from clm_sim.loop import Dither
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import MAX_LAYERS, MAX_WIDTH, PGNNSettings, check_settings
+from controllers.pgnn_settings import (MAX_LAYERS, MAX_PARAMETERS, MAX_WIDTH, PGNNSettings,
+                                       check_settings, parameter_count)
 from controllers.pid import PIDDesign
 
 
@@ -47,6 +48,13 @@ LIMITS = {
                       "will not"),
     "restarts": Limit(100, "restarts", "each restart is a full fit"),
     "fits": Limit(1000, "fits", "seeds times restarts summed over the rows: minutes each"),
+    "parameters": Limit(MAX_PARAMETERS, "", "a fit's Jacobian holds samples x parameters "
+                        "numbers: 2e4 "
+                        "parameters on the 6250 samples of a 50 s training run at 8 ms "
+                        "are 1 GB"),
+    "total_samples": Limit(2e8, "samples", "a closed-loop replay simulates ~1e6 samples per "
+                           "second and core with its feedforward: 2e8 samples are ~3 minutes "
+                           "of one core (the paper table: 2.7e7)"),
 }
 
 
@@ -83,10 +91,27 @@ def check_limits(config: "ExperimentConfig") -> None:
         widths = (spec.hidden,) if isinstance(spec.hidden, int) else spec.hidden
         _limit(f"{key}.hidden", "layers", len(widths))
         _limit(f"{key}.hidden", "hidden", max(widths))
+        _limit(f"{key}.hidden", "parameters", parameter_count(tuple(widths)),
+               f" network parameters (hidden {list(widths)})")
         _limit(f"{key}.pgnn.max_iter", "max_iter", spec.pgnn.max_iter)
         _limit(f"{key}.pgnn.restarts", "restarts", spec.pgnn.restarts)
         fits += spec.seeds * spec.pgnn.restarts
     _limit("feedforwards", "fits", fits)
+    if config.data is None:  # a data: config simulates nothing
+        total, detail = simulated_samples(config)
+        _limit("config", "total_samples", total, f" simulated ({detail})")
+
+
+def simulated_samples(config: "ExperimentConfig") -> tuple[float, str]:
+    """The samples a config simulates in all (the training run, and every reference replayed
+    once per seed of every row), and how they add up; from the references' closed form."""
+    training = config.references[config.training.reference].duration_s() \
+        * config.training.repeats / config.ts
+    replay = sum(config.references[name].duration_s() for name in config.replay) / config.ts
+    runs = sum(spec.seeds for spec in config.feedforwards)
+    total = training + runs * replay
+    return total, (f"{training:.3g} in training + {runs} replays x {replay:.3g} samples of "
+                   f"{', '.join(config.replay) or 'no reference'}")
 
 
 def _default_references() -> dict[str, PointToPoint]:

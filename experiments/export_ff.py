@@ -37,7 +37,7 @@ KNOWN = ("a run's params/lip.json or params/<row>_seed<k>.pt, identify's lip.jso
 def _run_config(path: Path) -> dict:
     """The resolved config of the run a ``params/`` file belongs to (``{}`` if none)."""
     cfg = path.resolve().parent.parent / "config.resolved.yaml"
-    if not cfg.is_file():
+    if path.resolve().parent.name != "params" or not cfg.is_file():  # only a run's own params/
         return {}
     try:
         data = yaml.safe_load(cfg.read_text())

@@ -113,7 +113,7 @@ def summarize(profile: dict[str, list[dict]], fits: list[dict], v_spread: float,
         entry = valley_range([p["value"] for p in pts], [p["data_cost"] for p in pts],
                              v_best, delta)
         entry["profile"] = [{"value": p["value"], "data_cost": p["data_cost"],
-                             "mae": p.get("mae")} for p in pts]
+                             "stop": p.get("stop"), "mae": p.get("mae")} for p in pts]
         entry["bound"] = [min(p["value"] for p in pts), max(p["value"] for p in pts)]
         ends = []
         if entry["range"] is not None:  # the pinned fits at the ends of the block inside
@@ -149,6 +149,32 @@ def _size_key(hidden) -> str:
     return "x".join(map(str, widths))
 
 
+def lip_intervals(phi: np.ndarray, target: np.ndarray) -> dict:
+    """The LIP (least squares of ``target`` on ``phi``'s four columns, named) on the fitting
+    samples, with white-noise and Newey-West (autocorrelation-robust) standard errors and the
+    residual's lag-1 autocorrelation (:func:`experiments.hac.newey_west`)."""
+    from experiments.hac import newey_west
+
+    fit = newey_west(phi, target)
+    return {"theta": dict(zip(THETA_NAMES, map(float, fit["theta"]))),
+            "std_white": dict(zip(THETA_NAMES, map(float, fit["std_white"]))),
+            "std_newey_west": dict(zip(THETA_NAMES, map(float, fit["std_newey_west"]))),
+            "lag1_autocorr": fit["lag1_autocorr"], "lags": fit["lags"],
+            "n_samples": int(len(target))}
+
+
+def _lip_line(rec: dict) -> str:
+    from experiments.table import THETA_UNITS
+
+    li = rec["lip_intervals"]
+    return (f"LIP on the same {li['n_samples']} fitting samples, 95 % intervals (white noise / "
+            f"Newey-West with {li['lags']} lags; residual lag-1 autocorrelation "
+            f"{li['lag1_autocorr']:.2f}): " + "; ".join(
+                f"{n} {li['theta'][n]:.4g} ± {1.96 * li['std_white'][n]:.2g} / ± "
+                f"{1.96 * li['std_newey_west'][n]:.2g} {THETA_UNITS[n]}" for n in THETA_NAMES)
+            + ".")
+
+
 def to_markdown(ident: dict, rows: list[dict]) -> str:
     """The ranges per network size, how each row's theta lies against them, and the MAE over
     the valley."""
@@ -179,6 +205,14 @@ def to_markdown(ident: dict, rows: list[dict]) -> str:
                 for p in e["mae_at_ends"])
             lines.append(f"| {name} | {rng} | [{e['bound'][0]:.4g}, {e['bound'][1]:.4g}] | "
                          f"{ends or '–'} |")
+        stops = [p.get("stop") for e in rec["parameters"].values()
+                 for p in e.get("profile", [])]
+        if stops and None not in stops:
+            lines += ["", f"Profile points: {stops.count('converged')} of {len(stops)} "
+                      f"converged ({', '.join(f'{stops.count(x)} {x}' for x in sorted(set(stops)) if x != 'converged') or 'all'}); "
+                      "a point that did not converge is an upper bound on the profile there."]
+        if "lip_intervals" in rec:
+            lines += ["", _lip_line(rec)]
         lines += ["", "MAE over the valley (every profile fit within δ): " + "; ".join(
             f"{ref} {lo * 1e6:.3f} … {hi * 1e6:.3f} µm ({n} fits)"
             for ref, (lo, hi, n) in rec["valley_mae"].items()) + ".", ""]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from clm_sim.errors import UserError
@@ -82,9 +82,11 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
             cross = cross_test(result, y=validation.y, u=validation.u, ts=validation.ts)
         except UserError as exc:
             raise UserError(f"{validation_source}: {exc}") from None
-    def refit(y):  # the mass the same protocol gives on positions y (quantization check)
+
+    def refit(y, cutoff):  # the mass the same protocol gives on positions y, in band cutoff (Hz)
         try:
-            return fit(y=y, u=run.u, ts=run.ts, protocol=protocol).coefficients["mass"]
+            band = replace(protocol, regression_lowpass_hz=cutoff)
+            return fit(y=y, u=run.u, ts=run.ts, protocol=band).coefficients["mass"]
         except UserError:
             return float("nan")
 

@@ -124,10 +124,12 @@ def record_checks(config: ExperimentConfig, run, train: Prepared, source: str) -
         raise UserError(f"{source}: the fit gives non-finite parameters; the record's values "
                         f"are too large or degenerate for a least-squares fit")
 
-    def refit(y):
+    def refit(y, cutoff):
         try:
-            coarse = prepare(config, dataclasses.replace(run, y=y), train.name)
-            return fit_lip(coarse).theta["mass"] if coarse.inside.sum() else float("nan")
+            band = dataclasses.replace(config, features=dataclasses.replace(
+                config.features, regression_lowpass_hz=cutoff))
+            other = prepare(band, dataclasses.replace(run, y=y), train.name)
+            return fit_lip(other).theta["mass"] if other.inside.sum() else float("nan")
         except UserError:
             return float("nan")
 

@@ -7,8 +7,9 @@ that cannot carry it.
 - :func:`fit_warnings`: a result that may be wrong is said in one line each: a filter cut-off near
   the Nyquist frequency or below what the record can resolve, a position quantized so coarsely
   that its acceleration is noisy enough to bias the mass low (errors in the regressor: measured
-  on a smooth copy of the record quantized alike), a mass no linear motor has or that the record leaves
-  undetermined.
+  on a smooth copy of the record quantized alike), a mass that moves when the regression band
+  is halved (noise of another origin: sampling jitter behind uniform time stamps), a mass no
+  linear motor has or that the record leaves undetermined.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ NYQUIST_FRACTION = 0.8  # a cut-off above this fraction of Nyquist: the filter i
 MIN_CUTOFF_PERIODS = 5.0  # a cut-off whose period fits fewer times in the record: transient only
 MIN_CUTOFF_HZ = 1.0  # Hz: servo forces change faster; below, the filter leaves only drift
 QUANTIZATION_BIAS = 0.05  # an estimated quantization bias of the mass above this is said
+BAND_CHANGE = 0.05  # a mass that moves by more than this when the band is halved is said
 UNDETERMINED = 0.5  # a mass whose standard error exceeds this fraction of it is not identified
 
 
@@ -75,10 +77,10 @@ def quantization_bias(y: np.ndarray, ts: float, cutoff: float | None, refit) -> 
     band = 0.5 * min(cutoff or 0.1 / ts, 0.2 / ts)
     sos = scipy.signal.butter(4, band, fs=1.0 / ts, output="sos")
     smooth = scipy.signal.sosfiltfilt(sos, y)
-    clean = refit(smooth)
+    clean = refit(smooth, cutoff)
     if not clean > 0:
         return 0.0
-    noisy = refit(np.round(smooth / q) * q)
+    noisy = refit(np.round(smooth / q) * q, cutoff)
     return float(np.clip(1 - noisy / clean, 0.0, 1.0)) if np.isfinite(noisy) else 0.0
 
 
@@ -102,17 +104,27 @@ def fit_warnings(run, features, theta: dict, std: dict | None, option: str,
                  refit=None) -> list[str]:
     """The warnings about parameters ``theta`` (``std``: their standard errors, or None)
     identified from ``run`` through ``features`` (``option``: the cut-off's name in the
-    command's input; ``refit(y)``: the mass the same fit gives on positions ``y``, for the
-    quantization check)."""
-    out = cutoff_warnings(features.regression_lowpass_hz, run.ts, len(run), option)
+    command's input; ``refit(y, cutoff)``: the mass the same fit gives on positions ``y`` with
+    the regression cut-off ``cutoff`` Hz, for the quantization and bandwidth checks)."""
+    cutoff = features.regression_lowpass_hz
+    out = cutoff_warnings(cutoff, run.ts, len(run), option)
     mass = theta.get("mass", float("nan"))
     if refit is not None:
-        bias = quantization_bias(run.y, run.ts, features.regression_lowpass_hz, refit)
+        bias = quantization_bias(run.y, run.ts, cutoff, refit)
         if bias > QUANTIZATION_BIAS:
             out.append(f"y moves in steps of {quantization_step(run.y):.3g} m: quantization noise "
                        f"in the acceleration biases the mass low, by about {bias:.0%} (errors "
                        f"in the regressor; a smooth copy of y quantized alike loses as much); "
                        f"give a lower {option} or a finer position")
+        elif mass > 0:
+            half = 0.5 * (cutoff or 0.5 / run.ts)
+            narrow = refit(run.y, half)
+            if narrow > 0 and abs(narrow - mass) > BAND_CHANGE * narrow:
+                band = f"{cutoff:g} Hz" if cutoff else "no filter"
+                out.append(f"the mass is {mass:.4g} kg at {option} {band} but "
+                           f"{narrow:.4g} kg at {half:g} Hz: noise in the acceleration (sampling "
+                           f"jitter, quantization, an unmodelled resonance) biases it in the "
+                           f"wider band; give a lower {option}")
     lo, hi = MASS_RANGE_KG
     if mass > 0 and not lo <= mass <= hi:
         out.append(f"the identified mass {mass:.4g} kg is outside {lo:g}..{hi:g} kg of "

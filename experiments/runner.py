@@ -30,6 +30,26 @@ def slug(text: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")
 
 
+MAX_NAME = 200  # characters of a row's file name (params/<name>_seed<k>.json: <= 255 bytes)
+
+
+def check_row_names(config: ExperimentConfig) -> None:
+    """Rows whose names give the same file name (``Net A`` and ``net-a``) would overwrite each
+    other's ``params/``; a name too long for a file fails only when written: both refused
+    before the work."""
+    seen: dict[str, int] = {}
+    for i, spec in enumerate(config.feedforwards):
+        name = slug(spec.label())
+        if len(name.encode()) > MAX_NAME:
+            raise UserError(f"feedforwards[{i}].name: {len(name)} characters as a file name; "
+                            f"at most {MAX_NAME}")
+        if name in seen and spec.kind != "none":
+            raise UserError(f"feedforwards[{i}].name: {spec.label()!r} is saved as "
+                            f"params/{name}_seed<k>, as feedforwards[{seen[name]}]; give the "
+                            f"rows names that differ in letters or digits")
+        seen.setdefault(name, i)
+
+
 def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
                    config_path: str | None = None) -> list[dict]:
     """Run ``config`` and write its results into ``out`` (replaced atomically). Returns rows."""
@@ -62,6 +82,7 @@ def preflight(config: ExperimentConfig) -> None:
     """
     from controllers.pid import _check as check_pid_design
 
+    check_row_names(config)
     if config.data is not None:  # the records own their sample time; no simulation runs
         for which in ("training", "validation"):
             path = getattr(config.data, which)

@@ -323,6 +323,7 @@ class Testbed:
                                       len(data.target) * settings_decimation(settings, run.ts)
                                       * run.ts, self.config.features.regression_lowpass_hz)
             out[key] = ident.summarize(profile, fits, spread, n_eff)
+            out[key]["lip_intervals"] = ident.lip_intervals(data.phi, data.target)
             out[key].update(start={"label": row.spec.label(), "data_cost": cost},
                             max_iter=spec.max_iter, span=spec.span,
                             scale={n: grid[n]["scale"] for n in THETA_NAMES})

@@ -493,3 +493,25 @@ def test_newey_west_widens_with_autocorrelated_residuals():
     assert white["std_newey_west"][0] / white["std_white"][0] == pytest.approx(1.0, abs=0.15)
     assert ar["std_newey_west"][0] / ar["std_white"][0] == pytest.approx(3.0, rel=0.15)
     assert ar["lag1_autocorr"] == pytest.approx(0.8, abs=0.02)
+
+
+def test_identifiability_prints_stops_and_the_lips_robust_intervals():
+    """The profile's markdown says how many points converged and gives the LIP's white-noise and
+    Newey-West intervals beside the ranges; the robust interval is the wider one on a record
+    whose residual is autocorrelated."""
+    rng = np.random.default_rng(0)
+    data = synthetic(n=3000)
+    e = np.zeros(len(data.target))
+    for t in range(1, len(e)):
+        e[t] = 0.9 * e[t - 1] + 0.2 * rng.standard_normal()
+    li = ident.lip_intervals(data.phi, data.target + e)
+    assert li["lag1_autocorr"] > 0.5  # AR(0.9) plus the white noise of synthetic()
+    assert all(li["std_newey_west"][n] > li["std_white"][n] for n in ("viscous", "stiffness"))
+    profile = {n: [{"value": v, "data_cost": 1.0 + v * v, "stop": stop, "mae": None}
+                   for v, stop in ((-1.0, "max_iter"), (0.0, "converged"), (1.0, "converged"))]
+               for n in THETA_NAMES}
+    rec = ident.summarize(profile, [], 0.01, 1000.0)
+    rec["lip_intervals"] = li
+    text = ident.to_markdown({"16": rec}, [])
+    assert "Profile points: 8 of 12 converged (4 max_iter)" in text
+    assert "Newey-West" in text and "lag-1 autocorrelation" in text

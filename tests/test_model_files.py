@@ -130,6 +130,9 @@ PGNN_CASES = {
                    None, "settings.hidden: expected 1 to 8 layers"),
     "hidden 9 layers": (lambda d: {**d, "settings": {**d["settings"], "hidden": [2] * 9}},
                         None, "settings.hidden"),
+    "hidden over the parameter limit": (
+        lambda d: {**d, "settings": {**d["settings"], "hidden": [200, 200]}}, None,
+        "parameters, above the limit"),
     "hidden true": (lambda d: {**d, "settings": {**d["settings"], "hidden": True}},
                     None, "settings.hidden"),
     "settings a list": (lambda d: {**d, "settings": [1]}, None, "settings: expected an object"),

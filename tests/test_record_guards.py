@@ -7,6 +7,7 @@ into one line, exit 1."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +88,23 @@ def test_emps_quantized_to_10_um_warns_and_the_original_does_not(tmp_path, capsy
         save_npz(Run(t=t, r=r, y=y if q is None else np.round(y / q) * q, u=u), path)
         code, out, err = _cli(["identify", path, "--out", tmp_path / "o"], capsys)
         assert code == 0 and (len(err) == 1 and "biases the mass low" in err[0]) == warned, err
+
+
+def test_sampling_jitter_behind_uniform_time_stamps_is_a_warning(record, tmp_path, capsys):
+    """y sampled 30 us (rms) off its 100 us time stamps: the mass is biased by more than 5 %
+    against the record without jitter, and the warning says so (the mass moves when the band
+    is halved); 1 us of jitter biases it by 0.05 % and is not said."""
+    masses = {}
+    for sigma in (0.0, 1e-6, 3e-5):
+        jitter = np.random.default_rng(5).normal(0.0, sigma, len(record))
+        y = np.interp(record.t + jitter, record.t, record.y)
+        code, out, err = _cli(["identify", _save(tmp_path, record, y=y), "--out",
+                               tmp_path / "o"], capsys)
+        masses[sigma] = json.loads((tmp_path / "o" / "lip.json").read_text())["mass"]
+        warned = any("at 125 Hz" in line for line in err)
+        assert code == 0 and warned == (abs(masses[sigma] / masses[0.0] - 1) > 0.05), \
+            (sigma, masses, err)
+    assert abs(masses[3e-5] / masses[0.0] - 1) > 0.05  # the case that warns is a real bias
 
 
 @pytest.mark.parametrize("cutoff, expected", [(4900.0, "of the record's Nyquist"),
@@ -177,3 +195,26 @@ def test_an_internal_error_is_one_line_exit_1(monkeypatch, tmp_path, capsys):
                           capsys)
     assert code == 1 and any("Traceback" in line for line in err) and len(err) > 1
 
+
+
+def test_an_internal_error_in_a_real_process_is_one_line_exit_1(tmp_path):
+    """The same through a real process (signals received in their own thread, the exit
+    without interpreter shutdown): stderr is the one line, exit 1."""
+    import subprocess
+    import sys
+
+    t = np.arange(300) * 1e-3
+    save_npz(Run(t=t, r=np.sin(t), y=np.sin(t), u=np.cos(t)), tmp_path / "ok.npz")
+    code = ("import sys, experiments.identify as m\n"
+            "def boom(*a, **k): raise KeyError('injected')\n"
+            "m.identify = boom\n"
+            "from experiments.cli import main\n"
+            "sys.argv = ['clm-sim', 'identify', sys.argv[1], '--out', sys.argv[2]]\n"
+            "sys.exit(main())\n")
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "ok.npz"),
+                           str(tmp_path / "o")], capture_output=True, text=True, cwd=root,
+                          env={**os.environ, "PYTHONPATH": str(root)}, timeout=120)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert "internal error in 'identify'" in lines[0] and "KeyError" in lines[0]

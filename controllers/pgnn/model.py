@@ -74,7 +74,7 @@ from controllers.pgnn.cost import TERMS, SeparableCost, Weights
 from controllers.pgnn.network import PGNNNetwork
 from clm_sim.schema import build
 from controllers.pgnn_settings import (CONSTRAINTS, PGNNSettings, check_settings, checked_widths,
-                                       decimation_for)
+                                       decimation_for, parameter_count)
 
 _DEFAULTS = PGNNSettings()  # the one declaration of the defaults
 
@@ -483,8 +483,7 @@ class PGNNFeedforward:
             theta = {k: number(theta.get(k), f"theta.{k}") for k in THETA_NAMES}
             ts = sample_time(info.get("ts"))
             # The weights' size follows from the widths: a larger file is not this model's.
-            widths = (4, *settings["hidden"], 1)
-            weights = sum((a + 1) * b for a, b in zip(widths[:-1], widths[1:])) + 4 + 8
+            weights = parameter_count(settings["hidden"]) + 8  # + the input scalings
             if pt.stat().st_size > 16 * weights + 2 ** 20:
                 raise UserError(f"{pt.name}: {pt.stat().st_size} bytes, far more than the "
                                 f"{weights} weights of hidden {list(settings['hidden'])}")

@@ -34,9 +34,10 @@ def warnings_for(record, model, settings: DiagnosisSettings, source) -> list[str
         fitted = LIPFeedforward(features=band).fit(y=record.y, u=record.u, ts=record.ts)
     except UserError:
         return out
-    def refit(y):
+    def refit(y, cutoff):
         try:
-            return LIPFeedforward(features=band).fit(y=y, u=record.u, ts=record.ts).theta_["mass"]
+            return LIPFeedforward(features=FeatureMap(regression_lowpass_hz=cutoff)).fit(
+                y=y, u=record.u, ts=record.ts).theta_["mass"]
         except UserError:
             return float("nan")
 
