@@ -241,3 +241,86 @@ def test_a_benchmark_config_with_a_typo_is_one_line(tmp_path):
     path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, init_sample: 20}\n")
     with pytest.raises(UserError, match="init_sample"):
         load_benchmark(path)
+
+
+# ----------------------------------------------------------------------------- held-out selection
+
+def test_the_split_is_in_time_and_refuses_parts_shorter_than_the_window(record):
+    from clm_sim.errors import UserError
+    from experiments.studies.emps_benchmark import split
+
+    est, held = split(record, 2 / 3, 20)
+    assert len(est) == round(2 / 3 * len(record)) and len(est) + len(held) == len(record)
+    assert np.array_equal(np.concatenate([est.y, held.y]), record.y)
+    assert np.array_equal(np.concatenate([est.t, held.t]), record.t)
+    with pytest.raises(UserError, match="estimation_fraction"):
+        split(record, 10 / len(record), 20)
+
+
+def test_the_candidates_remade_for_selection_see_only_the_estimation_part():
+    """Every candidate the held-out rule ranks is made from the estimation part alone: replace
+    the held-out part of the record by another experiment and the remade plants do not move
+    (were any fit given the whole record, they would)."""
+    import dataclasses
+
+    from experiments.studies.emps_benchmark import BenchmarkSettings, make_models, split
+
+    moves = [(0.1, 0.1), (0.0, 0.05), (0.1, 0.15), (0.0, 0.08)] * 3
+    r = ref.trapezoid_reference(TS, moves=moves, accel=1.0, dwell=0.1)
+    rec = ref.run_loop(STAGE, ref.Cascade(kp=160.0, kv=1700.0, ts=TS), r, TS, resolution=RES,
+                       dither_std=5.0, seed=4)
+    record = Run(t=rec.t, r=rec.r, y=rec.y, u=rec.u, meta={"source": "reference_sim"})
+
+    published = SimulationModel(dataclasses.replace(_truth(), mass=STAGE.mass * 1.2), None,
+                                "published", TS)
+    settings = BenchmarkSettings(training="a", test="b", max_nfev=30)
+    est, held = split(record, 2 / 3, 20)
+    other = Run(t=record.t, r=record.r, y=np.concatenate([est.y, -held.y]),
+                u=np.concatenate([est.u, -held.u]), meta=record.meta)
+    quiet = dict(second_start=False, skip={"diagnosis-extended, output-error"},
+                 progress=lambda s: None)
+    made = make_models(split(record, 2 / 3, 20)[0], published, settings, **quiet)
+    again = make_models(split(other, 2 / 3, 20)[0], published, settings, **quiet)
+    assert [m is None for m in made] == [False] * 6 + [True]
+    for a, b in zip(made[:6], again[:6]):
+        assert a.plant == b.plant, a.name
+    # The whole record (its held-out part changed) gives another LIP: the test can fail.
+    whole = make_models(record, published, settings, **quiet)[2].plant
+    assert whole != made[2].plant
+
+
+def _row(name, train_mass, held_mass, record, measured=True):
+    import dataclasses
+
+    from experiments.studies.emps_benchmark import Row
+
+    sim = lambda m, run: simulate_record(  # noqa: E731
+        SimulationModel(dataclasses.replace(_truth(), mass=STAGE.mass * m), None, name, TS), run)
+    held = record.slice(2 * len(record) // 3)
+    return Row(name, "record", _truth(), 0.0, sim(train_mass, record), sim(train_mass, record),
+               0.0, 0.0, measured=measured,
+               held_out=sim(held_mass, held) if held_mass else None)
+
+
+def test_the_verdict_follows_the_held_out_rule_not_the_in_sample_one(record):
+    """The row that fits its own record best but predicts the held-out part worse is not the
+    choice; a row that is not a measurement is not a candidate however well it fits."""
+    from experiments.studies.emps_benchmark import BenchmarkSettings, to_markdown
+
+    rows = [_row("published", 1.3, 1.3, record), _row("overfit", 1.0, 1.2, record),
+            _row("honest", 1.1, 1.05, record), _row("stop", 1.0, None, record, measured=False)]
+    page = to_markdown("b", rows, BenchmarkSettings(training="a", test="b"), "cmd")
+    assert "best physical model is **honest**" in page
+    assert "in-sample rule (lowest training RMSE of the fit on the whole training record) " \
+           "would pick **overfit**" in page
+    assert "| stop † | record |" in page and page.count("| – |") >= 1
+
+
+def test_a_benchmark_split_outside_0_1_is_one_line(tmp_path):
+    from clm_sim.errors import UserError
+    from experiments.studies.emps_benchmark import load_benchmark
+
+    path = tmp_path / "b.yaml"
+    path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, estimation_fraction: 1}\n")
+    with pytest.raises(UserError, match="estimation_fraction"):
+        load_benchmark(path)
