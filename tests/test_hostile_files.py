@@ -84,7 +84,11 @@ def test_generated_model_files_export_or_are_refused(edits, damage, diagnosis, c
             assert sorted(p.name for p in tmp.iterdir()) == [path.name]
         else:
             source = (tmp / "out" / "clm_ff.c").read_text().lower()
-            assert not re.search(r"(?<![a-z_])(nan|inf|infinity)(?![a-z_])", source)
+            # No non-finite number in the code: comments aside, and the one NAN the runtime
+            # returns by contract for a non-finite input (docs/export.md, "Bad samples").
+            code_only = re.sub(r"/\*.*?\*/", "", source, flags=re.S)
+            code_only = code_only.replace("? u : (double)nan;", "? u : (double)0;")
+            assert not re.search(r"(?<![a-z_])(nan|inf|infinity)(?![a-z_])", code_only)
 
 
 CELLS = st.sampled_from(["1.500", "1.5x", "", "–", "nan", "1e400", "-0", "1.500 ± 0.1",
