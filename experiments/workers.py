@@ -187,6 +187,21 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
     pool.shutdown(wait=True)
 
 
+def map_in_order(fn: Callable, payloads: Sequence, workers: int,
+                 done: Callable[[int, int, object], None] | None = None) -> list:
+    """``fn`` over ``payloads`` in this process (``workers`` <= 1) or in ``workers`` fresh ones
+    (:func:`run_local`), the results in payload order, so they never depend on ``workers``;
+    ``done(count, index, result)`` as each one finishes (for progress lines)."""
+    results: list = [None] * len(payloads)
+    it = ((i, fn(p)) for i, p in enumerate(payloads)) if workers <= 1 else \
+        run_local(fn, payloads, min(workers, len(payloads)))
+    for count, (index, result) in enumerate(it, 1):
+        results[index] = result
+        if done is not None:
+            done(count, index, result)
+    return results
+
+
 _POOL: ProcessPoolExecutor | None = None
 
 

@@ -20,8 +20,8 @@ claim is about, and the log makes it symmetric), transformed back to a ratio. A 
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
 (:class:`FailureMapSettings`); the cells (case x n_l x seed) are independent and run on a
-process pool (``experiments.workers.run_local``, one thread per worker). The output folder holds
-``failure_map.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/*.png``.
+process pool (``experiments.workers.map_in_order``, one thread per worker). The output folder
+holds ``failure_map.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/*.png``.
 """
 
 from __future__ import annotations
@@ -401,19 +401,17 @@ def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: 
             progress=None) -> list[dict]:
     """Run every cell (in ``workers`` processes when > 1) and return the results in task order.
     The results do not depend on ``workers``: each cell is deterministic and single-threaded."""
-    from experiments.workers import run_local
+    from experiments.workers import map_in_order
 
     progress = progress or (lambda message: None)
     tasks = cells(config, settings)
-    results: list[dict | None] = [None] * len(tasks)
-    it = ((i, run_cell(t)) for i, t in enumerate(tasks)) if workers <= 1 else \
-        run_local(run_cell, tasks, min(workers, len(tasks)))
-    for done, (i, result) in enumerate(it, 1):
-        results[i] = result
+
+    def done(count, i, result):
         t = tasks[i]
         status = "ok" if result["status"] == "ok" else f"FAILED {result['error']}"
-        progress(f"cell {done}/{len(tasks)}: {t.case}, n_l={t.hidden}, seed {t.seed}: {status}")
-    return results
+        progress(f"cell {count}/{len(tasks)}: {t.case}, n_l={t.hidden}, seed {t.seed}: {status}")
+
+    return map_in_order(run_cell, tasks, workers, done)
 
 
 def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out, *,

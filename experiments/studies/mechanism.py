@@ -440,17 +440,12 @@ def compute(config: ExperimentConfig, settings: MechanismSettings, *, workers: i
             progress=None) -> list[dict]:
     """Every cell (in ``workers`` processes when > 1), in task order; the results do not depend
     on ``workers``."""
-    from experiments.workers import run_local
+    from experiments.workers import map_in_order
 
     progress = progress or (lambda message: None)
     tasks = cells(config, settings)
-    results: list[dict | None] = [None] * len(tasks)
-    it = ((i, run_cell(t)) for i, t in enumerate(tasks)) if workers <= 1 else \
-        run_local(run_cell, tasks, min(workers, len(tasks)))
-    for done, (i, result) in enumerate(it, 1):
-        results[i] = result
-        progress(f"cell {done}/{len(tasks)}: {tasks[i].case}, record {tasks[i].record}")
-    return results
+    return map_in_order(run_cell, tasks, workers, lambda done, i, _: progress(
+        f"cell {done}/{len(tasks)}: {tasks[i].case}, record {tasks[i].record}"))
 
 
 def run_mechanism(config: ExperimentConfig, settings: MechanismSettings, out, *,
