@@ -172,12 +172,13 @@ def _number(value, what: str) -> float:
 
 
 def _check_spread(label: str, column: str, text: str, fresh: dict, n: int, row: dict,
-                  factor: float) -> list[Mismatch]:
-    """A ``mean ± std`` cell against the fresh ``{"mean", "std"}`` (times ``factor``): the
-    mean within one standard error over seeds, the std within its own standard error."""
+                  factor: float, key: str = "") -> list[Mismatch]:
+    """A ``mean ± std`` cell against the fresh ``{"mean", "std"}`` (times ``factor``; ``key``:
+    its place in table.json, for messages): the mean within one standard error over seeds, the
+    std within its own standard error."""
     mean, std = _mean_std(text.split("(median")[0])
-    f_mean = _number(fresh["mean"], "mean") * factor
-    f_std = _number(fresh.get("std", 0.0), "std") * factor
+    f_mean = _number(fresh["mean"], f"{key}mean") * factor
+    f_std = _number(fresh.get("std", 0.0), f"{key}std") * factor
     s = max(std.value if std else 0.0, f_std)
     se = s / math.sqrt(n) if n > 1 else 0.0
     if _undetermined(row, n):
@@ -205,22 +206,7 @@ def _check_cell(label: str, column: str, text: str, row: dict, n: int) -> list[M
         return _check_spread(label, column, text, fresh, n, row, 1.0)
     if kind == "mae":
         ref = column.split()[1]
-        mean, std = _mean_std(text)
-        fresh = row["mae"][ref]
-        f_mean = _number(fresh["mean"], f"mae.{ref}.mean") * 1e6
-        f_std = _number(fresh["std"], f"mae.{ref}.std") * 1e6
-        s = max(std.value if std else 0.0, f_std)
-        se = s / math.sqrt(n) if n > 1 else 0.0
-        if _undetermined(row, n):
-            found = [_within(label, column, mean, f_mean, UNDETERMINED_FACTOR * se,
-                             "fits that did not converge: two independent means, 95 %")]
-        else:
-            found = [_within(label, column, mean, f_mean, se,
-                             "one standard error of the mean over seeds")]
-        if std is not None and n > 1:
-            found.append(_within(label, column + " std", std, f_std, s / math.sqrt(2 * (n - 1)),
-                                 "the standard error of a standard deviation"))
-        return [m for m in found if m]
+        return _check_spread(label, column, text, row["mae"][ref], n, row, 1e6, f"mae.{ref}.")
     if kind == "theta":
         name = _SHORT[column.split()[0]]
         per_seed = row.get("theta_phy_per_seed") or []
