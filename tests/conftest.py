@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 # Before numpy, scipy or torch load: the kernels the CLI pins (docs/reproducibility.md), so a test
 # that runs the CLI in-process computes what `clm-sim` computes.
 from clm_sim.numerics import pin_portable_kernels
@@ -103,3 +105,20 @@ def pytest_collection_modifyitems(config, items):
         names = SLOW.get(item.path.name, ())
         if "*" in names or item.originalname in names:
             item.add_marker(pytest.mark.slow)
+
+
+def _hypothesis_profiles() -> None:
+    """The hostile-input properties' profiles (HYPOTHESIS_PROFILE=long for a deeper search);
+    where hypothesis is not installed those tests skip themselves."""
+    try:
+        from hypothesis import HealthCheck, settings
+    except ImportError:
+        return
+    slow = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
+    settings.register_profile("fast", max_examples=30, deadline=None, derandomize=True,
+                              suppress_health_check=slow)
+    settings.register_profile("long", max_examples=500, deadline=None, suppress_health_check=slow)
+    settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "fast"))
+
+
+_hypothesis_profiles()
