@@ -334,7 +334,8 @@ def refuse_other_commands(data: dict, path) -> None:
     """A config of ``clm-sim sweep`` or ``clm-sim study`` given to ``clm-sim run``: one line
     naming the command that runs it."""
     for section, command in (("sweep", "sweep"), ("kind", "study"), ("study", "study"),
-                             ("failure_map", "study")):
+                             ("failure_map", "study"), ("mechanism", "study"),
+                             ("benchmark", "study")):
         if section in data:
             raise UserError(f"{path}: has a '{section}:' " + ("key" if section == "kind" else
                             "section") + f"; run it with 'clm-sim {command} {path}'")

@@ -43,10 +43,10 @@ from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
-from clm_sim.schema import build, load_yaml, to_plain
+from clm_sim.schema import to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
-from experiments.studies.kinds import take_kind
+from experiments.studies.kinds import load_case_study
 from experiments.sweeps.store import code_version
 from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
@@ -108,25 +108,8 @@ class FailureMapSettings:
 
 def load_failure_map(path) -> tuple[ExperimentConfig, FailureMapSettings]:
     """Read a failure-map config; errors name the file and the key."""
-    path = Path(path)
-    data = take_kind(load_yaml(path), path, "failure_map")
-    section = data.pop("failure_map", None)
-    try:
-        if "effects" in (data.get("plant") or {}):
-            raise UserError("plant.effects: the effects are set per case under "
-                            "failure_map.cases")
-        if data.get("truth") is not None:
-            raise UserError("truth: not supported by the failure map (the cases set the plant)")
-        config = build(ExperimentConfig, data, "config")
-        settings = build(FailureMapSettings, section, "failure_map")
-    except UserError as exc:
-        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
-            from None
-    for key in (settings.inside, *settings.outside.values()):
-        if key not in config.references:
-            raise UserError(f"{path}: failure_map: reference {key!r} is not defined under "
-                            f"'references'")
-    return config, settings
+    return load_case_study(path, "failure_map", FailureMapSettings,
+                           lambda settings: (settings.inside, *settings.outside.values()))
 
 
 # ----------------------------------------------------------------------------- one cell

@@ -10,7 +10,10 @@ existed is still read by its section (none: the extrapolation study; two section
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from clm_sim.errors import UserError
+from clm_sim.schema import build, load_yaml
 
 KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
          "emps_benchmark": "benchmark", "mechanism": "mechanism"}
@@ -44,3 +47,31 @@ def take_kind(data: dict, path, expected: str) -> dict:
     if kind is not None and kind != expected:
         raise UserError(f"{path}: kind: {kind!r} is not a {expected} study")
     return data
+
+
+def load_case_study(path, kind: str, settings_type, references):
+    """``(config, settings)`` of a study whose cases set the plant (the failure map, the
+    mechanism study): an experiment config without plant effects or ``truth:``, the study's
+    section (``KINDS[kind]``) as ``settings_type``, and every reference key that
+    ``references(settings)`` names defined under ``references:``. Errors name the file and key."""
+    from experiments.config import ExperimentConfig
+
+    path = Path(path)
+    section = KINDS[kind]
+    data = take_kind(load_yaml(path), path, kind)
+    raw = data.pop(section, None)
+    try:
+        if "effects" in (data.get("plant") or {}):
+            raise UserError(f"plant.effects: the effects are set per case under {section}.cases")
+        if data.get("truth") is not None:
+            raise UserError(f"truth: not supported by the {kind} study (the cases set the plant)")
+        config = build(ExperimentConfig, data, "config")
+        settings = build(settings_type, raw, section)
+    except UserError as exc:
+        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
+            from None
+    for key in references(settings):
+        if key not in config.references:
+            raise UserError(f"{path}: {section}: reference {key!r} is not defined under "
+                            f"'references'")
+    return config, settings

@@ -48,9 +48,10 @@ from clm_sim.effects import CableSlab, Effect
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
-from clm_sim.schema import build, load_yaml, to_plain
+from clm_sim.schema import to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
+from experiments.studies.kinds import load_case_study
 from experiments.table import holm
 from experiments.testbed import Progress, Testbed
 
@@ -102,24 +103,8 @@ class MechanismSettings:
 
 def load_mechanism(path) -> tuple[ExperimentConfig, MechanismSettings]:
     """Read a mechanism config; errors name the file and the key."""
-    path = Path(path)
-    data = dict(load_yaml(path))
-    section = data.pop("mechanism", None)
-    try:
-        if "effects" in (data.get("plant") or {}):
-            raise UserError("plant.effects: the effects are set per case under mechanism.cases")
-        if data.get("truth") is not None:
-            raise UserError("truth: not supported by the mechanism study (cases set the plant)")
-        config = build(ExperimentConfig, data, "config")
-        settings = build(MechanismSettings, section, "mechanism")
-    except UserError as exc:
-        raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
-            from None
-    for key in (settings.inside, settings.outside):
-        if key not in config.references:
-            raise UserError(f"{path}: mechanism: reference {key!r} is not defined under "
-                            f"'references'")
-    return config, settings
+    return load_case_study(path, "mechanism", MechanismSettings,
+                           lambda settings: (settings.inside, settings.outside))
 
 
 # ----------------------------------------------------------------------------- one cell
