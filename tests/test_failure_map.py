@@ -14,7 +14,8 @@ from scipy import stats
 
 from clm_sim.errors import UserError
 from experiments.cli import main as cli
-from experiments.studies.failure_map import holm, load_failure_map, paired_log_ratio, verdict
+from experiments.studies.failure_map import load_failure_map, paired_log_ratio, verdict
+from experiments.table import holm
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "experiments" / "configs" / "failure_map.yaml"

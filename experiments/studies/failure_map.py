@@ -48,7 +48,7 @@ from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study
 from experiments.sweeps.store import code_version
-from experiments.table import THETA_UNITS, t_interval
+from experiments.table import THETA_UNITS, holm, t_interval
 from experiments.testbed import Progress, Testbed
 
 VERDICTS = ("holds", "reversed", "undecided")
@@ -241,17 +241,6 @@ def paired_difference(a, b, confidence: float = 0.95) -> dict:
     mean, low, high = t_interval(np.asarray(a, dtype=float) - np.asarray(b, dtype=float),
                                  confidence)
     return {"mean": mean, "low": low, "high": high}
-
-
-def holm(pvalues: list[float]) -> list[float]:
-    """Holm's step-down adjusted p-values (family-wise error), in the input order."""
-    order = np.argsort(pvalues, kind="stable")
-    m = len(pvalues)
-    adjusted, running = [0.0] * m, 0.0
-    for rank, i in enumerate(order):
-        running = max(running, min(1.0, (m - rank) * pvalues[i]))
-        adjusted[i] = running
-    return adjusted
 
 
 def verdict(stat: dict) -> str:
