@@ -49,6 +49,7 @@ _state = {"signalled": False, "done": False, "exiting": False, "signum": signal.
 _POKE = getattr(signal, "SIGUSR1", None)  # thread-directed, from the signal thread to main
 _unwinding = threading.Event()  # set when the main thread has taken the first signal
 _ENDING = threading.Lock()  # held by whoever ends the process: _exit_now or _end_now
+_SAYING = threading.Lock()  # held while the interruption's line is written (:func:`_say`)
 
 
 def _end_now(signum, frame):
@@ -59,9 +60,24 @@ def _end_now(signum, frame):
         return
     workers.kill_all()
     outdir.abandon()
-    if not _said:
-        os.write(2, f"clm-sim: {WORDS[signum]}\n".encode())
+    _say(signum, lambda line: os.write(2, f"{line}\n".encode()))
     os._exit(CODES[signum])
+
+
+def _say(signum, write) -> None:
+    """Write the interruption's one line through ``write`` unless it was written: the flag is
+    tested and set under a lock, so a second signal that arrives while the main thread prints
+    the line does not print it again. A handler that finds the lock held (the main thread is
+    printing it) writes nothing."""
+    global _said
+    if not _SAYING.acquire(timeout=0.5):
+        return
+    try:
+        if not _said:
+            write(f"clm-sim: {WORDS[signum]}")
+            _said = True
+    finally:
+        _SAYING.release()
 
 
 def _signalled(signum, frame):
@@ -131,8 +147,7 @@ def run(command: Callable[[], int], *, program: bool, name: str, source: str | N
         sig = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
         code = CODES[sig]
         workers.stop_fits()  # the PGNN fit pool (sweep workers end in workers.run_local)
-        print(f"clm-sim: {WORDS[sig]}", file=sys.stderr, flush=True)
-        _said = True
+        _say(sig, lambda line: print(line, file=sys.stderr, flush=True))
         return code
     except OSError as exc:  # a file the checks above did not foresee, one line
         code = EXIT_USER
