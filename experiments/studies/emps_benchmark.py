@@ -43,7 +43,8 @@ from clm_sim.record import Run, load_record
 from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments.diagnosis.model import SimulationModel, load_model
-from experiments.simulation import Simulation, simulate_record
+from experiments.simulation import Simulation, Twin, simulate_record, twin_record
+from experiments.studies.emps_drift import Drift, explain_drift
 from experiments.studies.kinds import take_kind
 
 
@@ -72,6 +73,9 @@ class BenchmarkSettings:
     baselines: tuple[Baseline, ...] = ()
     max_nfev: int = 400
     estimation_fraction: float = 2 / 3  # of the training record; the rest is held out
+    # The test record's column of a known external input (in the input's unit, scaled like
+    # ``u``), given to the closed-loop twin; "" for none.
+    known_input: str = ""
 
 
 @dataclass(frozen=True)
@@ -91,6 +95,8 @@ class Row:
     held_out: Simulation | None = None  # remade on the estimation part, on the held-out part
     held_out_plant: Plant | None = None  # the plant remade on the estimation part
     held_out_note: str = ""  # the note of the fit on the estimation part
+    twin_train: Twin | None = None  # the published controller around the row's plant
+    twin_test: Twin | None = None
 
     def to_json(self) -> dict:
         return {"name": self.name, "made_from": self.made_from, "note": self.note,
@@ -102,6 +108,8 @@ class Row:
                     **self.held_out_plant.theta(), "offset_n": _offset(self.held_out_plant),
                     "effects": [e.as_config() for e in self.held_out_plant.effects]},
                 "held_out_note": self.held_out_note,
+                **{f"twin_{k}": None if t is None else t.to_json() for k, t in
+                   (("train", self.twin_train), ("test", self.twin_test))},
                 "test_fit_percent":
                 self.test.score.fit_percent, "force_residual_rms_test_n": self.force_rms_test_n,
                 "force_residual_mean_test_n": self.force_mean_test_n,
@@ -238,10 +246,12 @@ def make_models(record: Run, published, settings: BenchmarkSettings, *, second_s
     return made
 
 
-def run_benchmark(settings: BenchmarkSettings, progress=print) -> list[Row]:
-    """Every row made from the whole training record and simulated on both records, and made
-    again from the training record's estimation part and simulated on its held-out part (paths
-    relative to the current folder). Rows that are not measurements are not remade."""
+def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row], Drift]:
+    """Every row made from the whole training record and simulated on both records (open loop,
+    and as the closed-loop twin under the published model's controller), and made again from the
+    training record's estimation part and simulated on its held-out part (paths relative to the
+    current folder); rows that are not measurements are not remade. With them, why the
+    diagnosis-extended model drifts (:func:`experiments.studies.emps_drift.explain_drift`)."""
 
     def path(key):
         p = Path(getattr(settings, key))
@@ -253,12 +263,22 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> list[Row]:
     train, test = (load_record(path(k), columns=settings.columns, scale=settings.scale)
                    for k in ("training", "test"))
     published = load_model(path("published_model"))
+    # The twin's test record: the known external input (the pulses) as u_ff, never the output.
+    twin_test = test if not settings.known_input else load_record(
+        path("test"), columns={**settings.columns, "u_ff": settings.known_input},
+        scale={**settings.scale, "u_ff": settings.scale.get("u", 1.0)})
     n0 = settings.init_samples
     estimation, held_out = split(train, settings.estimation_fraction, n0)
 
     def sim(plant, run, source=None):
         return simulate_record(SimulationModel(plant, None, "model", train.ts), run,
                                init_samples=n0, source=source)
+
+    def twin(plant, run, source):
+        if published.controller is None:
+            return None
+        return twin_record(SimulationModel(plant, published.controller, "model", train.ts),
+                           run, source=source)
 
     progress(f"whole training record ({len(train)} samples):")
     full = make_models(train, published, settings, progress=progress)
@@ -274,13 +294,18 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> list[Row]:
         r = Row(m.name, m.made_from, m.plant, m.cpu_s, sim(m.plant, train, settings.training),
                 sim(m.plant, test, settings.test), *_force_residual(m.plant, test), note,
                 m.measured, None if e is None else sim(e.plant, held_out, "held-out part"),
-                None if e is None else e.plant, "" if e is None else e.note)
+                None if e is None else e.plant, "" if e is None else e.note,
+                twin(m.plant, train, settings.training), twin(m.plant, twin_test, settings.test))
         progress(f"{m.name}: test RMSE {r.test.score.rmse * 1e3:.3f} mm, training "
                  f"{r.train.score.rmse * 1e3:.3f} mm, held-out "
                  + ("not refitted" if e is None else f"{r.held_out.score.rmse * 1e3:.3f} mm")
                  + f" ({m.cpu_s:.1f} s CPU)")
         rows.append(r)
-    return rows
+    progress("why the extended model drifts: its terms taken apart")
+    drift = explain_drift(train, test, published.plant,
+                          lambda p, run: sim(p, run).score.rmse,
+                          estimation=estimation, held_out=held_out)
+    return rows, drift
 
 
 def _restart(plant: Plant, start: Plant) -> Plant:
@@ -316,7 +341,19 @@ def _span(y, t) -> str:
     return f"positions {y.min():.3f} to {y.max():.3f} m, peak speed {v.max():.3f} m/s"
 
 
-def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command: str) -> str:
+def _twin_table(rows: list[Row]) -> list[str]:
+    """The closed-loop twin of each row on both records: position (µm) and input (N) RMSE."""
+    cell = lambda t, w: "–" if t is None else (  # noqa: E731
+        f"{t.position.rmse * 1e6:.1f}" if w == "y" else f"{t.input.rmse:.2f}")
+    return ["| model | twin position RMSE, training (µm) | twin input RMSE, training (N) | "
+            "twin position RMSE, test (µm) | twin input RMSE, test (N) |",
+            "|---|---|---|---|---|"] + [
+        f"| {r.name} | {cell(r.twin_train, 'y')} | {cell(r.twin_train, 'u')} | "
+        f"{cell(r.twin_test, 'y')} | {cell(r.twin_test, 'u')} |" for r in rows]
+
+
+def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command: str,
+                drift: Drift | None = None) -> str:
     pub = rows[0]
     product = rows[1:]
     candidates = [r for r in product if r.measured and r.held_out is not None]
@@ -374,7 +411,16 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
     return "\n".join([f"<!-- generated by: {command} -->", "", *lines, "", *verdict, "",
                       "Fits and findings:", "", *notes, "",
                       f"Remade on the estimation part (the first {n_train - n_held} samples of "
-                      f"the training record) for the held-out column:", "", *remade, ""])
+                      f"the training record) for the held-out column:", "", *remade, "",
+                      "Closed-loop twin (the published controller around each row's plant, "
+                      "on the record's reference qg"
+                      + (f" and the known input {settings.known_input}"
+                         if settings.known_input else "") + "; from rest, nothing taken from "
+                      "the measured output; scored over all samples):", "", *_twin_table(rows),
+                      "", *([] if drift is None else [
+                          "Why the diagnosis-extended model drifts (its terms taken apart; "
+                          "test columns after the fact):", "",
+                          *drift.to_markdown(pub.test.score.rmse), ""])])
 
 
 def main(config_path, out=None, *, quiet: bool = False) -> int:
@@ -385,15 +431,16 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
     name, settings = load_benchmark(config_path)
     out = Path(out) if out else Path("results") / Path(config_path).stem
     progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
-    rows = run_benchmark(settings, progress)
+    rows, drift = run_benchmark(settings, progress)
     command = f"clm-sim study {config_path}"
-    table = to_markdown(name, rows, settings, command)
+    table = to_markdown(name, rows, settings, command, drift)
     with atomic_folder(out, marker="benchmark.json", what="a benchmark") as tmp:
         (tmp / "benchmark.json").write_text(json.dumps(
             {"name": name, "command": command, "rows": [r.to_json() for r in rows],
              "baselines": [dataclasses.asdict(b) for b in settings.baselines],
              "init_samples": settings.init_samples,
-             "estimation_fraction": settings.estimation_fraction}, indent=1))
+             "estimation_fraction": settings.estimation_fraction,
+             "drift": drift.to_json()}, indent=1))
         (tmp / "table.md").write_text(table)
         for i, r in enumerate(rows):
             axes = plot_simulation(r.test)
