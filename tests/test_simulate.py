@@ -289,7 +289,7 @@ def test_the_candidates_remade_for_selection_see_only_the_estimation_part():
     assert whole != made[2].plant
 
 
-def _row(name, train_mass, held_mass, record, measured=True):
+def _row(name, train_mass, held_mass, record, measured=True, back_mass=None):
     import dataclasses
 
     from experiments.studies.emps_benchmark import Row
@@ -299,7 +299,8 @@ def _row(name, train_mass, held_mass, record, measured=True):
     held = record.slice(2 * len(record) // 3)
     return Row(name, "record", _truth(), 0.0, sim(train_mass, record), sim(train_mass, record),
                0.0, 0.0, measured=measured,
-               held_out=sim(held_mass, held) if held_mass else None)
+               held_out=sim(held_mass, held) if held_mass else None,
+               held_out_back=sim(back_mass, held) if back_mass else None)
 
 
 def test_the_verdict_follows_the_held_out_rule_not_the_in_sample_one(record):
@@ -314,6 +315,19 @@ def test_the_verdict_follows_the_held_out_rule_not_the_in_sample_one(record):
     assert "in-sample rule (lowest training RMSE of the fit on the whole training record) " \
            "would pick **overfit**" in page
     assert "| stop † | record |" in page and page.count("| – |") >= 1
+
+
+def test_rule_b_ranks_by_both_directions_beside_rule_a(record):
+    """Rule B (the mean of the forward and backward held-out RMSEs) is printed beside rule A and
+    may choose another row: here the forward split favours 'lucky', both directions 'steady'."""
+    from experiments.studies.emps_benchmark import BenchmarkSettings, to_markdown
+
+    rows = [_row("published", 1.3, 1.3, record, back_mass=1.3),
+            _row("lucky", 1.1, 1.02, record, back_mass=1.3),
+            _row("steady", 1.1, 1.04, record, back_mass=1.04)]
+    page = to_markdown("b", rows, BenchmarkSettings(training="a", test="b"), "cmd")
+    assert "best physical model is **lucky**" in page
+    assert "the choice is **steady**" in page
 
 
 def test_a_benchmark_split_outside_0_1_is_one_line(tmp_path):

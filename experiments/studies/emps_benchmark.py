@@ -95,6 +95,7 @@ class Row:
     held_out: Simulation | None = None  # remade on the estimation part, on the held-out part
     held_out_plant: Plant | None = None  # the plant remade on the estimation part
     held_out_note: str = ""  # the note of the fit on the estimation part
+    held_out_back: Simulation | None = None  # remade on the last part, on the first third
     twin_train: Twin | None = None  # the published controller around the row's plant
     twin_test: Twin | None = None
 
@@ -108,6 +109,8 @@ class Row:
                     **self.held_out_plant.theta(), "offset_n": _offset(self.held_out_plant),
                     "effects": [e.as_config() for e in self.held_out_plant.effects]},
                 "held_out_note": self.held_out_note,
+                "held_out_backward_rmse_m": None if self.held_out_back is None else
+                self.held_out_back.score.rmse,
                 **{f"twin_{k}": None if t is None else t.to_json() for k, t in
                    (("train", self.twin_train), ("test", self.twin_test))},
                 "test_fit_percent":
@@ -269,6 +272,8 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
         scale={**settings.scale, "u_ff": settings.scale.get("u", 1.0)})
     n0 = settings.init_samples
     estimation, held_out = split(train, settings.estimation_fraction, n0)
+    # Backward: the same split read from the other end (estimation on the last part).
+    held_back, estimation_back = split(train, 1 - settings.estimation_fraction, n0)
 
     def sim(plant, run, source=None):
         return simulate_record(SimulationModel(plant, None, "model", train.ts), run,
@@ -286,8 +291,12 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
              f"(the last {len(held_out)}):")
     part = make_models(estimation, published, settings, second_start=False,
                        skip={m.name for m in full if not m.measured}, progress=progress)
+    progress(f"estimation part read backward (the last {len(estimation_back)} samples), for "
+             f"the first {len(held_back)}:")
+    back = make_models(estimation_back, published, settings, second_start=False,
+                       skip={m.name for m in full if not m.measured}, progress=progress)
     rows = []
-    for m, e in zip(full, part):
+    for m, e, b in zip(full, part, back):
         note = m.note if m.second is None else (
             f"{m.note}; the second start's test RMSE "
             f"{sim(m.second, test).score.rmse * 1e3:.3f} mm")
@@ -295,6 +304,7 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
                 sim(m.plant, test, settings.test), *_force_residual(m.plant, test), note,
                 m.measured, None if e is None else sim(e.plant, held_out, "held-out part"),
                 None if e is None else e.plant, "" if e is None else e.note,
+                None if b is None else sim(b.plant, held_back, "first part"),
                 twin(m.plant, train, settings.training), twin(m.plant, twin_test, settings.test))
         progress(f"{m.name}: test RMSE {r.test.score.rmse * 1e3:.3f} mm, training "
                  f"{r.train.score.rmse * 1e3:.3f} mm, held-out "
@@ -333,12 +343,14 @@ def _params(p: Plant) -> str:
             f"OF {_offset(p):+.2f}" + (f"; {', '.join(extra)}" if extra else ""))
 
 
-def _span(y, t) -> str:
-    """The stroke and the peak speed of a measured position (m; speed from sample differences)."""
+def _span(y, u, t) -> str:
+    """The stroke, the peak speed (from sample differences) and the peak force of a measured
+    position (m) and input (N)."""
     import numpy as np
 
     v = np.abs(np.diff(y)) / (t[1] - t[0])
-    return f"positions {y.min():.3f} to {y.max():.3f} m, peak speed {v.max():.3f} m/s"
+    return (f"positions {y.min():.3f} to {y.max():.3f} m, peak speed {v.max():.3f} m/s, peak "
+            f"force {np.abs(u).max():.0f} N")
 
 
 def _twin_table(rows: list[Row]) -> list[str]:
@@ -358,26 +370,33 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
     product = rows[1:]
     candidates = [r for r in product if r.measured and r.held_out is not None]
     by_held = min(candidates, key=lambda r: r.held_out.score.rmse)
+    both = lambda r: (r.held_out.score.rmse + r.held_out_back.score.rmse) / 2  # noqa: E731
+    by_both = min((r for r in candidates if r.held_out_back is not None), key=both,
+                  default=None)
+    hb = lambda r: "–" if r.held_out_back is None else (  # noqa: E731
+        f"{r.held_out_back.score.rmse * 1e3:.2f}")
     by_train = min((r for r in product if r.measured), key=lambda r: r.train.score.rmse)
     by_test = min(product, key=lambda r: r.test.score.rmse)
     mm = lambda r: r.test.score.rmse * 1e3  # noqa: E731
     ho = lambda r: "–" if r.held_out is None else f"{r.held_out.score.rmse * 1e3:.2f}"  # noqa
     lines = ["| model | made from | test RMSE (mm) | training RMSE (mm) | held-out RMSE (mm) | "
+             "held-out backward (mm) | "
              "test fit (%) | force residual on test, RMS (N) | its mean (N) | "
              "parameters (kg, N·s/m, N, N/m, N) | CPU (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r.name}{'' if r.measured else ' †'} | {r.made_from} | {mm(r):.2f} | "
-                     f"{r.train.score.rmse * 1e3:.2f} | {ho(r)} | "
+                     f"{r.train.score.rmse * 1e3:.2f} | {ho(r)} | {hb(r)} | "
                      f"{r.test.score.fit_percent:.1f} | "
                      f"{r.force_rms_test_n:.3f} | {r.force_mean_test_n:+.3f} | "
                      f"{_params(r.plant)} | {r.cpu_s:.1f} |")
     for b in settings.baselines:
         lines.append(f"| {b.name} (black box, published) | {b.source} | {b.test_rmse_mm:.1f} | "
-                     f"– | – | – | – | – | – | – |")
+                     f"– | – | – | – | – | – | – | – |")
     rel = lambda r: 100 * (mm(r) / mm(pub) - 1)  # noqa: E731
     n_train = len(pub.train.t)
     n_held = len(pub.held_out.t)
+    n_est = n_train - n_held
     ranking = lambda key, rs: ", ".join(  # noqa: E731
         f"{r.name} {key(r) * 1e3:.2f}" for r in sorted(rs, key=key))
     verdict = [
@@ -393,8 +412,19 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
         f"{abs(rel(by_held)):.0f} % ({mm(by_held) - mm(pub):+.2f} mm).",
         f"Held-out ranking (mm): {ranking(lambda r: r.held_out.score.rmse, candidates)}; the "
         f"published model {ho(pub)}. The two parts: estimation "
-        f"{_span(pub.train.y_measured[:n_train - n_held], pub.train.t)}, held out "
-        f"{_span(pub.held_out.y_measured, pub.train.t)}.",
+        f"{_span(pub.train.y_measured[:n_est], pub.train.u[:n_est], pub.train.t)}, held out "
+        f"{_span(pub.held_out.y_measured, pub.held_out.u, pub.train.t)}; the test record "
+        f"{_span(pub.test.y_measured, pub.test.u, pub.test.t)}.",
+        *([] if by_both is None else [
+            f"Read in both directions (rule B, written down before its first result: every "
+            f"candidate also remade on the last {n_train - n_held} samples and simulated on the "
+            f"first {n_held}; ranked by the mean of the two held-out "
+            f"RMSEs), the choice is **{by_both.name}**: {both(by_both) * 1e3:.2f} mm mean "
+            f"held-out, {mm(by_both):.2f} mm on test, "
+            f"{'better' if rel(by_both) < 0 else 'worse'} than the published model by "
+            f"{abs(rel(by_both)):.0f} % ({mm(by_both) - mm(pub):+.2f} mm). Ranking (mm): "
+            f"{ranking(both, [r for r in candidates if r.held_out_back is not None])}; the "
+            f"published model {both(pub) * 1e3 if pub.held_out_back else float('nan'):.2f}."]),
         f"For contrast, the in-sample rule (lowest training RMSE of the fit on the whole "
         f"training record) would pick **{by_train.name}**: {mm(by_train):.2f} mm on test. "
         f"In-sample ranking (mm): "
