@@ -386,3 +386,22 @@ def test_the_drift_page_prints_every_view(drift):
     assert "| parameter_mismatch: viscous |" in page
     assert "| without parameter_mismatch |" in page and "| all terms |" in page
     assert "| viscous |" in page and "everything (all terms fitted on the test record)" in page
+
+
+def test_the_twin_reads_the_known_input_scaled_like_the_input(record, tmp_path):
+    """``benchmark.known_input`` (EMPS: the pulses in V) reaches the twin as ``u_ff`` in N,
+    scaled like ``u``; without it the twin has no external input."""
+    from experiments.studies.emps_benchmark import BenchmarkSettings, twin_record_of
+
+    pulses = 5.0 * (np.arange(len(record)) % 1000 < 500)
+    path = tmp_path / "r.csv"
+    np.savetxt(path, np.column_stack([record.t, record.r, record.y, record.u / 2.0, pulses]),
+               delimiter=",", header="t,r,y,v,p", comments="")
+    settings = BenchmarkSettings(training="a", test="b", columns={"u": "v"}, scale={"u": 2.0},
+                                 known_input="p")
+    run = twin_record_of(settings, path)
+    np.testing.assert_allclose(run.u, record.u)
+    np.testing.assert_array_equal(run.u_ff, 2.0 * pulses)
+    plain = twin_record_of(BenchmarkSettings(training="a", test="b", columns={"u": "v"},
+                                             scale={"u": 2.0}), path)
+    assert plain.u_ff is None or not np.any(np.nan_to_num(plain.u_ff))

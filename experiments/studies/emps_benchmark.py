@@ -177,6 +177,16 @@ def split(run: Run, fraction: float, init_samples: int) -> tuple[Run, Run]:
     return run.slice(0, cut), run.slice(cut)
 
 
+def twin_record_of(settings: BenchmarkSettings, path) -> Run:
+    """The record at ``path`` as the closed-loop twin reads it: ``settings.known_input`` (a
+    column in the input's unit, e.g. the pulses in V) as ``u_ff``, scaled like ``u``; the twin
+    takes its reference and this input, never the measured output."""
+    if not settings.known_input:
+        return load_record(path, columns=settings.columns, scale=settings.scale)
+    return load_record(path, columns={**settings.columns, "u_ff": settings.known_input},
+                       scale={**settings.scale, "u_ff": settings.scale.get("u", 1.0)})
+
+
 def make_models(record: Run, published, settings: BenchmarkSettings, *, second_start=True,
                 skip=(), progress=print) -> list[Made]:
     """Every candidate of the table made from ``record`` alone (the published model: from
@@ -266,10 +276,7 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
     train, test = (load_record(path(k), columns=settings.columns, scale=settings.scale)
                    for k in ("training", "test"))
     published = load_model(path("published_model"))
-    # The twin's test record: the known external input (the pulses) as u_ff, never the output.
-    twin_test = test if not settings.known_input else load_record(
-        path("test"), columns={**settings.columns, "u_ff": settings.known_input},
-        scale={**settings.scale, "u_ff": settings.scale.get("u", 1.0)})
+    twin_test = twin_record_of(settings, path("test"))
     n0 = settings.init_samples
     estimation, held_out = split(train, settings.estimation_fraction, n0)
     # Backward: the same split read from the other end (estimation on the last part).
