@@ -23,6 +23,12 @@ Selection without test data: the training record is cut in time (``estimation_fr
 every candidate that is a measurement is made again, by the same procedure, from the first part
 alone and ranked by its open-loop RMSE on the rest (initial state from that part's first
 ``init_samples``); the chosen row's test score is that of its fit on the whole training record.
+Rule B reads the split from both ends (also made on the last part, scored on the first) and
+ranks by the mean of the two held-out RMSEs.
+
+Beside them: each row's closed-loop twin on both records (the published controller on the
+reference, with ``known_input`` as a known external input), and why the diagnosis-extended model
+drifts on the test record (:mod:`experiments.studies.emps_drift`).
 
 ``clm-sim study experiments/configs/emps_benchmark.yaml`` writes ``benchmark.json``,
 ``report.md`` (the page ``docs/results/emps_benchmark.md``) and ``figures/``.
