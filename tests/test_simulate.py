@@ -360,7 +360,9 @@ def drift():
         runs.append(Run(t=x.t, r=x.r, y=x.y, u=x.u, meta={"source": f"ref{seed}"}))
     train, test = runs
     est, held = split(train, 2 / 3, 20)
-    return explain_drift(train, test, _truth(), _rmse, estimation=est, held_out=held)
+    return explain_drift(train, test, _truth(),
+                         lambda p, run: simulate_record(SimulationModel(p, None, "m", TS), run),
+                         estimation=est, held_out=held)
 
 
 def test_the_drift_analysis_points_to_the_parameter_that_changed(drift):
@@ -382,7 +384,12 @@ def test_the_drift_analysis_points_to_the_parameter_that_changed(drift):
 
 
 def test_the_drift_page_prints_every_view(drift):
+    from experiments.studies.emps_drift import plot_drift
+
     page = "\n".join(drift.to_markdown(1e-3))
+    ax = plot_drift(drift)
+    assert [ln.get_label().split(":")[0] for ln in ax.get_lines()] == [
+        "extended model", "with the test fit's viscous", "all terms fitted on the test record"]
     assert "| parameter_mismatch: viscous |" in page
     assert "| without parameter_mismatch |" in page and "| all terms |" in page
     assert "| viscous |" in page and "everything (all terms fitted on the test record)" in page

@@ -50,7 +50,7 @@ from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments.diagnosis.model import SimulationModel, load_model
 from experiments.simulation import Simulation, Twin, simulate_record, twin_record
-from experiments.studies.emps_drift import Drift, explain_drift
+from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
 from experiments.studies.kinds import take_kind
 
 
@@ -325,9 +325,8 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
                  + f" ({m.cpu_s:.1f} s CPU)")
         rows.append(r)
     progress("why the extended model drifts: its terms taken apart")
-    drift = explain_drift(train, test, published.plant,
-                          lambda p, run: sim(p, run).score.rmse,
-                          estimation=estimation, held_out=held_out)
+    drift = explain_drift(train, test, published.plant, sim, estimation=estimation,
+                          held_out=held_out)
     return rows, drift
 
 
@@ -488,5 +487,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
         for i, r in enumerate(rows):
             axes = plot_simulation(r.test)
             plots.save(axes[0].figure, tmp / "figures" / f"test_{i}.png")
+        if drift.traces:
+            plots.save(plot_drift(drift).figure, tmp / "figures" / "drift.png")
     print(table, end="")
     return 0

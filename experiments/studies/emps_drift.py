@@ -62,6 +62,7 @@ class Drift:
     ablation: tuple[tuple[str, float, float, float], ...]  # dropped, train, held out, test
     swaps: tuple[tuple[str, float], ...]  # taken from the test fit, test RMSE
     test_fitted_rmse_m: float  # all terms fitted on the test record, simulated on it
+    traces: tuple = ()  # (label, Simulation) on the test record, for plot_drift
 
     def to_json(self) -> dict:
         return {"coefficients": [dataclasses.asdict(c) for c in self.coefficients],
@@ -123,7 +124,11 @@ def explain_drift(train: Run, test: Run, base: Plant, simulate, *, estimation: R
                   held_out: Run, blocks: int = 5,
                   settings: DiagnosisSettings = DiagnosisSettings()) -> Drift:
     """The diagnosis's terms on ``train`` (model ``base``) taken apart (module docstring);
-    ``simulate(plant, run)`` is the benchmark's open-loop score (RMSE, m)."""
+    ``simulate(plant, run)`` is the benchmark's open-loop simulation
+    (:class:`experiments.simulation.Simulation`)."""
+    def rmse(plant, run):
+        return simulate(plant, run).score.rmse
+
     res = Residual(train, base, settings)
     steps = list(forward_select(res).steps)
     names = [f"{s.term.effect}: {k}" for s in steps for k in s.term.keys]
@@ -147,12 +152,32 @@ def explain_drift(train: Run, test: Run, base: Plant, simulate, *, estimation: R
     for drop in [None] + [s.term.effect for s in steps]:
         kept = [s for s in steps if s.term.effect != drop]
         whole, part = _plant(res, base, kept), _plant(res_est, base, kept)
-        ablation.append((drop, simulate(whole, train), simulate(part, held_out),
-                         simulate(whole, test)))
+        ablation.append((drop, rmse(whole, train), rmse(part, held_out), rmse(whole, test)))
     full = _plant(res, base, steps)
     fitted_on_test = _plant(res_test, base, steps)
-    swaps = [(w, simulate(_take(full, fitted_on_test, w), test))
+    swaps = [(w, rmse(_take(full, fitted_on_test, w), test))
              for w in [*THETA_NAMES, *(e.type for e in full.effects
                                        if e.type != "force_offset")]]
+    best = min(swaps, key=lambda s: s[1])[0]
+    traces = (("extended model", simulate(full, test)),
+              (f"with the test fit's {best}", simulate(_take(full, fitted_on_test, best), test)),
+              ("all terms fitted on the test record", simulate(fitted_on_test, test)))
     return Drift(coefficients, float(nw["lag1_autocorr"]), int(nw["lags"]), tuple(ablation),
-                 tuple(swaps), simulate(fitted_on_test, test))
+                 tuple(swaps), traces[2][1].score.rmse, traces)
+
+
+def plot_drift(drift: Drift, ax=None):
+    """The extended model's simulation error on the test record (mm against s), beside the same
+    model with the one parameter or effect of the test fit that helps most, and with everything
+    from the test fit (after the fact). Returns the axes."""
+    from experiments import plots
+
+    if ax is None:
+        ax = plots._figure(10.0, 4.0).subplots()
+    for i, (label, sim) in enumerate(drift.traces):
+        ax.plot(sim.t, (sim.y_measured - sim.y_simulated) * 1e3, color=plots.PALETTE[i],
+                lw=1.0, label=f"{label}: RMSE {sim.score.rmse * 1e3:.3g} mm")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("measured − simulated (mm)")
+    plots._legend_right(ax)
+    return ax
