@@ -40,20 +40,34 @@ from clm_sim.plant import THETA_NAMES
 ENDS = ("rises", "bound")  # why a direction of the continuation ended
 
 
+TAIL = 10  # iterations over which a fit's last decrease is measured
+
+
 @dataclass(frozen=True)
 class Point:
     """One profile point: the value held (SI), its data cost (N**2), the optimizer's stop reason
-    and iterations, and the fit's hidden layers (the next point's start)."""
+    and iterations, how much its data cost fell over its last ``TAIL`` iterations (N**2; how
+    far from converged a ``max_iter`` point still is), and the fit's hidden layers (the next
+    point's start)."""
 
     value: float
     data_cost: float
     stop: str
     iterations: int
     beta: np.ndarray | None = None
+    tail: float = 0.0
 
     def to_json(self) -> dict:
         return {"value": self.value, "data_cost": self.data_cost, "stop": self.stop,
-                "iterations": self.iterations}
+                "iterations": self.iterations, "tail_decrease": self.tail}
+
+
+def tail_decrease(history: list[dict]) -> float:
+    """The fall of the data cost (N**2) over the last ``TAIL`` iterations of a fit's history
+    (entries with a ``data`` term, one per iteration)."""
+    if len(history) < 2:
+        return 0.0
+    return float(history[max(0, len(history) - 1 - TAIL)]["data"] - history[-1]["data"])
 
 
 def scales(phi: np.ndarray, target: np.ndarray) -> dict[str, float]:

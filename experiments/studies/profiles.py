@@ -49,7 +49,8 @@ class ProfileSettings:
 
     hidden: network sizes n_l profiled; records: training records (dither seeds), >= 2 (the
     threshold is their spread; 5 or more for a usable one); draws: network draws per record;
-    pgnn: the fit settings profiled (lambda is 0; default: the paper's cost); max_iter:
+    pgnn: the fit settings profiled (lambda is 0; default: the paper's cost); polish: further
+    Levenberg-Marquardt iterations for a record's fit that did not converge (0: none); max_iter:
     Levenberg-Marquardt iterations per profile point; points: profile points per direction at
     most (the budget); step: first step in units of scale_k (the change of theta_k that alone
     moves the force by its rms); span: how far beyond the hull of theta* and theta_LIP the
@@ -62,6 +63,7 @@ class ProfileSettings:
     draws: int = 1
     pgnn: PGNNSettings = field(default_factory=lambda: PGNNSettings(
         weight_decay=0.0, continuation_lambda=0.0))
+    polish: int = 400
     max_iter: int = 100
     points: int = 8
     step: float = 0.25
@@ -70,8 +72,8 @@ class ProfileSettings:
     sloppy: int = 3
 
     def __post_init__(self):
-        for key, low in (("records", 2), ("draws", 1), ("max_iter", 1), ("points", 1),
-                         ("refine", 0), ("sloppy", 1)):
+        for key, low in (("records", 2), ("draws", 1), ("polish", 0), ("max_iter", 1),
+                         ("points", 1), ("refine", 0), ("sloppy", 1)):
             value = getattr(self, key)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
                 raise UserError(f"{key}: expected an integer >= {low}, got {value!r}")
@@ -133,8 +135,17 @@ def run_record(task: tuple) -> dict:
             model = PGNNFeedforward(**fs, features=config.features).fit_data(
                 data=data, theta_lip=lip.theta_,
                 rng=np.random.default_rng(stream(seed, STREAM_NETWORK, draw)))
+            first = {k: model.fit_[k] for k in ("data_cost", "stop", "iterations")}
+            if settings.polish and model.fit_["stop"] != "converged":
+                # Continue the same descent (nothing pinned) before the fit is a profile's start
+                # or a record's best cost: a fit stopped at max_iter is still falling.
+                model = PGNNFeedforward(**{**fs, "max_iter": settings.polish},
+                                        features=config.features).fit_pinned(
+                    data=data, theta_lip=lip.theta_, beta0=model.network_.get_nonlinear(),
+                    pinned={})
             fits.append({"draw": draw, "lambda": 0.0, "data_cost": model.fit_["data_cost"],
                          "stop": model.fit_["stop"], "iterations": model.fit_["iterations"],
+                         "first": first, "tail_decrease": ident.tail_decrease(model.history_),
                          "theta": dict(model.theta_),
                          "sloppy": ident.sloppy_directions(model, data.phi, data.target,
                                                            settings.sloppy),
@@ -164,12 +175,13 @@ def run_direction(task: tuple) -> dict:
             data=data, theta_lip=theta_lip, beta0=beta0, pinned={name: value})
         return ident.Point(value=float(value), data_cost=model.fit_["data_cost"],
                            stop=model.fit_["stop"], iterations=model.fit_["iterations"],
-                           beta=model.network_.get_nonlinear())
+                           beta=model.network_.get_nonlinear(),
+                           tail=ident.tail_decrease(model.history_))
 
     got = ident.walk(fit_at, start, direction, first_step=settings.step * sc, bound=bound,
                      level=level, points=settings.points, refine=settings.refine)
     return {"name": name, "direction": direction, "end": got["end"],
-            "points": [ident.Point(p.value, p.data_cost, p.stop, p.iterations)
+            "points": [ident.Point(p.value, p.data_cost, p.stop, p.iterations, tail=p.tail)
                        for p in got["points"]]}
 
 
@@ -228,7 +240,7 @@ def summarize(settings: ProfileSettings, records: list[dict], key: str, walks: l
         down, up = (next(w for w in walks if w["name"] == name and w["direction"] == d)
                     for d in (-1, 1))
         start = ident.Point(best["theta"][name], best["data_cost"], best["stop"],
-                            best["iterations"])
+                            best["iterations"], tail=best["tail_decrease"])
         bounds = ident.search_bounds(best["theta"][name], first["lip"][name], sc[name],
                                      settings.span)
         params[name] = ident.parameter_profile(start, down, up, v_best, delta, bounds)
@@ -237,12 +249,15 @@ def summarize(settings: ProfileSettings, records: list[dict], key: str, walks: l
         "best_data_cost": v_best, "delta": delta, "delta_from": "spread over records",
         "best_cost_per_record": [min(f["data_cost"] for f in r["sizes"][key]) for r in records],
         "seeds": [r["seed"] for r in records],
-        "start": {k: best[k] for k in ("draw", "data_cost", "stop", "iterations", "theta")},
+        "start": {k: best[k] for k in ("draw", "data_cost", "stop", "iterations", "first",
+                                        "tail_decrease", "theta")},
         "scale": sc, "max_iter": settings.max_iter, "points": settings.points,
         "step": settings.step, "span": settings.span, "refine": settings.refine,
+        "polish": settings.polish,
         "fits": [{k: f[k] for k in ("lambda", "data_cost", "theta")} for f in fits0],
         "record_fits": [{"seed": r["seed"], **{k: f[k] for k in (
-            "draw", "data_cost", "stop", "iterations", "theta", "sloppy")}}
+            "draw", "data_cost", "stop", "iterations", "first", "tail_decrease", "theta",
+            "sloppy")}}
             for r in records for f in r["sizes"][key]],
         "lip_intervals": first["lip_intervals"],
         "lip_over_records": {"mean": dict(zip(THETA_NAMES, map(float, lips.mean(axis=0)))),
@@ -269,10 +284,14 @@ def to_markdown(ident_out: dict) -> str:
                   f"(standard deviation of the best data cost over {len(rec['seeds'])} "
                   f"training records, seeds {', '.join(map(str, rec['seeds']))}: "
                   + ", ".join(f"{c:.5f}" for c in rec["best_cost_per_record"]) + " N²). "
-                  f"Profiles from the best fit on seed {rec['seeds'][0]} ({st['data_cost']:.5f}"
-                  f" N², {st['stop']} after {st['iterations']} iterations); each point ≤ "
-                  f"{rec['max_iter']} iterations warm-started from its neighbour, ≤ "
-                  f"{rec['points']} points per direction.", "",
+                  f"Each record's fit: {st['first']['iterations']} iterations at most from its "
+                  f"draw, then up to {rec['polish']} more where it had not converged. Profiles "
+                  f"from the best fit on seed {rec['seeds'][0]} ({st['first']['data_cost']:.5f} "
+                  f"N² after {st['first']['iterations']} iterations, {st['first']['stop']}; "
+                  f"{st['data_cost']:.5f} N² after {st['iterations']} more, {st['stop']}); each "
+                  f"point ≤ {rec['max_iter']} iterations warm-started from its neighbour, ≤ "
+                  f"{rec['points']} points per direction, {rec['refine']} bisections where a "
+                  "profile rises.", "",
                   "| parameter | θ* (best fit) | range within δ | ends (down / up) | points "
                   "converged | monotone (down / up) | LIP ± 95 % Newey-West | LIP sd over "
                   "records |", "|---|---|---|---|---|---|---|---|"]
@@ -292,13 +311,17 @@ def to_markdown(ident_out: dict) -> str:
                 f"{'yes' if e['monotone']['down'] else 'no'} / "
                 f"{'yes' if e['monotone']['up'] else 'no'} | {_g(li['theta'][name])} ± "
                 f"{_g(1.96 * li['std_newey_west'][name])} | {_g(lr['std'][name])} |")
-        stops = [p["stop"] for e in rec["parameters"].values() for p in e["profile"]]
+        pts = [p for e in rec["parameters"].values() for p in e["profile"]]
+        stops = [p["stop"] for p in pts]
+        tail = max(p["tail_decrease"] for p in pts)
         lines += ["", f"Profile points: {stops.count('converged')} of {len(stops)} converged ("
                   + (", ".join(f"{stops.count(x)} {x}" for x in sorted(set(stops))
                                if x != "converged") or "all") + "); a point that did not "
                   "converge is an upper bound on the profile there. Ends: rises = the profile "
                   "rose above δ; bound = flat to the search bound (" + f"{rec['span']:g} scales "
-                  "beyond θ* and θ_LIP).", "",
+                  "beyond θ* and θ_LIP). The largest fall of any point's data cost over its "
+                  f"last {ident.TAIL} iterations: {tail:.2g} N² ({tail / rec['delta']:.2g} δ; "
+                  "the pace at which the slowest unconverged point was still descending).", "",
                   f"LIP residual lag-1 autocorrelation {li['lag1_autocorr']:.2f} "
                   f"({li['lags']} Newey-West lags, {li['n_samples']} samples).", "",
                   "Sloppy directions of each record's fit (Gauss-Newton matrix J'J of the "
