@@ -130,6 +130,8 @@ def run_record(task: tuple) -> dict:
                              decimation=fs.get("decimation"))
         if "lip_intervals" not in out:
             out["lip_intervals"] = ident.lip_intervals(data.phi, data.target)
+            theta_lip = np.array([lip.theta_[k] for k in THETA_NAMES])
+            out["lip_cost"] = float(np.mean((data.target - data.phi @ theta_lip) ** 2))
         fits = []
         for draw in range(settings.draws):
             model = PGNNFeedforward(**fs, features=config.features).fit_data(
@@ -260,6 +262,7 @@ def summarize(settings: ProfileSettings, records: list[dict], key: str, walks: l
             "sloppy")}}
             for r in records for f in r["sizes"][key]],
         "lip_intervals": first["lip_intervals"],
+        "lip_cost_per_record": [r["lip_cost"] for r in records],
         "lip_over_records": {"mean": dict(zip(THETA_NAMES, map(float, lips.mean(axis=0)))),
                              "std": dict(zip(THETA_NAMES, map(float, lips.std(axis=0,
                                                                                ddof=1))))},
@@ -283,7 +286,10 @@ def to_markdown(ident_out: dict) -> str:
                   f"Best data cost {rec['best_data_cost']:.5f} N²; δ = {rec['delta']:.3g} N² "
                   f"(standard deviation of the best data cost over {len(rec['seeds'])} "
                   f"training records, seeds {', '.join(map(str, rec['seeds']))}: "
-                  + ", ".join(f"{c:.5f}" for c in rec["best_cost_per_record"]) + " N²). "
+                  + ", ".join(f"{c:.5f}" for c in rec["best_cost_per_record"]) + " N²; the "
+                  "LIP's data cost, a convex fit, spreads by "
+                  f"{np.std(rec['lip_cost_per_record'], ddof=1):.3g} N² over the same records: "
+                  + ", ".join(f"{c:.5f}" for c in rec["lip_cost_per_record"]) + " N²). "
                   f"Each record's fit: {st['first']['iterations']} iterations at most from its "
                   f"draw, then up to {rec['polish']} more where it had not converged. Profiles "
                   f"from the best fit on seed {rec['seeds'][0]} ({st['first']['data_cost']:.5f} "
