@@ -204,7 +204,8 @@ def test_run_sends_a_profile_config_to_study(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_study_runs_end_to_end(tmp_path):
-    """A tiny study through the command: two records, n_l = 2, two points per direction."""
+    """A tiny study through the command: two records, n_l = 2, two points per direction; the
+    same result in one process and in two."""
     import json
 
     from experiments.cli import main
@@ -221,3 +222,8 @@ def test_study_runs_end_to_end(tmp_path):
         assert len(e["profile"]) >= 3
     assert (out / "report.md").read_text().startswith("# What the data determine")
     assert (out / "figures" / "identifiability.png").is_file()
+    # Reproducible: the same bits in two worker processes (every fit is single-threaded).
+    again = tmp_path / "again"
+    assert main(["study", str(cfg), "--out", str(again), "--quiet", "--workers", "2"]) == 0
+    assert json.loads((again / "identifiability.json").read_text())["sizes"] == json.loads(
+        (out / "identifiability.json").read_text())["sizes"]
