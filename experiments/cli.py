@@ -33,7 +33,7 @@ def _cmd_run(args) -> int:
     _warn(args.config, config_warnings(config))
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
-    if config.identifiability is not None or config.data is not None:
+    if config.data is not None:
         print((out / "table.md").read_text(), end="")  # with the sections beyond the rows
     else:
         print(to_markdown(rows), end="")
@@ -96,7 +96,8 @@ def _warn(path, lines: list[str]) -> None:
 
 def _cmd_study(args) -> int:
     from clm_sim.schema import load_yaml
-    from experiments.studies import emps_benchmark, extrapolation, failure_map, mechanism
+    from experiments.studies import (emps_benchmark, extrapolation, failure_map, mechanism,
+                                     profiles)
     from experiments.studies.kinds import kind_of
 
     kind = kind_of(load_yaml(args.config), args.config)
@@ -106,6 +107,8 @@ def _cmd_study(args) -> int:
         return emps_benchmark.main(args.config, args.out, quiet=args.quiet)
     if kind == "mechanism":  # finding (iii) over training records, and its mechanism
         return mechanism.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
+    if kind == "identifiability":  # converged profiles of the data cost at lambda = 0
+        return profiles.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
     return extrapolation.main(args.config, args.out, quiet=args.quiet)
 
 

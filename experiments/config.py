@@ -201,28 +201,6 @@ class FeedforwardSpec:
 
 
 @dataclass(frozen=True)
-class Identifiability:
-    """The profile of the data cost over each physical parameter, per network size of the
-    table's simultaneous PGNN rows (:mod:`experiments.identifiability`).
-
-    span: the grid reaches theta_LIP +- span * scale (scale: the change that alone moves the
-    force by its rms); max_iter: Levenberg-Marquardt iterations per profile point; references:
-    replayed with every profile fit (MAE over the valley).
-    """
-
-    span: float = 1.0
-    max_iter: int = 25
-    references: tuple[str, ...] = ("r1", "r2")
-
-    def __post_init__(self):
-        if not self.span > 0:
-            raise UserError(f"identifiability.span: expected a number > 0, got {self.span!r}")
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise UserError(f"identifiability.max_iter: expected an integer >= 1, "
-                            f"got {self.max_iter!r}")
-
-
-@dataclass(frozen=True)
 class Window:
     """A training window: the samples whose (filtered) position and velocity lie in these
     closed intervals (m, m/s; None: no limit on that signal)."""
@@ -298,7 +276,6 @@ class ExperimentConfig:
     features: FeatureMap = field(default_factory=FeatureMap)
     feedforwards: tuple[FeedforwardSpec, ...] = field(default_factory=_default_feedforwards)
     replay: tuple[str, ...] = ("r1", "r2")
-    identifiability: Identifiability | None = None
     data: RecordData | None = None
 
     def __post_init__(self):
@@ -306,9 +283,6 @@ class ExperimentConfig:
             raise UserError(f"ts: expected a sample time in (0, 0.1] s, got {self.ts!r}")
         uses = [("training.reference", self.training.reference)]
         uses += [(f"replay[{i}]", name) for i, name in enumerate(self.replay)]
-        if self.identifiability is not None:
-            uses += [(f"identifiability.references[{i}]", name)
-                     for i, name in enumerate(self.identifiability.references)]
         for key, name in uses:
             if name not in self.references:
                 raise UserError(f"{key}: reference {name!r} is not defined under 'references' "
@@ -335,7 +309,7 @@ def refuse_other_commands(data: dict, path) -> None:
     naming the command that runs it."""
     for section, command in (("sweep", "sweep"), ("kind", "study"), ("study", "study"),
                              ("failure_map", "study"), ("mechanism", "study"),
-                             ("benchmark", "study")):
+                             ("benchmark", "study"), ("identifiability", "study")):
         if section in data:
             raise UserError(f"{path}: has a '{section}:' " + ("key" if section == "kind" else
                             "section") + f"; run it with 'clm-sim {command} {path}'")

@@ -1,73 +1,146 @@
-"""What the data determine: the profile of the PGNN data cost over each physical parameter.
+"""What the data determine: converged profiles of the PGNN data cost over each physical parameter.
 
-For one network size, parameter ``k`` is held at each value of a grid around theta_LIP and
-everything else (the other three physical parameters, the network) is re-fitted to the data cost
-alone (lambda = 0, no weight decay; :meth:`controllers.pgnn.PGNNFeedforward.fit_pinned`, started
-from the hidden layers of the lowest-cost fit of the table at that size). The profile
-``V_k(value)`` is the lowest mean squared error (N**2) that the data allow with ``theta_k`` there.
+For one network size, parameter ``k`` is held at a value and everything else (the other three
+physical parameters, the network) is re-fitted to the data cost alone (lambda = 0, no weight
+decay; :meth:`controllers.pgnn.PGNNFeedforward.fit_pinned`). The profile ``V_k(value)`` is the
+lowest mean squared error (N**2) the data allow with ``theta_k`` there.
 
-The range of ``theta_k`` that the data determine is the set of grid values where the profile stays
-within ``delta`` of the best data cost ``V*`` (the lowest of every profile point and every fit of
-the table at that size). ``delta`` is the larger of
+Continuation (:func:`walk`): from the best fit ``theta*``, in both directions, each point starts
+from its neighbour's hidden layers (a cold start from one draw scatters by more than the profile
+varies). Steps double (``step * scale_k``, then 2x, 4x, ...; larger where ``points`` steps would
+not reach the search bound): a profile that rises is found within a few points, one that stays
+flat is followed out to the search bound. A direction ends at the first point that rises above
+``V_start + delta`` (``rises``) or at the search bound (``bound``: flat all the way). Every point
+keeps its optimizer stop reason and iterations: a point that did not converge is an upper bound
+on the profile there.
 
-* the noise threshold: a likelihood-ratio test of one parameter at 95 % under white Gaussian
-  errors, ``chi2_1(0.95) * V* / N_eff``, with ``N_eff`` the independent samples in the fitting
-  data: at most the samples kept, at most ``2 B T`` for data low-passed to ``B`` Hz over ``T`` s;
-* the optimizer's own spread: the sample standard deviation of the data cost over the seeds of
-  the row with the lowest mean data cost at that size (below that, two fits cannot be told apart
-  by their cost).
+The threshold ``delta`` is what varies between training records: the sample standard deviation,
+over dither-seed records of the same experiment, of the best data cost (below that, a record
+cannot tell two values apart by its cost). Beside it, the LIP's own spread over the records and
+its autocorrelation-robust (Newey-West) intervals on the profiled record.
 
-A range that reaches the end of the grid (``theta_LIP +- span * scale_k``, ``scale_k`` the change
-of ``theta_k`` that alone moves the force by its rms on the training data) is open on that side.
-The profile assumes that ``max_iter`` Levenberg-Marquardt iterations from one start reach the
-profile's minimum: each point is an upper bound, so a range can only be too narrow.
+The sloppy directions (:func:`sloppy_directions`): eigenvectors of the Gauss-Newton matrix
+``J'J`` of the data residual over every parameter (theta, output layer, hidden layers), columns
+scaled to unit norm (a unit step of any one parameter alone then moves the force by 1 N rms), so
+an eigenvalue is the cost rise (N**2) of a unit step along its vector. The smallest ones say
+which combinations the data cannot see: their theta part and the share of the vector on the
+network; and per theta direction, what is left of it once the network has absorbed what it can
+(the Schur complement of the network block).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable
+
 import numpy as np
-import scipy.stats
 
 from clm_sim.plant import THETA_NAMES
 
-GRID = (-1.0, -0.3, -0.1, 0.0, 0.1, 0.3, 1.0)  # in units of span * scale_k around theta_LIP
+ENDS = ("rises", "bound")  # why a direction of the continuation ended
 
 
-CONFIDENCE = 0.95
+TAIL = 10  # iterations over which a fit's last decrease is measured
 
 
-def n_effective(n_samples: int, duration_s: float, bandwidth_hz: float | None) -> float:
-    """Independent samples in fitting data of ``n_samples`` spanning ``duration_s`` s after a
-    low-pass to ``bandwidth_hz`` (None: unfiltered): at most ``2 B T`` (Nyquist)."""
-    n_eff = float(n_samples)
-    if bandwidth_hz is not None:
-        n_eff = min(n_eff, 2.0 * bandwidth_hz * duration_s)
-    return n_eff
+@dataclass(frozen=True)
+class Point:
+    """One profile point: the value held (SI), its data cost (N**2), the optimizer's stop reason
+    and iterations, how much its data cost fell over its last ``TAIL`` iterations (N**2; how
+    far from converged a ``max_iter`` point still is), and the fit's hidden layers (the next
+    point's start)."""
+
+    value: float
+    data_cost: float
+    stop: str
+    iterations: int
+    beta: np.ndarray | None = None
+    tail: float = 0.0
+
+    def to_json(self) -> dict:
+        return {"value": self.value, "data_cost": self.data_cost, "stop": self.stop,
+                "iterations": self.iterations, "tail_decrease": self.tail}
 
 
-def grid(theta_lip: dict, phi: np.ndarray, target: np.ndarray, span: float) -> dict:
-    """Per parameter: the values held (SI units) and the scale (change that alone moves the
-    force by its rms)."""
+def tail_decrease(history: list[dict]) -> float:
+    """The fall of the data cost (N**2) over the last ``TAIL`` iterations of a fit's history
+    (entries with a ``data`` term, one per iteration)."""
+    if len(history) < 2:
+        return 0.0
+    return float(history[max(0, len(history) - 1 - TAIL)]["data"] - history[-1]["data"])
+
+
+def scales(phi: np.ndarray, target: np.ndarray) -> dict[str, float]:
+    """Per parameter, the change that alone moves the force by its rms on the data (SI)."""
     rms_f = float(np.sqrt(np.mean(target ** 2)))
-    out = {}
-    for k, name in enumerate(THETA_NAMES):
-        scale = rms_f / max(float(np.sqrt(np.mean(phi[:, k] ** 2))), 1e-300)
-        out[name] = {"scale": scale,
-                     "values": [theta_lip[name] + g * span * scale for g in GRID]}
-    return out
+    return {name: rms_f / max(float(np.sqrt(np.mean(phi[:, k] ** 2))), 1e-300)
+            for k, name in enumerate(THETA_NAMES)}
 
 
-def valley_range(values, costs, v_best: float, delta: float) -> dict:
-    """The contiguous block of grid ``values`` around the profile's lowest point where
+def search_bounds(start: float, lip: float, scale: float, span: float) -> tuple[float, float]:
+    """The values a profile may visit: the hull of the start and theta_LIP, widened by
+    ``span * scale`` on both sides."""
+    return min(start, lip) - span * scale, max(start, lip) + span * scale
+
+
+def walk(fit_at: Callable[[float, np.ndarray], Point], start: Point, direction: int, *,
+         first_step: float, bound: float, level: float, points: int, refine: int = 0) -> dict:
+    """Continuation of a profile from ``start`` in ``direction`` (+1 or -1): values
+    ``start + direction * h * (1, 3, 7, 15, ...)`` (steps ``h, 2h, 4h, ...``), the last one
+    clipped to ``bound``; ``h`` is ``first_step``, or larger where ``points`` such steps would
+    not reach ``bound`` (so every direction is decided: it rises or is flat to the bound).
+    ``fit_at(value, beta0)`` fits one point from the hidden layers ``beta0`` (the neighbour's).
+    Ends at the first point above ``level`` (``rises``) or at ``bound`` (``bound``; the
+    ``points``-th point is there). A rise is then bracketed ``refine`` times by bisection
+    (each midpoint started from the inside end), so that the crossing is located to
+    ``1 / 2**refine`` of the last step. Returns ``{"points": [Point] (in the order fitted),
+    "end": reason}``."""
+    reach = abs(bound - start.value)
+    out, prev, offset = [], start, 0.0
+    step = max(first_step, reach / (2.0 ** points - 1.0))
+    for i in range(points):
+        offset = reach if i == points - 1 else min(offset + step, reach)
+        step *= 2.0
+        point = fit_at(start.value + direction * offset, prev.beta)
+        out.append(point)
+        if point.data_cost > level:
+            inside, outside = prev, point
+            for _ in range(refine):
+                mid = fit_at(0.5 * (inside.value + outside.value), inside.beta)
+                out.append(mid)
+                if mid.data_cost > level:
+                    outside = mid
+                else:
+                    inside = mid
+            return {"points": out, "end": "rises"}
+        if offset >= reach:
+            return {"points": out, "end": "bound"}
+        prev = point
+    raise AssertionError("walk: the last point is at the bound")  # pragma: no cover
+
+
+def monotone(costs, tol: float = 0.0) -> bool:
+    """Whether ``costs`` never fall by more than ``tol`` from one point to the next."""
+    c = np.asarray(costs, dtype=float)
+    return bool(np.all(np.diff(c) >= -tol))
+
+
+def valley_range(values, costs, v_best: float, delta: float, center: float | None = None
+                 ) -> dict:
+    """The contiguous block of profile ``values`` around ``center`` (a value of the profile:
+    where the continuation started; None or outside the level: the lowest point) where
     ``costs <= v_best + delta``: ``{"range": [low, high], "open": [low_open, high_open],
-    "inside_grid": [first, last grid value inside]}``; a closed end is where the profile,
-    interpolated linearly between grid points, crosses ``v_best + delta``; open: the block
-    reaches that end of the grid (the range's end is then the search bound)."""
+    "inside": [first, last value inside]}``; a closed end is where the profile, interpolated
+    linearly between points, crosses ``v_best + delta``; open: the block reaches the last point
+    on that side (the range's end is then that point)."""
     values, costs = np.asarray(values, float), np.asarray(costs, float)
     order = np.argsort(values)
     values, costs = values[order], costs[order]
     inside = costs <= v_best + delta
     i = int(np.argmin(costs))
+    if center is not None:
+        j = int(np.argmin(np.abs(values - center)))
+        i = j if inside[j] else i
     if not inside[i]:  # the profile never comes within delta of the best fit
         return {"range": None, "open": [False, False]}
     lo = hi = i
@@ -77,14 +150,14 @@ def valley_range(values, costs, v_best: float, delta: float) -> dict:
         hi += 1
     level = v_best + delta
 
-    def edge(inner, outer):  # where the profile crosses the level between two grid points
+    def edge(inner, outer):  # where the profile crosses the level between two points
         c0, c1 = costs[inner] - level, costs[outer] - level
         return float(values[inner] + (values[outer] - values[inner]) * c0 / (c0 - c1))
 
     low = float(values[0]) if lo == 0 else edge(lo, lo - 1)
     high = float(values[-1]) if hi == len(values) - 1 else edge(hi, hi + 1)
     return {"range": [low, high], "open": [lo == 0, hi == len(values) - 1],
-            "inside_grid": [float(values[lo]), float(values[hi])]}
+            "inside": [float(values[lo]), float(values[hi])]}
 
 
 def in_range(value: float, entry: dict) -> bool:
@@ -92,61 +165,87 @@ def in_range(value: float, entry: dict) -> bool:
     if entry["range"] is None:
         return False
     lo, hi = entry["range"]
-    return ((entry["open"][0] or value >= lo) and (entry["open"][1] or value <= hi))
+    return (entry["open"][0] or value >= lo) and (entry["open"][1] or value <= hi)
 
 
-def summarize(profile: dict[str, list[dict]], fits: list[dict], v_spread: float,
-              n_eff: float) -> dict:
-    """The identifiability record of one network size from the profile points
-    ``{name: [{"value", "data_cost", "mae": {ref: m}}]}`` and the table's fits at that size
-    (``[{"label", "data_cost", "theta"}]``)."""
-    v_best = min([p["data_cost"] for pts in profile.values() for p in pts]
-                 + [f["data_cost"] for f in fits])
-    delta_noise = float(scipy.stats.chi2.ppf(CONFIDENCE, 1) * v_best / n_eff)
-    delta = max(delta_noise, v_spread)
-    out = {"best_data_cost": v_best, "delta": delta, "delta_noise": delta_noise,
-           "n_eff": n_eff, "delta_spread_over_seeds": v_spread,
-           "delta_from": "noise" if delta_noise >= v_spread else "spread over seeds",
-           "fits": fits, "parameters": {}}
-    valley = {}
-    for name, pts in profile.items():
-        entry = valley_range([p["value"] for p in pts], [p["data_cost"] for p in pts],
-                             v_best, delta)
-        entry["profile"] = [{"value": p["value"], "data_cost": p["data_cost"],
-                             "stop": p.get("stop"), "mae": p.get("mae")} for p in pts]
-        entry["bound"] = [min(p["value"] for p in pts), max(p["value"] for p in pts)]
-        ends = []
-        if entry["range"] is not None:  # the pinned fits at the ends of the block inside
-            ends = [p for p in pts if p["value"] in entry["inside_grid"]]
-        entry["mae_at_ends"] = [{"value": p["value"], "mae": p.get("mae")} for p in ends]
-        for p in pts:
-            if p["data_cost"] <= v_best + delta and p.get("mae"):
-                for ref, m in p["mae"].items():
-                    valley.setdefault(ref, []).append(m)
-        out["parameters"][name] = entry
-    out["valley_mae"] = {ref: [float(min(v)), float(max(v)), len(v)]
-                         for ref, v in valley.items()}
-    return out
+def parameter_profile(start: Point, down: dict, up: dict, v_best: float, delta: float,
+                      bounds: tuple[float, float]) -> dict:
+    """The record of one parameter's profile: its points (lowest value first), each direction's
+    end and whether its costs rise monotonically away from the start, and the range within
+    ``delta`` of ``v_best``; an open side says why it is open (flat to the search ``bound``)."""
+    down_pts = sorted(down["points"], key=lambda p: -p.value)  # nearest the start first
+    up_pts = sorted(up["points"], key=lambda p: p.value)
+    pts = list(reversed(down_pts)) + [start] + up_pts
+    level = v_best + delta
+    entry = valley_range([p.value for p in pts], [p.data_cost for p in pts], v_best, delta,
+                         center=start.value)
+    entry["profile"] = [p.to_json() for p in pts]
+    entry["start"] = start.value
+    entry["bound"] = list(bounds)
+    # A direction that "rises" at a point that did not converge may not rise: that point is
+    # an upper bound on the profile, so the end says so.
+    entry["ends"] = {side: d["end"] + ("" if d["end"] != "rises" or all(
+        p.stop == "converged" for p in d["points"] if p.data_cost > level) else
+        " (not converged)") for side, d in (("down", down), ("up", up))}
+    entry["monotone"] = {side: monotone([start.data_cost] + [p.data_cost for p in d])
+                         for side, d in (("down", down_pts), ("up", up_pts))}
+    entry["why_open"] = [down["end"] if entry["open"][0] else None,
+                         up["end"] if entry["open"][1] else None]
+    return entry
 
 
-def rows_against(ident: dict, rows: list[dict]) -> None:
-    """Add to every PGNN row ``theta_in_identified_range``: per parameter, how many of its seeds'
-    theta_phy lie in the range the data determine at its network size."""
-    for row in rows:
-        key = _size_key(row.get("hidden"))
-        if row["kind"] != "pgnn" or key not in ident or not row.get("theta_phy_per_seed"):
-            continue
-        params = ident[key]["parameters"]
-        row["theta_in_identified_range"] = {
-            name: sum(in_range(t[name], params[name]) for t in row["theta_phy_per_seed"])
-            for name in THETA_NAMES}
+def record_threshold(costs: list[float]) -> float:
+    """``delta``: the sample standard deviation of the best data cost over training records."""
+    c = np.asarray(costs, dtype=float)
+    if len(c) < 2:
+        raise ValueError("record_threshold: needs at least two records")
+    return float(np.std(c, ddof=1))
 
 
-def _size_key(hidden) -> str:
-    if hidden is None:
-        return ""
-    widths = (hidden,) if isinstance(hidden, int) else tuple(hidden)
-    return "x".join(map(str, widths))
+def sloppy_directions(model, phi: np.ndarray, target: np.ndarray, count: int = 3) -> dict:
+    """The sloppy directions of a fitted PGNN's data cost on ``(phi, target)``: the Gauss-Newton
+    matrix ``J'J`` over every parameter (theta, output layer, hidden layers), columns scaled to
+    unit norm, so that one unit of a parameter moves the force by 1 N rms and an eigenvalue is
+    the cost rise (N**2) of a unit step along its vector.
+
+    ``smallest``: its ``count`` smallest eigenpairs, each with the eigenvalue, its ratio to the
+    largest, the theta part of the unit vector (in those units; its squared norm is
+    ``1 - network_share``) and the network's share. ``theta``: the Schur complement of the
+    network block, ``J_theta' (I - P_net) J_theta`` (what is left of each theta direction once
+    the network, linearized at the fit, has absorbed what it can), its eigenvalues (N**2 per
+    unit, smallest first) and unit eigenvectors in theta: a near-zero eigenvalue is a theta
+    combination the network can stand in for."""
+    import torch
+
+    from controllers.pgnn.cost import SeparableCost, Weights
+
+    net = model.network_
+    cost = SeparableCost(net, phi, target, np.array([model.theta_[k] for k in THETA_NAMES]),
+                         Weights(lam_diag=np.zeros(4)), fit_theta=True)
+    theta = net.theta.detach().numpy()
+    w_out = net.mlp.out.weight.detach().numpy().ravel()
+    b_out = float(net.mlp.out.bias.detach().numpy()[0])
+    p = np.concatenate([theta, w_out, [b_out], net.get_nonlinear()])
+    with torch.no_grad():
+        _, jac = cost.full(p, True)
+    norms = np.linalg.norm(jac, axis=0)
+    norms[norms == 0] = 1.0
+    js = jac / norms
+    eig, vec = np.linalg.eigh(js.T @ js)
+    eig = np.maximum(eig, 0.0)
+    smallest = [{"eigenvalue": float(eig[i]), "relative": float(eig[i] / eig[-1]),
+                 "theta": dict(zip(THETA_NAMES, map(float, vec[:4, i]))),
+                 "network_share": float(np.sum(vec[4:, i] ** 2))}
+                for i in range(min(count, len(eig)))]
+    jt, jn = js[:, :4], js[:, 4:]
+    u, sv, _ = np.linalg.svd(jn, full_matrices=False)
+    u = u[:, sv > sv[0] * 1e-10]
+    rest = jt - u @ (u.T @ jt)
+    s_eig, s_vec = np.linalg.eigh(rest.T @ rest)
+    return {"largest": float(eig[-1]), "smallest": smallest,
+            "theta": [{"eigenvalue": float(max(s_eig[i], 0.0)),
+                       "direction": dict(zip(THETA_NAMES, map(float, s_vec[:, i])))}
+                      for i in range(4)]}
 
 
 def lip_intervals(phi: np.ndarray, target: np.ndarray) -> dict:
@@ -161,69 +260,3 @@ def lip_intervals(phi: np.ndarray, target: np.ndarray) -> dict:
             "std_newey_west": dict(zip(THETA_NAMES, map(float, fit["std_newey_west"]))),
             "lag1_autocorr": fit["lag1_autocorr"], "lags": fit["lags"],
             "n_samples": int(len(target))}
-
-
-def _lip_line(rec: dict) -> str:
-    from experiments.table import THETA_UNITS
-
-    li = rec["lip_intervals"]
-    return (f"LIP on the same {li['n_samples']} fitting samples, 95 % intervals (white noise / "
-            f"Newey-West with {li['lags']} lags; residual lag-1 autocorrelation "
-            f"{li['lag1_autocorr']:.2f}): " + "; ".join(
-                f"{n} {li['theta'][n]:.4g} ± {1.96 * li['std_white'][n]:.2g} / ± "
-                f"{1.96 * li['std_newey_west'][n]:.2g} {THETA_UNITS[n]}" for n in THETA_NAMES)
-            + ".")
-
-
-def to_markdown(ident: dict, rows: list[dict]) -> str:
-    """The ranges per network size, how each row's theta lies against them, and the MAE over
-    the valley."""
-    from experiments.table import THETA_UNITS
-
-    lines = ["", "**What the data determine** (profile of the data cost over each physical "
-             "parameter, everything else re-fitted; range: where the profile stays within δ of "
-             "the best data cost; ↔ open: reaches the search bound):", ""]
-    for key, rec in ident.items():
-        lines += [f"n_l = {key}: best data cost {rec['best_data_cost']:.5f} N², δ = "
-                  f"{rec['delta']:.2g} N² (from the {rec['delta_from']}; noise threshold "
-                  f"{rec['delta_noise']:.2g} N² with N_eff = {rec['n_eff']:.0f}, spread over "
-                  f"seeds {rec['delta_spread_over_seeds']:.2g} N²)", "",
-                  "| parameter | range | search bound | MAE of the pinned fits at the ends "
-                  "of the grid points inside |",
-                  "|---|---|---|---|"]
-        for name, e in rec["parameters"].items():
-            unit = THETA_UNITS[name]
-            if e["range"] is None:
-                rng = "none within δ"
-            else:
-                lo, hi = e["range"]
-                rng = (("(open) " if e["open"][0] else "") + f"[{lo:.4g}, {hi:.4g}]"
-                       + (" (open)" if e["open"][1] else "") + f" {unit}")
-            ends = "; ".join(
-                f"{p['value']:.4g}: " + ", ".join(f"{ref} {m * 1e6:.3f} µm"
-                                                  for ref, m in (p["mae"] or {}).items())
-                for p in e["mae_at_ends"])
-            lines.append(f"| {name} | {rng} | [{e['bound'][0]:.4g}, {e['bound'][1]:.4g}] | "
-                         f"{ends or '–'} |")
-        stops = [p.get("stop") for e in rec["parameters"].values()
-                 for p in e.get("profile", [])]
-        if stops and None not in stops:
-            lines += ["", f"Profile points: {stops.count('converged')} of {len(stops)} "
-                      f"converged ({', '.join(f'{stops.count(x)} {x}' for x in sorted(set(stops)) if x != 'converged') or 'all'}); "
-                      "a point that did not converge is an upper bound on the profile there."]
-        if "lip_intervals" in rec:
-            lines += ["", _lip_line(rec)]
-        lines += ["", "MAE over the valley (every profile fit within δ): " + "; ".join(
-            f"{ref} {lo * 1e6:.3f} … {hi * 1e6:.3f} µm ({n} fits)"
-            for ref, (lo, hi, n) in rec["valley_mae"].items()) + ".", ""]
-        mine = [r for r in rows if "theta_in_identified_range" in r
-                and _size_key(r["hidden"]) == key]
-        if mine:
-            lines += ["| row | " + " | ".join(f"{n} in range" for n in THETA_NAMES) + " |",
-                      "|---|" + "---|" * len(THETA_NAMES)]
-            for r in mine:
-                lines.append(f"| {r['label']} | " + " | ".join(
-                    f"{r['theta_in_identified_range'][n]}/{r['n_seeds']}"
-                    for n in THETA_NAMES) + " |")
-            lines.append("")
-    return "\n".join(lines)

@@ -156,10 +156,9 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     if out is not None:
         (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
 
-    rows, shown, results = [], {}, []
+    rows, shown = [], {}
     for spec in config.feedforwards:
         result = tb.evaluate(spec, train, lip)
-        results.append(result)
         thetas = [dict(m.theta_) for m in result.models if m is not None]
         rows.append(table.make_row(spec, result.metrics, thetas))
         if out is not None:
@@ -170,26 +169,17 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
                 for s, model in enumerate(result.models):
                     model.save(out / "params" / f"{slug(spec.label())}_seed{s}")
 
-    ident = None
-    if config.identifiability is not None:
-        from experiments import identifiability
-        ident = tb.identifiability(train, lip, results)
-        identifiability.rows_against(ident, rows)
     if out is None:
         return rows
     if config.truth is not None:  # diagnose the model against the emulated machine
         from experiments.diagnosis.emulate import diagnose_emulated
         diagnose_emulated(tb, record=train, out=out / "diagnosis", progress=progress)
-    (out / "table.json").write_text(table.to_json(rows, environment=environment(),
-                                                  identifiability=ident))
-    (out / "table.md").write_text(table.to_markdown(rows) + (
-        "" if ident is None else identifiability.to_markdown(ident, rows)))
+    (out / "table.json").write_text(table.to_json(rows, environment=environment()))
+    (out / "table.md").write_text(table.to_markdown(rows))
     (out / "table.csv").write_text(table.to_csv(rows))
     from experiments import (
         plots,  # matplotlib only where figures are drawn (not in tasks)
     )
-    if ident:
-        plots.save(plots.identifiability_figure(ident), out / "figures" / "identifiability.png")
     for name in config.replay:
         plots.save(plots.tracking_figure(shown, name, rows=rows),
                    out / "figures" / f"tracking_{name}.png")

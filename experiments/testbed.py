@@ -272,67 +272,6 @@ class Testbed:
             for name in refs))
         return row
 
-    def identifiability(self, run: Run, lip: LIPFeedforward, results: list[RowResult],
-                        spec=None) -> dict:
-        """What the data determine, per network size of the simultaneous PGNN rows in
-        ``results``: the data cost's profile over each physical parameter, its ranges and the
-        MAE over the valley (:mod:`experiments.identifiability`; ``spec``: the config's
-        ``identifiability``, default settings when None)."""
-        from clm_sim.plant import THETA_NAMES
-        from controllers.pgnn import training_data
-        from experiments import identifiability as ident
-        from experiments import workers
-        from experiments.config import Identifiability
-
-        spec = spec or self.config.identifiability or Identifiability()
-        groups: dict[str, list[RowResult]] = {}
-        for res in results:
-            if res.spec.kind == "pgnn" and res.spec.training == "simultaneous":
-                groups.setdefault(ident._size_key(res.spec.hidden), []).append(res)
-        out = {}
-        for key, group in groups.items():
-            cost, start, row = min(((m.fit_["data_cost"], m, r) for r in group
-                                    for m in r.models), key=lambda c: c[0])
-            settings = {**row.spec.pgnn_settings(), "lam": 0.0, "lambda_diag": None,
-                        "weight_decay": 0.0, "orthogonal_weight": 0.0,
-                        "validation_fraction": 0.0, "max_iter": spec.max_iter}
-            data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
-                                 decimation=settings["decimation"])
-            grid = ident.grid(lip.theta_, data.phi, data.target, spec.span)
-            beta0 = start.network_.get_nonlinear()
-            payloads = [(settings, self.config.features, data, dict(lip.theta_), beta0,
-                         {name: v}) for name in THETA_NAMES for v in grid[name]["values"]]
-            self.progress(f"identifiability, n_l={key}: {len(payloads)} profile fits "
-                          f"(max_iter {spec.max_iter})")
-            fitted = workers.map_fits(payloads, workers.fit_pinned)
-            profile = {name: [] for name in THETA_NAMES}
-            for payload, model in zip(payloads, fitted):
-                (name, value), = payload[-1].items()
-                profile[name].append({
-                    "value": value, "data_cost": model.fit_["data_cost"],
-                    "stop": model.fit_["stop"],
-                    "mae": {ref: self.replay(model, ref).mae for ref in spec.references}})
-            fits = [{"label": r.spec.label(), "lambda": r.spec.lam,
-                     "weight_decay": r.spec.pgnn.weight_decay,
-                     "data_cost": m.fit_["data_cost"], "theta": dict(m.theta_)}
-                    for r in group for m in r.models]
-            by_row = [[m.fit_["data_cost"] for m in r.models] for r in group]
-            spread = float(np.std(min(by_row, key=np.mean), ddof=1)) \
-                if min(len(c) for c in by_row) > 1 else 0.0
-            n_eff = ident.n_effective(len(data.target),
-                                      len(data.target) * settings_decimation(settings, run.ts)
-                                      * run.ts, self.config.features.regression_lowpass_hz)
-            out[key] = ident.summarize(profile, fits, spread, n_eff)
-            out[key]["lip_intervals"] = ident.lip_intervals(data.phi, data.target)
-            out[key].update(start={"label": row.spec.label(), "data_cost": cost},
-                            max_iter=spec.max_iter, span=spec.span,
-                            scale={n: grid[n]["scale"] for n in THETA_NAMES})
-            self.progress(f"identifiability, n_l={key}: " + ", ".join(
-                f"{n} {e['range'] and [round(x, 4) for x in e['range']]}"
-                + ("" if not any(e["open"]) else " open")
-                for n, e in out[key]["parameters"].items()))
-        return out
-
     def rows(self) -> list[RowResult]:
         """Every row of the config's table: one training run, one LIP, each feedforward."""
         run = self.training_run()

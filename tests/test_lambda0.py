@@ -1,7 +1,7 @@
 """lambda = 0 as the data see it: the paper's-cost rows reach the fit as declared, honest stop
-reasons, the identifiability profile (free parameter -> open range, determined -> closed), the
-rate-following decimation, and the ``data:`` section (parsing, errors naming the key, a run on a
-record, the shipped EMPS config)."""
+reasons, the identifiability range and the LIP's robust intervals (the profiles themselves:
+tests/test_profiles.py), the rate-following decimation, and the ``data:`` section (parsing,
+errors naming the key, a run on a record, the shipped EMPS config)."""
 
 from __future__ import annotations
 
@@ -104,30 +104,6 @@ def test_valley_range_open_when_flat_closed_when_curved():
     assert lo == pytest.approx(-hi) and 1 / 3 < hi < 2 / 3
     assert ident.in_range(0.0, curved) and not ident.in_range(0.9, curved)
     assert ident.in_range(1e9, flat)  # an open side extends to infinity
-
-
-def test_profile_of_a_free_parameter_is_flat_and_of_a_determined_one_rises():
-    """Constant position column: the stiffness trades exactly against the network's output
-    bias, so pinning it anywhere leaves the data cost unchanged (open range); the mass is
-    determined (pinning it far from the truth costs), so its range is closed."""
-    data = synthetic(constant_y=True)
-    lip = dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
-    model = PGNNFeedforward(hidden=3, max_iter=5)
-    beta0 = model.new_network(data, np.random.default_rng(0)).get_nonlinear()
-    grid = ident.grid(lip, data.phi, data.target, span=1.0)
-    profile = {}
-    for name in ("mass", "stiffness"):
-        profile[name] = [{"value": v, "data_cost": PGNNFeedforward(hidden=3, max_iter=5)
-                          .fit_pinned(data=data, theta_lip=lip, beta0=beta0,
-                                      pinned={name: v}).fit_["data_cost"]}
-                         for v in grid[name]["values"]]
-    fk = [p["data_cost"] for p in profile["stiffness"]]
-    assert max(fk) - min(fk) <= 1e-9 * min(fk)  # exact trade with the bias: float64 round-off
-    summary = ident.summarize(profile, [], 0.0, n_eff=len(data.target))
-    assert summary["parameters"]["stiffness"]["open"] == [True, True]
-    mass = summary["parameters"]["mass"]
-    assert mass["range"] is not None and mass["open"] == [False, False]
-    assert mass["range"][0] < 18.8 < mass["range"][1]
 
 
 def test_pinned_fit_holds_the_pinned_value():
@@ -495,10 +471,9 @@ def test_newey_west_widens_with_autocorrelated_residuals():
     assert ar["lag1_autocorr"] == pytest.approx(0.8, abs=0.02)
 
 
-def test_identifiability_prints_stops_and_the_lips_robust_intervals():
-    """The profile's markdown says how many points converged and gives the LIP's white-noise and
-    Newey-West intervals beside the ranges; the robust interval is the wider one on a record
-    whose residual is autocorrelated."""
+def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():
+    """The LIP's intervals printed beside the profiles (experiments/studies/profiles.py): the
+    Newey-West one is the wider on a record whose residual is autocorrelated."""
     rng = np.random.default_rng(0)
     data = synthetic(n=3000)
     e = np.zeros(len(data.target))
@@ -507,11 +482,3 @@ def test_identifiability_prints_stops_and_the_lips_robust_intervals():
     li = ident.lip_intervals(data.phi, data.target + e)
     assert li["lag1_autocorr"] > 0.5  # AR(0.9) plus the white noise of synthetic()
     assert all(li["std_newey_west"][n] > li["std_white"][n] for n in ("viscous", "stiffness"))
-    profile = {n: [{"value": v, "data_cost": 1.0 + v * v, "stop": stop, "mae": None}
-                   for v, stop in ((-1.0, "max_iter"), (0.0, "converged"), (1.0, "converged"))]
-               for n in THETA_NAMES}
-    rec = ident.summarize(profile, [], 0.01, 1000.0)
-    rec["lip_intervals"] = li
-    text = ident.to_markdown({"16": rec}, [])
-    assert "Profile points: 8 of 12 converged (4 max_iter)" in text
-    assert "Newey-West" in text and "lag-1 autocorrelation" in text

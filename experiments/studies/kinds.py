@@ -3,7 +3,9 @@
 ``kind: extrapolation`` (the lambda study; settings under ``study:``), ``kind: failure_map``
 (where lambda = 0 fails; settings under ``failure_map:``) or ``kind: emps_benchmark`` (EMPS on the
 field's benchmark protocol; settings under ``benchmark:``) or ``kind: mechanism`` (finding (iii)
-over training records and its mechanism; settings under ``mechanism:``). A config written before ``kind:``
+over training records and its mechanism; settings under ``mechanism:``) or
+``kind: identifiability`` (converged profiles of the data cost at lambda = 0; settings under
+``identifiability:``). A config written before ``kind:``
 existed is still read by its section (none: the extrapolation study; two sections without a
 ``kind:`` are refused).
 """
@@ -16,7 +18,8 @@ from clm_sim.errors import UserError
 from clm_sim.schema import build, load_yaml
 
 KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
-         "emps_benchmark": "benchmark", "mechanism": "mechanism"}
+         "emps_benchmark": "benchmark", "mechanism": "mechanism",
+         "identifiability": "identifiability"}
 
 
 def kind_of(data: dict, path) -> str:
