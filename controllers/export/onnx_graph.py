@@ -208,3 +208,90 @@ def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -
     from controllers.export import selftest
 
     return [path, *selftest.write(wf, folder, opt.prefix, c=False)]
+
+
+# -- the plain-MLP form: the features in, the force at that instant out ----------------------
+# The operators a runtime that accepts only plain MLPs runs (and Relu for a relu network).
+MLP_OPS = {"tanh": "Tanh", "relu": "Relu"}
+
+
+def mlp_model(wf: WindowFeedforward, options: ExportOptions | None = None):
+    """The plain-MLP ONNX ``ModelProto`` of ``wf``: input ``features`` (float64, ``[batch, 4]``,
+    ``[a, v, sign v, y]`` in SI units, filtered as the network and theta see them,
+    :meth:`WindowFeedforward.features`), output ``force`` (float64, ``[batch, 1]``, N): the point
+    force ``p = theta . f + f_NN(f)`` at that instant. Only MatMul, Add and the activation (Tanh;
+    Relu for a relu network): the input scaling is folded into the first layer, theta is a linear
+    branch in parallel, added at the end. The caller differences, filters and averages
+    ``u_ff[k] = (p[k] + p[k+1])/2`` (docs/export.md). A LIP without effects is theta alone."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    if wf.effects:
+        raise UserError("--onnx-form mlp: a LIP with effects is not a plain MLP (use the window "
+                        "form)")
+    net = wf.network
+    if net is not None and net.activation not in MLP_OPS:
+        raise UserError(f"--onnx-form mlp: activation {net.activation!r} is not a plain-MLP "
+                        f"operator here ({', '.join(MLP_OPS)}); use the window form")
+    g = _Graph()
+    p = g.op("MatMul", "features", g.const(wf.theta_vector()[:, None], "theta"), base="physical")
+    if net is not None:
+        # (f - mean)/std then W: W/std on f, and b - W (mean/std) (a rounding apart)
+        w0, b0 = net.layers[0]
+        w_in = w0 / net.input_std[None, :]
+        b_in = b0 - w_in @ net.input_mean
+        layers = ((w_in, b_in),) + tuple(net.layers[1:])
+        h = "features"
+        for wl, bl in layers:
+            h = g.op(MLP_OPS[net.activation],
+                     g.op("Add", g.op("MatMul", h, g.const(wl.T.copy(), "weight")),
+                          g.const(bl[None, :], "bias")))
+        out = g.op("MatMul", h, g.const(net.out_w[:, None], "out_weight"))
+        p = g.op("Add", p, out)
+        g.nodes.append(helper.make_node("Add", [p, g.const(np.array([[net.out_b]]), "out_bias")],
+                                        ["force"]))
+    else:
+        g.nodes[-1].output[0] = "force"
+    opt = options or ExportOptions()
+    graph = helper.make_graph(
+        g.nodes, opt.prefix,
+        [helper.make_tensor_value_info("features", TensorProto.DOUBLE, ["batch", 4])],
+        [helper.make_tensor_value_info("force", TensorProto.DOUBLE, ["batch", 1])],
+        initializer=g.inits)
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                              producer_name="clm-sim export-ff", producer_version=opt.version,
+                              doc_string=safe_text(wf.describe()))
+    proto.ir_version = IR_VERSION
+    meta = {"ts": repr(wf.ts), "form": "mlp",
+            "units": "features: [a m/s^2, v m/s, sign v, y m], filtered as the model's network "
+                     "and theta see them; force: N at the instant of the features; "
+                     "u_ff[k] = (force[k] + force[k+1])/2",
+            "filter": _filter_text(wf), "kind": wf.kind, "model": safe_text(wf.describe()),
+            **{k: safe_text(v) for k, v in opt.trace().items()}}
+    helper.set_model_props(proto, meta)
+    onnx.checker.check_model(proto, full_check=True)
+    return proto
+
+
+def _filter_text(wf: WindowFeedforward) -> str:
+    """How the MLP form's features are filtered (for its metadata)."""
+    if wf.network is None or not wf.filter.get("cutoff_hz"):
+        return "none: central differences of the reference"
+    return (f"central differences of the reference, then the zero-phase Butterworth of order "
+            f"{wf.filter['order']} at {wf.filter['cutoff_hz']:g} Hz (scipy sosfiltfilt; as an "
+            f"FIR, {len(wf.kernel)} taps)")
+
+
+def mlp_write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -> list:
+    """Write ``<prefix>.onnx`` (the plain-MLP form) and its known-answer vectors
+    ``<prefix>_kat.csv`` (features and force at every instant of the vectors' motion)."""
+    from pathlib import Path
+
+    from controllers.export import selftest
+
+    opt = options or ExportOptions()
+    path = Path(folder) / f"{opt.prefix}.onnx"
+    path.write_bytes(mlp_model(wf, opt).SerializeToString())
+    kat = Path(folder) / f"{opt.prefix}_kat.csv"
+    kat.write_text(selftest.features_kat_csv(wf))
+    return [path, kat]

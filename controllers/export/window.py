@@ -180,28 +180,38 @@ class WindowFeedforward:
         """``p[j]`` (N) from windows ``w`` (B, 2M+3) = ``r[j-M-1 .. j+M+1]`` (m)."""
         m, ts, th = self.half, self.ts, self.theta
         c = m + 1
-        r0 = w[:, c]
-        v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
-        a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
         if self.network is None:  # a LIP: theta and the effects on the raw differences
+            r0 = w[:, c]
+            v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
+            a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
             p = (th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v)
                  + th["stiffness"] * r0)
             base = p
             for e in self.effects:
                 p = p + e.force(r0, v, base)
             return p
-        if m == 0:  # no feature filter: the raw features
-            f = np.column_stack([a, v, np.sign(v), r0])
-        else:
-            # The features at every instant of the window, differenced as the product does,
-            # then the filter's FIR.
-            va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
-            aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
-            h = self.kernel
-            f = np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
         # A PGNN: theta . filt(T) + f_NN(filt(T)), both parts on the filtered features (as
         # fitted, PGNNFeedforward.predict_parts); a PGNN carries no effects.
+        f = self.features(w)
         return f @ self.theta_vector() + self.network(f)
+
+    def features(self, w: np.ndarray) -> np.ndarray:
+        """The features ``[a, v, sign v, y]`` (SI, (B, 4)) that theta and the network read at
+        ``j`` from windows ``w`` (B, 2M+3) = ``r[j-M-1 .. j+M+1]`` (m): a PGNN's filtered by the
+        FIR of its regression filter (raw without one, and for a LIP)."""
+        m, ts = self.half, self.ts
+        c = m + 1
+        if self.network is None or m == 0:  # the raw features
+            r0 = w[:, c]
+            v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
+            a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
+            return np.column_stack([a, v, np.sign(v), r0])
+        # The features at every instant of the window, differenced as the product does, then
+        # the filter's FIR.
+        va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
+        aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
+        h = self.kernel
+        return np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
 
     def theta_vector(self) -> np.ndarray:
         """``theta`` in the order of the features ``[a, v, sign v, y]``: mass, viscous, coulomb,
