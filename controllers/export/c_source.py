@@ -26,16 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clm_sim.effects import (
-    CableSlab,
-    Cogging,
-    ForceOffset,
-    ForceRipple,
-    FrictionAsymmetry,
-    Stribeck,
-)
-from clm_sim.errors import UserError
 from controllers.export import selftest
+from controllers.export.c_law import effect_c
 from controllers.export.c_literals import c_array, c_matrix, c_real
 from controllers.export.c_names import prefixed
 from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
@@ -63,30 +55,6 @@ def _comment_lines(text: str, width: int = 90) -> str:
         line += word + " "
     wrapped.append(line.rstrip())
     return "\n".join(f" *   {w}" for w in wrapped)
-
-
-# -- effects as C expressions of y (m), v (m/s) and base (N: the physical force) ---------------
-def _effect_c(e) -> str:
-    if isinstance(e, Cogging):
-        return (f"{c_real(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {c_real(e.period)} "
-                f"+ {c_real(e.phase)})")
-    if isinstance(e, ForceRipple):
-        return (f"-{c_real(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {c_real(e.period)} "
-                f"+ {c_real(e.phase)}) * base")
-    if isinstance(e, CableSlab):
-        horner = c_real(e.coefficients[-1])
-        for c in reversed(e.coefficients[:-1]):
-            horner = f"({c_real(c)} + (y - {c_real(e.center)}) * {horner})"
-        return horner
-    if isinstance(e, Stribeck):
-        return (f"{c_real(e.peak)} * SGN(v) * EXP(-POW(FABS(v) / {c_real(e.velocity)}, "
-                f"{c_real(e.exponent)}))")
-    if isinstance(e, FrictionAsymmetry):
-        return (f"(v > R(0.0) ? {c_real(e.coulomb_pos)} + {c_real(e.viscous_pos)} * v : "
-                f"(v < R(0.0) ? -{c_real(e.coulomb_neg)} + {c_real(e.viscous_neg)} * v : R(0.0)))")
-    if isinstance(e, ForceOffset):
-        return c_real(e.force_n)
-    raise UserError(f"export: effect {e.type!r} has no C form")
 
 
 _ACT = {
@@ -337,7 +305,7 @@ def source(wf: WindowFeedforward) -> str:
     """``clm_ff.c``: the feedforward, weights as ``static const`` tables (names ``clm_ff``/
     ``CLM_FF`` and file-local ones unprefixed, as written here; :func:`write` prefixes them)."""
     th = wf.theta
-    effects = "".join(f"    p += {_effect_c(e)};\n" for e in wf.effects)
+    effects = "".join(f"    p += {effect_c(e)};\n" for e in wf.effects)
     physical = f"""\
 /* Force (N) at the sample instant of r[0]: physical layer and effects. */
 static CLM_FF_INLINE clm_ff_real physical(const clm_ff_pos *r)

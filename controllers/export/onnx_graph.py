@@ -13,14 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from clm_sim.effects import (
-    CableSlab,
-    Cogging,
-    ForceOffset,
-    ForceRipple,
-    FrictionAsymmetry,
-    Stribeck,
-)
 from clm_sim.errors import UserError
 from controllers.export.options import ExportOptions, safe_text
 from controllers.export.window import WindowFeedforward
@@ -65,35 +57,68 @@ class _Graph:
                        self.const(np.array([1], np.int64)))
 
 
+class _Node:
+    """A node's output in the graph under construction: the ONNX namespace of a force law
+    (:mod:`clm_sim.namespace`); arithmetic on it adds nodes (numbers become constants)."""
+
+    __array_priority__ = 1000  # numpy scalars defer to these operators
+
+    def __init__(self, g: _Graph, name: str):
+        self.g, self.name = g, name
+
+    def _in(self, x) -> str:
+        return x.name if isinstance(x, _Node) else self.g.const(float(x))
+
+    def _op(self, op: str, *inputs) -> "_Node":
+        names = [self._in(x) for x in inputs]
+        return _Node(self.g, self.g.op(op, *names))
+
+    def __add__(self, o): return self._op("Add", self, o)
+    def __radd__(self, o): return self._op("Add", o, self)
+    def __sub__(self, o): return self._op("Sub", self, o)
+    def __rsub__(self, o): return self._op("Sub", o, self)
+    def __mul__(self, o): return self._op("Mul", self, o)
+    def __rmul__(self, o): return self._op("Mul", o, self)
+    def __truediv__(self, o): return self._op("Div", self, o)
+    def __rtruediv__(self, o): return self._op("Div", o, self)
+    def __gt__(self, o): return self._op("Greater", self, o)
+    def __lt__(self, o): return self._op("Less", self, o)
+    def __neg__(self): return self._op("Neg", self)
+    def __pow__(self, o): return self._op("Pow", self, o)
+
+
+class _OnnxNamespace:
+    """The members of :mod:`clm_sim.namespace` as ONNX nodes (numbers fold in Python first, as
+    ``2.0 * xp.pi``, and become one constant)."""
+
+    pi = float(np.pi)
+    sin = staticmethod(lambda x: x._op("Sin", x))
+    exp = staticmethod(lambda x: x._op("Exp", x))
+    abs = staticmethod(lambda x: x._op("Abs", x))
+    sign = staticmethod(lambda x: x._op("Sign", x))
+
+    @staticmethod
+    def const(x: float) -> float:
+        return float(x)
+
+    @staticmethod
+    def full_like(x: _Node, value: float) -> _Node:
+        return x * 0.0 + value  # the shape of x
+
+    @staticmethod
+    def where(condition: _Node, a, b) -> _Node:
+        return condition._op("Where", condition, a, b)
+
+
 def _effect(g: _Graph, e, y: str, v: str, base: str) -> str:
-    """Force (N) of effect ``e`` as graph nodes of ``y`` (m), ``v`` (m/s), ``base`` (N)."""
-    if isinstance(e, (Cogging, ForceRipple)):
-        arg = g.op("Div", g.op("Mul", g.const(2.0 * np.pi), y), g.const(e.period))
-        sin = g.op("Sin", g.op("Add", arg, g.const(e.phase)))
-        if isinstance(e, Cogging):
-            return g.op("Mul", g.const(e.amplitude), sin)
-        return g.op("Mul", g.op("Mul", g.const(-e.amplitude), sin), base)
-    if isinstance(e, CableSlab):
-        x = g.op("Sub", y, g.const(e.center))
-        out = g.op("Mul", g.const(e.coefficients[-1]), g.op("Mul", x, g.const(0.0)))
-        out = g.op("Add", out, g.const(e.coefficients[-1]))
-        for c in reversed(e.coefficients[:-1]):
-            out = g.op("Add", g.const(c), g.op("Mul", x, out))
-        return out
-    if isinstance(e, Stribeck):
-        ratio = g.op("Div", g.op("Abs", v), g.const(e.velocity))
-        shape = g.op("Mul", g.op("Sign", v),
-                     g.op("Exp", g.op("Neg", g.op("Pow", ratio, g.const(e.exponent)))))
-        return g.op("Mul", g.const(e.peak), shape)
-    if isinstance(e, FrictionAsymmetry):
-        zero = g.const(0.0)
-        pos = g.op("Add", g.const(e.coulomb_pos), g.op("Mul", g.const(e.viscous_pos), v))
-        neg = g.op("Add", g.const(-e.coulomb_neg), g.op("Mul", g.const(e.viscous_neg), v))
-        inner = g.op("Where", g.op("Less", v, zero), neg, g.op("Mul", v, zero))
-        return g.op("Where", g.op("Greater", v, zero), pos, inner)
-    if isinstance(e, ForceOffset):
-        return g.op("Add", g.op("Mul", y, g.const(0.0)), g.const(e.force_n))
-    raise UserError(f"export: effect {e.type!r} has no ONNX form")
+    """Force (N) of effect ``e`` (its law) as graph nodes of ``y`` (m), ``v`` (m/s), ``base``
+    (N)."""
+    try:
+        out = e.law(_Node(g, y), _Node(g, v), _Node(g, base), _OnnxNamespace())
+    except NotImplementedError:
+        raise UserError(f"export: effect {e.type!r} has no ONNX form (no law of y, v, u)") \
+            from None
+    return out.name if isinstance(out, _Node) else _Node(g, y).__mul__(0.0).__add__(out).name
 
 
 def _activation(g: _Graph, name: str, x: str) -> str:

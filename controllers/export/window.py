@@ -28,7 +28,6 @@ import numpy as np
 import scipy.signal
 import scipy.special
 
-from clm_sim.effects import Presliding
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
 
@@ -134,7 +133,7 @@ class WindowFeedforward:
 
     def __post_init__(self):
         for e in self.effects:
-            if isinstance(e, Presliding):
+            if e.path_dependent:
                 raise UserError("export: pre-sliding friction has a state along the whole path; "
                                 "it has no window form and is not exportable")
         if (self.kernel is None) != (self.network is None):
