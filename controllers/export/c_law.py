@@ -8,6 +8,7 @@ numpy law's)."""
 from __future__ import annotations
 
 from clm_sim.errors import UserError
+from clm_sim.rigid_body import rigid_body
 from controllers.export.c_literals import c_real
 
 # precedence: 0 an operand (literal, name, call, parenthesised), 1 unary, 2 * /, 3 + -, 4 < >
@@ -19,8 +20,15 @@ class CExpr:
 
     __array_priority__ = 1000  # numpy scalars defer to these operators
 
-    def __init__(self, text: str, prec: int = _ATOM):
+    def __init__(self, text: str, prec: int = _ATOM, terms: tuple = ()):
         self.text, self.prec = text, prec
+        self.terms = terms  # a sum's terms, each with its sign ("+ x"), for the layout
+
+    def laid_out(self, first: int, indent: str) -> str:
+        """The text with the terms of a sum after the ``first`` on a new line at ``indent``."""
+        if len(self.terms) <= first:
+            return self.text
+        return " ".join(self.terms[:first]) + "\n" + indent + " ".join(self.terms[first:])
 
     def __str__(self) -> str:
         return self.text
@@ -33,7 +41,10 @@ class CExpr:
         left, right = (CExpr.of(other), self) if reflected else (self, CExpr.of(other))
         lt = left.text if left.prec <= prec else f"({left.text})"
         rt = right.text if right.prec < prec else f"({right.text})"  # keeps the law's order
-        return CExpr(f"{lt} {op} {rt}", prec)
+        terms = ()
+        if prec == _ADD:
+            terms = (left.terms if left.terms and lt == left.text else (lt,)) + (f"{op} {rt}",)
+        return CExpr(f"{lt} {op} {rt}", prec, terms)
 
     def __add__(self, o): return self._binary(o, "+", _ADD)
     def __radd__(self, o): return self._binary(o, "+", _ADD, True)
@@ -78,6 +89,13 @@ class CNamespace:
 
 
 C = CNamespace()
+
+
+def rigid_body_c(theta, a: str, v: str, s: str, y: str) -> str:
+    """The C of :func:`clm_sim.rigid_body.rigid_body` on the C expressions ``a``, ``v``, ``s``,
+    ``y`` (two terms a line)."""
+    out = rigid_body(theta, CExpr(a), CExpr(v), CExpr(s), CExpr(y))
+    return out.laid_out(2, "        ")
 
 
 def effect_c(effect) -> str:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from controllers.export import selftest
-from controllers.export.c_law import effect_c
+from controllers.export.c_law import effect_c, rigid_body_c
 from controllers.export.c_literals import c_array, c_matrix, c_real
 from controllers.export.c_names import prefixed
 from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
@@ -313,8 +313,7 @@ static CLM_FF_INLINE clm_ff_real physical(const clm_ff_pos *r)
     const clm_ff_real y = (clm_ff_real)POS(r[0]);
     const clm_ff_real v = (clm_ff_real)VEL(r);
     const clm_ff_real a = (clm_ff_real)ACC(r);
-    clm_ff_real p = {c_real(th['mass'])} * a + {c_real(th['viscous'])} * v
-        + {c_real(th['coulomb'])} * SGN(v) + {c_real(th['stiffness'])} * y;
+    clm_ff_real p = {rigid_body_c(th, "a", "v", "SGN(v)", "y")};
     const clm_ff_real base = p;
     (void)base;
 {effects}    return p;
@@ -326,8 +325,7 @@ static CLM_FF_INLINE clm_ff_real physical(const clm_ff_pos *r)
 /* Physical layer (N) of the features f = [a, v, sign v, y] the network sees. */
 static clm_ff_real physical(const clm_ff_real f[4])
 {{
-    return {c_real(th['mass'])} * f[0] + {c_real(th['viscous'])} * f[1]
-        + {c_real(th['coulomb'])} * f[2] + {c_real(th['stiffness'])} * f[3];
+    return {rigid_body_c(th, "f[0]", "f[1]", "f[2]", "f[3]")};
 }}
 
 /* The features of both instants are finite (a NaN or an infinity in the window reaches them:

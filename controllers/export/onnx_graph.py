@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from clm_sim.errors import UserError
+from clm_sim.rigid_body import rigid_body
 from controllers.export.options import ExportOptions, safe_text
 from controllers.export.window import WindowFeedforward
 
@@ -110,6 +111,27 @@ class _OnnxNamespace:
         return condition._op("Where", condition, a, b)
 
 
+class _Deferred(_Node):
+    """A node made when it is first read (so that the constant beside it comes first)."""
+
+    def __init__(self, g: _Graph, op: str, x: str):
+        self.g, self._op_input, self._name = g, (op, x), None
+
+    @property
+    def name(self) -> str:
+        if self._name is None:
+            self._name = self.g.op(*self._op_input)
+        return self._name
+
+
+def _rename(g: _Graph, name: str, base: str) -> str:
+    """The last node's output ``name`` renamed ``<base>_<n>`` (a readable graph)."""
+    new = f"{base}_{name.rsplit('_', 1)[1]}"
+    assert g.nodes[-1].output[0] == name
+    g.nodes[-1].output[0] = new
+    return new
+
+
 def _effect(g: _Graph, e, y: str, v: str, base: str) -> str:
     """Force (N) of effect ``e`` (its law) as graph nodes of ``y`` (m), ``v`` (m/s), ``base``
     (N)."""
@@ -156,10 +178,8 @@ def model(wf: WindowFeedforward, options: ExportOptions | None = None):
                  g.const(wf.ts * wf.ts), base="a")
     th = wf.theta
     if wf.network is None:  # a LIP: theta and the effects on the raw differences
-        p = g.op("Add", g.op("Add", g.op("Add", g.op("Mul", g.const(th["mass"]), a),
-                                         g.op("Mul", g.const(th["viscous"]), v)),
-                             g.op("Mul", g.const(th["coulomb"]), g.op("Sign", v))),
-                 g.op("Mul", g.const(th["stiffness"]), x0), base="physical")
+        p = rigid_body(th, _Node(g, a), _Node(g, v), _Deferred(g, "Sign", v), _Node(g, x0))
+        p = _rename(g, p.name, "physical")
         base = p
         for e in wf.effects:
             p = g.op("Add", p, _effect(g, e, x0, v, base))

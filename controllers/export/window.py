@@ -30,6 +30,7 @@ import scipy.special
 
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
+from clm_sim.rigid_body import rigid_body
 
 ACTIVATIONS = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
 DEFAULT_TOL = 1e-15
@@ -183,8 +184,7 @@ class WindowFeedforward:
             r0 = w[:, c]
             v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
             a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
-            p = (th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v)
-                 + th["stiffness"] * r0)
+            p = rigid_body(th, a, v, np.sign(v), r0)
             base = p
             for e in self.effects:
                 p = p + e.force(r0, v, base)
