@@ -9,6 +9,8 @@ namespaces of their own with the same members. A law uses only these:
 * ``xp.pi``; ``xp.const(x)``: a number the target writes as its own literal (where a law negates
   a parameter, ``-xp.const(a)`` keeps the literal positive in the generated code);
 * ``xp.sin``, ``xp.exp``, ``xp.abs``, ``xp.sign``; ``a ** b``; ``+ - * /`` and unary minus;
+* for the networks' activations also ``xp.tanh``, ``xp.relu``, ``xp.log1p``, ``xp.erf``,
+  ``xp.sqrt`` (a target may write ``tanh`` its own way: the C as ``1 - 2/(1 + e^2x)``);
 * comparisons ``v > 0``, ``v < 0`` and ``xp.where(condition, a, b)``;
 * ``xp.full_like(x, value)``: ``value`` with the shape of ``x``.
 """
@@ -16,6 +18,7 @@ namespaces of their own with the same members. A law uses only these:
 from __future__ import annotations
 
 import numpy as np
+import scipy.special
 
 
 class NumpyNamespace:
@@ -27,6 +30,14 @@ class NumpyNamespace:
     abs = staticmethod(np.abs)
     sign = staticmethod(np.sign)
     where = staticmethod(np.where)
+    tanh = staticmethod(np.tanh)
+    log1p = staticmethod(np.log1p)
+    erf = staticmethod(scipy.special.erf)
+    sqrt = staticmethod(np.sqrt)
+
+    @staticmethod
+    def relu(x):
+        return np.maximum(x, 0.0)
 
     @staticmethod
     def const(x: float) -> float:

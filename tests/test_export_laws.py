@@ -179,3 +179,17 @@ def test_the_export_imports_no_effect_class():
             if isinstance(node, ast.Import):
                 assert all(a.name != "clm_sim.effects" for a in node.names), path.name
         assert "isinstance(e," not in path.read_text(), path.name
+
+
+@pytest.mark.parametrize("name", ["tanh", "sigmoid", "softplus", "silu", "gelu", "relu"])
+def test_each_activation_law_is_torchs(name):
+    """The activations are written once too (window.ACTIVATION_LAWS, evaluated by numpy, the C
+    and ONNX; the network tests of test_export.py hold those to the product): the numpy law is
+    the PGNN's torch activation to rounding over the whole range (saturation, e^x overflow)."""
+    torch = pytest.importorskip("torch")
+    from controllers.export.window import ACTIVATION_LAWS, activate
+    from controllers.pgnn.network import ACTIVATIONS
+    assert set(ACTIVATION_LAWS) == set(ACTIVATIONS)
+    x = np.concatenate([np.linspace(-40.0, 40.0, 4001), [-800.0, -710.0, 710.0, 800.0, 0.0]])
+    want = ACTIVATIONS[name]()(torch.from_numpy(x)).numpy()
+    assert np.all(np.abs(activate(name, x) - want) <= 4e-16 * np.maximum(1.0, np.abs(x)))

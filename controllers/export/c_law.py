@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from clm_sim.errors import UserError
 from clm_sim.rigid_body import rigid_body
+from controllers.export.window import ACTIVATION_LAWS
 from controllers.export.c_literals import c_real
 
 # precedence: 0 an operand (literal, name, call, parenthesised), 1 unary, 2 * /, 3 + -, 4 < >
@@ -74,6 +75,19 @@ class CNamespace:
     pi = CExpr(c_real(3.141592653589793))
     sin, exp = staticmethod(_call("SIN")), staticmethod(_call("EXP"))
     abs, sign = staticmethod(_call("FABS")), staticmethod(_call("SGN"))
+    log1p, erf = staticmethod(_call("LOG1P")), staticmethod(_call("ERF"))
+    sqrt = staticmethod(_call("SQRT"))
+
+    @staticmethod
+    def tanh(x):
+        # 1 - 2/(1 + e^2x): one exp instead of libm's expm1-based tanh; its absolute error is a
+        # few 1e-16 (what the force sees through the output weights), and no overflow: e^2x = inf
+        # -> 1.
+        return 1.0 - 2.0 / (1.0 + C.exp(2.0 * x))
+
+    @staticmethod
+    def relu(x):
+        return C.where(x > 0.0, x, C.full_like(x, 0.0))
 
     @staticmethod
     def const(x: float) -> CExpr:
@@ -96,6 +110,11 @@ def rigid_body_c(theta, a: str, v: str, s: str, y: str) -> str:
     ``y`` (two terms a line)."""
     out = rigid_body(theta, CExpr(a), CExpr(v), CExpr(s), CExpr(y))
     return out.laid_out(2, "        ")
+
+
+def activation_c(name: str) -> str:
+    """The C expression of the activation ``name`` (its law) of ``x``."""
+    return CExpr.of(ACTIVATION_LAWS[name](CExpr("x"), C)).text
 
 
 def effect_c(effect) -> str:

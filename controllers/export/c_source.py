@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from controllers.export import selftest
-from controllers.export.c_law import effect_c, rigid_body_c
+from controllers.export.c_law import activation_c, effect_c, rigid_body_c
 from controllers.export.c_literals import c_array, c_matrix, c_real
 from controllers.export.c_names import prefixed
 from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
@@ -56,17 +56,6 @@ def _comment_lines(text: str, width: int = 90) -> str:
     wrapped.append(line.rstrip())
     return "\n".join(f" *   {w}" for w in wrapped)
 
-
-_ACT = {
-    # 1 - 2/(1 + e^2x): one exp instead of libm's expm1-based tanh; its absolute error is a few
-    # 1e-16 (what the force sees through the output weights), and no overflow: e^2x = inf -> 1.
-    "tanh": "R(1.0) - R(2.0) / (R(1.0) + EXP(R(2.0) * x))",
-    "sigmoid": "R(1.0) / (R(1.0) + EXP(-x))",
-    "softplus": "(x > R(20.0) ? x : LOG1P(EXP(x)))",
-    "silu": "x / (R(1.0) + EXP(-x))",
-    "gelu": "R(0.5) * x * (R(1.0) + ERF(x / SQRT(R(2.0))))",
-    "relu": "(x > R(0.0) ? x : R(0.0))",
-}
 
 _PRELUDE = """\
 /* The maths functions: each overridable by a macro defined before this point (-D or a wrapper
@@ -668,7 +657,7 @@ def _network_source(wf: WindowFeedforward) -> str:
             clm_ff_real x = B{li}[o];
             for (j = 0; j < {a}; ++j)
                 x += W{li}[o][j] * h{li}[j];
-            h{li + 1}[o] = {_ACT[net.activation]};
+            h{li + 1}[o] = {activation_c(net.activation)};
         }}
 """)
     last = len(net.layers)

@@ -16,7 +16,7 @@ import numpy as np
 from clm_sim.errors import UserError
 from clm_sim.rigid_body import rigid_body
 from controllers.export.options import ExportOptions, safe_text
-from controllers.export.window import WindowFeedforward
+from controllers.export.window import ACTIVATION_LAWS, WindowFeedforward
 
 # The opset the graph is written in: 17, which most runtimes accept (every operator used here is
 # defined there), and the IR version of that opset (onnx's table: opset 17 is
@@ -97,6 +97,8 @@ class _OnnxNamespace:
     exp = staticmethod(lambda x: x._op("Exp", x))
     abs = staticmethod(lambda x: x._op("Abs", x))
     sign = staticmethod(lambda x: x._op("Sign", x))
+    tanh = staticmethod(lambda x: x._op("Tanh", x))
+    relu = staticmethod(lambda x: x._op("Relu", x))
 
     @staticmethod
     def const(x: float) -> float:
@@ -144,17 +146,15 @@ def _effect(g: _Graph, e, y: str, v: str, base: str) -> str:
 
 
 def _activation(g: _Graph, name: str, x: str) -> str:
-    if name == "tanh":
-        return g.op("Tanh", x)
-    # 1/(1 + e^-x), not the Sigmoid operator: ONNX Runtime's float64 Sigmoid is an approximation
-    # (1e-4 off, measured with 1.32), its Exp is exact to rounding.
-    if name in ("sigmoid", "silu"):
-        one = g.const(1.0)
-        sig = g.op("Div", one, g.op("Add", one, g.op("Exp", g.op("Neg", x))))
-        return sig if name == "sigmoid" else g.op("Mul", x, sig)
-    if name == "relu":
-        return g.op("Relu", x)
-    raise UserError(f"export: activation {name!r} has no ONNX form here (use --to c)")
+    """The activation ``name`` (its law, :data:`~controllers.export.window.ACTIVATION_LAWS`) as
+    graph nodes of ``x``. A sigmoid is ``1/(1 + e^-x)``, not the Sigmoid operator: ONNX
+    Runtime's float64 Sigmoid is an approximation (1e-4 off, measured with 1.32), its Exp is
+    exact to rounding. softplus and gelu need log1p and erf, which this namespace lacks."""
+    try:
+        return ACTIVATION_LAWS[name](_Node(g, x), _OnnxNamespace()).name
+    except AttributeError:
+        raise UserError(f"export: activation {name!r} has no ONNX form here (use --to c)") \
+            from None
 
 
 def model(wf: WindowFeedforward, options: ExportOptions | None = None):

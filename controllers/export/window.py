@@ -26,10 +26,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.signal
-import scipy.special
 
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
+from clm_sim.namespace import NUMPY
 from clm_sim.rigid_body import rigid_body
 
 ACTIVATIONS = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
@@ -98,19 +98,25 @@ class Network:
         return h @ self.out_w + self.out_b
 
 
+# The activations of controllers.pgnn.network.ACTIVATIONS, each written once against an array
+# namespace (clm_sim.namespace): numpy here (as torch computes them), C (controllers/export/
+# c_law.py) and ONNX (onnx_graph.py) evaluate the same law. The C's AVX2 path keeps its own
+# intrinsics (c_source._ACT_AVX2).
+ACTIVATION_LAWS = {
+    "tanh": lambda x, xp: xp.tanh(x),
+    "sigmoid": lambda x, xp: 1.0 / (1.0 + xp.exp(-x)),
+    "softplus": lambda x, xp: xp.where(x > 20.0, x, xp.log1p(xp.exp(x))),  # torch: threshold 20
+    "silu": lambda x, xp: x / (1.0 + xp.exp(-x)),
+    "gelu": lambda x, xp: 0.5 * x * (1.0 + xp.erf(x / xp.sqrt(2.0))),
+    "relu": lambda x, xp: xp.relu(x),
+}
+
+
 def activate(name: str, x: np.ndarray) -> np.ndarray:
-    """The activations of :data:`controllers.pgnn.network.ACTIVATIONS` as torch computes them."""
-    if name == "tanh":
-        return np.tanh(x)
-    if name == "sigmoid":
-        return 1.0 / (1.0 + np.exp(-x))
-    if name == "softplus":  # torch: beta 1, linear above threshold 20
-        return np.where(x > 20.0, x, np.log1p(np.exp(np.minimum(x, 20.0))))
-    if name == "silu":
-        return x / (1.0 + np.exp(-x))
-    if name == "gelu":
-        return 0.5 * x * (1.0 + scipy.special.erf(x / np.sqrt(2.0)))
-    return np.maximum(x, 0.0)
+    """The activation ``name``'s law on numpy arrays (e^x of a saturated unit may overflow to
+    inf where the law then takes its limit)."""
+    with np.errstate(over="ignore"):
+        return ACTIVATION_LAWS[name](x, NUMPY)
 
 
 @dataclass(frozen=True)
