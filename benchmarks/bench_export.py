@@ -6,13 +6,15 @@ times ``clm_ff`` and the streaming form over every sample of r2 in blocks of ``-
 (CPU time of the calling thread), ``--repeats`` passes: the best block is the cost of a call
 undisturbed, the median block what a shared machine gave while measuring. The default build
 takes the AVX2 path where the CPU has AVX2 and FMA; ``-DCLM_FF_PORTABLE`` is the portable C,
-``-DCLM_FF_FLOAT`` the single-precision build. ONNX Runtime is timed per call (batch 1,
+``-DCLM_FF_FLOAT`` the single-precision build (int64 counts in, float arithmetic; its error
+against the product on the same counts, and the cost of the rounding to counts). ONNX Runtime is timed per call (batch 1,
 ``session.run`` included) and batched (``--batch`` windows per run). Also prints the error of
 the C against the product's Python feedforward, and what ``export-ff --filter-tail`` trades
 (window, look-ahead, error, time) for the values of ``--filter-tails``.
 
 Run from the repository root: ``python benchmarks/bench_export.py``. Last line on stdout:
-``<model>_c[_stream][_portable|_float][_median]_ns=<t> ... onnx_call_us=<t> onnx_batched_ns=<t>``
+``<model>_c[_stream][_portable|_float][_median]_ns=<t> ... onnx_call_us=<t> onnx_batched_ns=<t>
+onnx_mlp_call_us=<t>``
 (``<model>``: lip, pgnn16; without ``_median``: the best block).
 """
 
@@ -99,7 +101,18 @@ def main(argv=None) -> int:
             portable = CompiledFeedforward(tmp, (*args.flags.split(), "-DCLM_FF_PORTABLE"))
             single = CompiledFeedforward(tmp, (*args.flags.split(), "-DCLM_FF_FLOAT"))
             want = model.feedforward(r, tb.ts)
-            err, err32 = _rel(lib.stream(r), want), _rel(single.stream(r), want)
+            err = _rel(lib.stream(r), want)
+            # the float build reads int64 counts: its own error against the product on the
+            # same counts, and apart from it what the rounding to counts costs (max, RMS)
+            rq = single.quantized(r)
+            want_q = model.feedforward(rq, tb.ts)
+            err32 = _rel(single.stream(r), want_q)
+            k32 = np.arange(0, len(r), 13)
+            err32_call = _rel(single(wf.windows(r)[k32]), want_q[k32])
+            quant = _rel(want_q, want)
+            quant_rms = float(np.sqrt(np.mean((want_q - want) ** 2)) / np.max(np.abs(want)))
+            results[f"{name}_float_err"] = err32
+            results[f"{name}_float_call_err"] = err32_call
             err_portable = _rel(portable.stream(r), want)
             k = np.arange(0, len(r), 13)  # the stateless call on every 13th window
             w = wf.windows(r)[k]
@@ -121,7 +134,10 @@ def main(argv=None) -> int:
               f"{t['c_float_ns']:,.0f}, streaming {t['c_stream_float_ns']:,.0f}; against the "
               f"100 us cycle: clm_ff {100 * t['c_ns'] / CYCLE_NS:.2f} %. Error vs Python "
               f"{err_call:.1e} (clm_ff), {err:.1e} (streaming), {err_portable:.1e} (portable "
-              f"streaming), {err32:.1e} (streaming, -DCLM_FF_FLOAT) of the peak force",
+              f"streaming) of the peak force. -DCLM_FF_FLOAT (int64 counts of "
+              f"{single.count_m:g} m, float arithmetic) against the product on the same counts: "
+              f"{err32_call:.1e} (clm_ff), {err32:.1e} (streaming); the rounding to counts "
+              f"itself moves the product's force by {quant:.1e} (max; RMS {quant_rms:.1e})",
               file=sys.stderr)
     if compiler() is not None and args.filter_tails:
         _filter_tails(tb, pgnn, r, args, results)
@@ -156,10 +172,24 @@ def main(argv=None) -> int:
             batched.append((time.process_time() - t0) / len(windows) * 1e9)
         results["onnx_call_us"] = min(calls) / 1e3
         results["onnx_batched_ns"] = min(batched)
+        with tempfile.TemporaryDirectory() as tmp:  # the plain-MLP form: features in
+            onnx_graph.mlp_write(wf, tmp)
+            mlp = ort.InferenceSession(str(Path(tmp) / "clm_ff.onnx"), opts,
+                                       providers=["CPUExecutionProvider"])
+        feats = [np.ascontiguousarray(wf.features(w[None, :-1])) for w in windows[:200]]
+        mlp.run(["force"], {"features": feats[0]})
+        mlp_calls = []
+        for _ in range(args.repeats):
+            t0 = time.process_time()
+            for f in feats:
+                mlp.run(["force"], {"features": f})
+            mlp_calls.append((time.process_time() - t0) / len(feats) * 1e9)
+        results["onnx_mlp_call_us"] = min(mlp_calls) / 1e3
         print(f"pgnn{args.hidden}: ONNX Runtime {ort.__version__} (1 thread): "
               f"{min(calls) / 1e3:,.1f} us per call (batch 1, {100 * min(calls) / CYCLE_NS:.1f} % "
-              f"of the cycle), {min(batched):,.0f} ns per window in batches of {len(windows)}",
-              file=sys.stderr)
+              f"of the cycle), {min(batched):,.0f} ns per window in batches of {len(windows)}; "
+              f"the plain-MLP form (--onnx-form mlp, features in) {min(mlp_calls) / 1e3:,.1f} us "
+              f"per call (one instant; the held average needs two)", file=sys.stderr)
     print(" ".join(f"{k}={v:.4g}" for k, v in results.items()))
     return 0
 

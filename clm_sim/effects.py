@@ -2,15 +2,23 @@
 
 Each effect is a small frozen dataclass with named SI parameters. It knows three things:
 
-* ``force(y, v, u)``: the force (N) it adds to what the motor must supply, in the inverse-model sign
-  convention ``u = m*a + fv*v + fc*sign(v) + fk*y + sum(effect.force)``; in the plant it enters
-  with the opposite sign (``m*a = u - ... - sum(effect.force)``);
+* ``law(y, v, u, xp)``: the force (N) it adds to what the motor must supply, in the inverse-model
+  sign convention ``u = m*a + fv*v + fc*sign(v) + fk*y + sum(effect.force)``, written once against
+  an array namespace ``xp`` (:mod:`clm_sim.namespace`): ``force(y, v, u)`` is the law on numpy
+  arrays, and the export writes the same law as C and as ONNX nodes, so that a new effect exports
+  with no edit to ``controllers/export/``. In the plant the force enters with the opposite sign
+  (``m*a = u - ... - sum(effect.force)``);
 * ``regressors(y, v, u)``: the columns it contributes to a linear-in-the-parameters model when its
   nonlinear parameters (periods, velocities) are held fixed, and ``from_coefficients`` to rebuild the
   effect from the least-squares coefficients of those columns;
 * ``lower(terms)``: how it appears in the compiled simulator, as primitive terms of
   :class:`KernelTerms` (position harmonics, motor-force ripple, a position polynomial, Stribeck
-  friction, direction-dependent friction, a constant force, Dahl pre-sliding friction).
+  friction, direction-dependent friction, a constant force, Dahl pre-sliding friction). The
+  simulator keeps this lowering of its own: it integrates the *forward* plant, where friction at
+  rest is stiction up to the breakaway level (not the law's value at ``v = 0``) and the ripple
+  multiplies the motor force, in a numba kernel compiled once for these fixed term arrays (a law
+  compiled per model would cost a compilation per plant); the tests hold the kernel's forces in
+  motion to the laws.
 
 Most forces are functions of the instantaneous ``(y, v, u)``. Pre-sliding friction has a state
 (the bristle deflection), but Dahl's state is a function of the position *path* alone, so its
@@ -28,6 +36,7 @@ from typing import ClassVar
 import numpy as np
 
 from clm_sim.errors import UserError
+from clm_sim.namespace import NUMPY
 
 
 @dataclass
@@ -97,9 +106,18 @@ class Effect:
     type: ClassVar[str] = ""
     nonlinear: ClassVar[tuple[str, ...]] = ()
     aliases: ClassVar[dict[str, str]] = {}  # config name -> field name, where a field would clash
+    # True where the force is a function of the whole position path (a state), not of the
+    # instant's (y, v, u): no law, no window form, not exportable
+    path_dependent: ClassVar[bool] = False
+
+    def law(self, y, v, u, xp):
+        """The force (N) at position ``y`` (m), velocity ``v`` (m/s) and the rest of the force
+        ``u`` (N), in the array namespace ``xp`` (:mod:`clm_sim.namespace`)."""
+        raise NotImplementedError(f"effect {self.type!r} has no law of (y, v, u)")
 
     def force(self, y: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+        """The law on numpy arrays (float64)."""
+        return self.law(np.asarray(y), np.asarray(v), np.asarray(u), NUMPY)
 
     def regressors(self, y: np.ndarray, v: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -139,8 +157,8 @@ class Cogging(Effect):
     def _arg(self, y):
         return 2.0 * np.pi * np.asarray(y) / self.period
 
-    def force(self, y, v, u):
-        return self.amplitude * np.sin(self._arg(y) + self.phase)
+    def law(self, y, v, u, xp):
+        return self.amplitude * xp.sin(2.0 * xp.pi * y / self.period + self.phase)
 
     def regressors(self, y, v, u):
         x = self._arg(y)
@@ -180,9 +198,9 @@ class ForceRipple(Effect):
     def _arg(self, y):
         return 2.0 * np.pi * np.asarray(y) / self.period
 
-    def force(self, y, v, u):
+    def law(self, y, v, u, xp):
         # Exact inverse of u_motor = u*(1+rho): u = rest/(1+rho) = rest - rho*u.
-        return -self.amplitude * np.sin(self._arg(y) + self.phase) * np.asarray(u)
+        return -xp.const(self.amplitude) * xp.sin(2.0 * xp.pi * y / self.period + self.phase) * u
 
     def regressors(self, y, v, u):
         x = self._arg(y)
@@ -218,8 +236,12 @@ class CableSlab(Effect):
         _check_finite("cable_slab", center=self.center,
                       **{f"coefficients[{i}]": c for i, c in enumerate(self.coefficients)})
 
-    def force(self, y, v, u):
-        return np.polynomial.polynomial.polyval(np.asarray(y) - self.center, self.coefficients)
+    def law(self, y, v, u, xp):
+        x = y - self.center  # Horner's scheme, as numpy's polyval
+        out = xp.full_like(x, self.coefficients[-1])
+        for c in reversed(self.coefficients[:-1]):
+            out = c + x * out
+        return out
 
     def regressors(self, y, v, u):
         d = np.asarray(y) - self.center
@@ -264,8 +286,8 @@ class Stribeck(Effect):
         v = np.asarray(v)
         return np.sign(v) * np.exp(-((np.abs(v) / self.velocity) ** self.exponent))
 
-    def force(self, y, v, u):
-        return self.peak * self._shape(v)
+    def law(self, y, v, u, xp):
+        return self.peak * xp.sign(v) * xp.exp(-((xp.abs(v) / self.velocity) ** self.exponent))
 
     def regressors(self, y, v, u):
         return {"stribeck": self._shape(v)}
@@ -309,6 +331,7 @@ class Presliding(Effect):
     stiffness: float = 2.0e6
     type: ClassVar[str] = "presliding"
     nonlinear: ClassVar[tuple[str, ...]] = ("length",)
+    path_dependent: ClassVar[bool] = True
 
     def __post_init__(self):
         _check_finite("presliding", sliding=self.sliding)
@@ -360,11 +383,10 @@ class FrictionAsymmetry(Effect):
                       coulomb_neg=self.coulomb_neg, viscous_pos=self.viscous_pos,
                       viscous_neg=self.viscous_neg)
 
-    def force(self, y, v, u):
-        v = np.asarray(v)
-        pos, neg = v > 0, v < 0
-        return (pos * (self.coulomb_pos + self.viscous_pos * v)
-                + neg * (-self.coulomb_neg + self.viscous_neg * v))
+    def law(self, y, v, u, xp):
+        return xp.where(v > 0, self.coulomb_pos + self.viscous_pos * v,
+                        xp.where(v < 0, -xp.const(self.coulomb_neg) + self.viscous_neg * v,
+                                 xp.full_like(v, 0.0)))
 
     def regressors(self, y, v, u):
         # Only the part a LIP with fc*sign(v) and fv*v cannot absorb is identifiable: the
@@ -396,8 +418,8 @@ class ForceOffset(Effect):
     def __post_init__(self):
         _check_finite("force_offset", force_n=self.force_n)
 
-    def force(self, y, v, u):
-        return np.full(np.shape(y), self.force_n, dtype=float)
+    def law(self, y, v, u, xp):
+        return xp.full_like(y, self.force_n)
 
     def regressors(self, y, v, u):
         return {"offset": np.ones(np.shape(y))}

@@ -20,6 +20,7 @@ import scipy.linalg
 
 from clm_sim.effects import CableSlab, Effect, ForceRipple, Stribeck, lower_effects, total_force
 from clm_sim.errors import UserError
+from clm_sim.rigid_body import rigid_body
 
 THETA_NAMES = ("mass", "viscous", "coulomb", "stiffness")
 
@@ -96,7 +97,7 @@ class Plant:
     def inverse_force(self, y, v, a, u=None) -> np.ndarray:
         """Force (N) the motor must supply for the motion ``(y, v, a)``; ``u`` feeds force ripple."""
         y, v, a = (np.asarray(z, dtype=float) for z in (y, v, a))
-        base = self.mass * a + self.viscous * v + self.coulomb * np.sign(v) + self.stiffness * y
+        base = rigid_body(self.theta(), a, v, np.sign(v), y)
         return base + total_force(self.effects, y, v, base if u is None else u)
 
     def substep_matrices(self, ts: float) -> tuple[float, np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
 from clm_sim.modelfile import mapping, number, read_json, sample_time
 from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
+from clm_sim.rigid_body import rigid_body
 from clm_sim.schema import build, build_effect
 
 
@@ -101,7 +102,7 @@ class LIPFeedforward:
         ts = self._rate(ts)
         yf, v, a = self.features.motion(y, ts)
         th = self.theta_
-        out = th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v) + th["stiffness"] * yf
+        out = rigid_body(th, a, v, np.sign(v), yf)
         if self.effects_:
             base = out if u is None else edge_force(u)
             for e in self.effects_:

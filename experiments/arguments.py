@@ -77,3 +77,28 @@ def simulation(p: argparse.ArgumentParser) -> None:
                    help="the machine's twin: the model file's controller on the record's "
                    "reference; predicts position and input")
     p.add_argument("--out", help="output folder (default results/simulate/<data name>)")
+
+
+def export_ff(p: argparse.ArgumentParser) -> None:
+    """``export-ff``'s model, target and options (docs/export.md)."""
+    p.add_argument("model", help="params/lip.json or params/<row>_seed<k>.pt of a run, "
+                   "identify's lip.json, or a diagnosis.json")
+    p.add_argument("--to", required=True, help="c or onnx")
+    p.add_argument("--out", required=True, help="output folder (replaced as a whole)")
+    p.add_argument("--ts", type=float, help="sample time (s), where the file carries none")
+    p.add_argument("--filter-tail", type=float, metavar="TOL",
+                   help="PGNN: cut the feature filter where its discarded tail is below TOL of "
+                        "its sum (default 1e-15, exact to rounding; larger: a shorter window "
+                        "and look-ahead, less exact; see docs/export.md)")
+    p.add_argument("--prefix", help="names of the public symbols, macros and files "
+                   "(default clm_ff; two exports with different prefixes link together)")
+    p.add_argument("--max-force", type=float, metavar="N", help="C: |force| limit (N)")
+    p.add_argument("--max-slew", type=float, metavar="N_PER_S",
+                   help="C: the stream's rate limit (N/s; changeable at run time)")
+    p.add_argument("--count-m", type=float, metavar="M",
+                   help="C, float build (-DCLM_FF_FLOAT): one count of its int64 fixed-point "
+                        "reference, m (default 1e-12)")
+    p.add_argument("--onnx-form", default="window", metavar="FORM",
+                   help="ONNX: window (input the reference window, default) or mlp (input the "
+                        "filtered features, MatMul/Add/Tanh only, for runtimes that accept only "
+                        "plain MLPs)")

@@ -70,7 +70,8 @@ def _cmd_export_ff(args) -> int:
     from experiments.export_ff import export
 
     files = export(args.model, args.to, args.out, ts=args.ts, filter_tail=args.filter_tail,
-                   prefix=args.prefix, max_force=args.max_force, max_slew=args.max_slew)
+                   prefix=args.prefix, max_force=args.max_force, max_slew=args.max_slew,
+                   count_m=args.count_m, onnx_form=args.onnx_form)
     print(f"wrote {', '.join(str(f) for f in files)} (see docs/export.md)")
     return 0
 
@@ -165,20 +166,7 @@ def parser() -> argparse.ArgumentParser:
     export.set_defaults(func=_cmd_export)
     eff = sub.add_parser("export-ff", help="export a feedforward as C (clm_ff.h, clm_ff.c) or "
                          "ONNX (clm_ff.onnx) for a real-time target")
-    eff.add_argument("model", help="params/lip.json or params/<row>_seed<k>.pt of a run, "
-                     "identify's lip.json, or a diagnosis.json")
-    eff.add_argument("--to", required=True, help="c or onnx")
-    eff.add_argument("--out", required=True, help="output folder (replaced as a whole)")
-    eff.add_argument("--ts", type=float, help="sample time (s), where the file carries none")
-    eff.add_argument("--filter-tail", type=float, metavar="TOL",
-                     help="PGNN: cut the feature filter where its discarded tail is below TOL of "
-                          "its sum (default 1e-15, exact to rounding; larger: a shorter window "
-                          "and look-ahead, less exact; see docs/export.md)")
-    eff.add_argument("--prefix", help="names of the public symbols, macros and files "
-                     "(default clm_ff; two exports with different prefixes link together)")
-    eff.add_argument("--max-force", type=float, metavar="N", help="C: |force| limit (N)")
-    eff.add_argument("--max-slew", type=float, metavar="N_PER_S",
-                     help="C: the stream's rate limit (N/s; changeable at run time)")
+    arguments.export_ff(eff)
     eff.set_defaults(func=_cmd_export_ff)
     sweep = sub.add_parser("sweep", help="run a grid of experiments (a config with a 'sweep:' "
                            "section) in parallel, resumably")

@@ -22,11 +22,12 @@ from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.outdir import atomic_folder
 from clm_sim.schema import build_effect
 from controllers.export import c_source
-from controllers.export.options import DEFAULT_PREFIX, ExportOptions, safe_text
+from controllers.export.options import DEFAULT_COUNT_M, DEFAULT_PREFIX, ExportOptions, safe_text
 from controllers.export.window import DEFAULT_TOL, WindowFeedforward, from_lip, from_pgnn
 from controllers.lip import LIPFeedforward
 
 TARGETS = ("c", "onnx")
+ONNX_FORMS = ("window", "mlp")
 # The largest --filter-tail: a tenth of a per cent of the filter's weight left out is already a
 # different filter (docs/export.md has the error it costs).
 MAX_FILTER_TAIL = 1e-3
@@ -145,16 +146,27 @@ def _load(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward
     raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
 
 
+def float_build(wf: WindowFeedforward, count_m: float) -> dict:
+    """What export.json says of the C float build (``-DCLM_FF_FLOAT``): its input and the error
+    docs/export.md measured for it."""
+    return {"reference": f"int64 counts of {count_m!r} m", "count_m": count_m,
+            "error": "vs the double build on the same counts, of the peak force on r2 (n_l = 16 "
+                     "run): LIP 1e-7; PGNN 4e-7 (clm_ff), 3e-6 (stream); see docs/export.md"}
+
+
 def export(model_path, to: str, out, *, ts: float | None = None,
            filter_tail: float | None = None, prefix: str | None = None,
-           max_force: float | None = None, max_slew: float | None = None) -> list[Path]:
+           max_force: float | None = None, max_slew: float | None = None,
+           count_m: float | None = None, onnx_form: str = "window") -> list[Path]:
     """Export the feedforward at ``model_path`` as ``to`` (``c`` or ``onnx``) into folder
     ``out`` (replaced as a whole; an earlier export there is replaced). ``filter_tail``: where a
     PGNN's feature filter is cut (the discarded tail's share of its sum; default 1e-15, i.e.
     rounding): a larger value shortens the window and the look-ahead and costs accuracy
     (docs/export.md). ``prefix``: the names of every public symbol and macro and of the files
     (default ``clm_ff``); ``max_force`` (N) and ``max_slew`` (N/s): the output limits the C
-    starts with (``None``: none). Returns the files."""
+    starts with (``None``: none); ``count_m`` (m): one count of the C float build's fixed-point
+    reference (default 1e-12); ``onnx_form``: ``window`` (the reference window in, as the C) or
+    ``mlp`` (the filtered features in, MatMul/Add/Tanh only). Returns the files."""
     if to not in TARGETS:
         raise UserError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
     if filter_tail is None:
@@ -162,8 +174,17 @@ def export(model_path, to: str, out, *, ts: float | None = None,
     if not (isinstance(filter_tail, (int, float)) and 0 < filter_tail <= MAX_FILTER_TAIL):
         raise UserError(f"--filter-tail: expected a number in (0, {MAX_FILTER_TAIL:g}], got "
                         f"{filter_tail!r}")
+    if onnx_form not in ONNX_FORMS:
+        raise UserError(f"--onnx-form: expected one of {', '.join(ONNX_FORMS)}, got "
+                        f"{onnx_form!r}")
+    if onnx_form != "window" and to != "onnx":
+        raise UserError("--onnx-form: only with --to onnx")
+    if count_m is not None and to != "c":
+        raise UserError("--count-m: the count of the C float build; only with --to c")
+    limits = {"max_force": max_force, "max_slew": max_slew,
+              "count_m": DEFAULT_COUNT_M if count_m is None else count_m}
     options = ExportOptions(prefix=DEFAULT_PREFIX if prefix is None else prefix,
-                            max_force=max_force, max_slew=max_slew)  # checked before reading
+                            **limits)  # checked before reading
     if to == "onnx" and (max_force is not None or max_slew is not None):
         raise UserError("--max-force/--max-slew: the limits are part of the C export only (an "
                         "ONNX runtime applies its own)")
@@ -175,10 +196,9 @@ def export(model_path, to: str, out, *, ts: float | None = None,
         except ImportError:
             raise UserError("--to onnx needs the export extra: pip install 'clm-sim[export]'") \
                 from None
-        writer = onnx_graph.write
+        writer = onnx_graph.mlp_write if onnx_form == "mlp" else onnx_graph.write
     wf = load_feedforward(model_path, ts, float(filter_tail))
-    options = ExportOptions.traced(model_path, prefix=options.prefix, max_force=max_force,
-                                   max_slew=max_slew)
+    options = ExportOptions.traced(model_path, prefix=options.prefix, **limits)
     out = Path(out)
     try:
         with atomic_folder(out, marker="export.json", what="an exported feedforward",
@@ -189,6 +209,8 @@ def export(model_path, to: str, out, *, ts: float | None = None,
                 "lag": wf.lag, "lead": wf.lead,
                 "filter_tail": wf.filter.get("tol") if wf.filter.get("cutoff_hz") else None,
                 "prefix": options.prefix, "max_force": max_force, "max_slew": max_slew,
+                **({"float_build": float_build(wf, options.count_m)} if to == "c" else
+                   {"onnx_form": onnx_form}),
                 "trace": options.trace(), "files": names,
                 "description": safe_text(wf.describe())},
                 indent=1))

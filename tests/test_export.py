@@ -194,14 +194,47 @@ def test_avx2_path_runs_here_and_agrees_with_the_portable_c(fitted, effects_lip,
 @needs_cc
 @pytest.mark.parametrize("name", ["lip", "pgnn", "lip_effects"])
 def test_float32_build_error_is_small(name, fitted, effects_lip, references, compiled):
-    """-DCLM_FF_FLOAT: single-precision arithmetic after the float64 differences; measured
-    ~3e-7 of the peak force, so 1e-5 leaves room for other models."""
+    """-DCLM_FF_FLOAT reads the reference as int64 counts of CLM_FF_COUNT_M m and computes in
+    float only: against the product on the same counts (the build's own error, not the rounding
+    to counts) measured 1e-7 of the peak force for the LIPs, 4e-7 (clm_ff) and 3e-6 (the stream,
+    whose recursion runs in float) for the PGNN; 3e-5 leaves room for other models."""
     model, wf = _model(name, fitted, effects_lip)
+    c = compiled[name + "_float"]
+    assert c.count_m == 1e-12
     r = references["random"]
-    want = model.feedforward(r, TS)
-    assert _rel(compiled[name + "_float"].stream(r), want) < 1e-5
+    rq = c.quantized(r)
+    assert 0 < np.max(np.abs(rq - r)) <= 0.51 * c.count_m  # half a count, and the rounding of m
+    want = model.feedforward(rq, TS)
+    assert _rel(c.stream(r), want) < 3e-5
     k = np.arange(0, len(r), 97)
-    assert _rel(compiled[name + "_float"](wf.windows(r)[k]), want[k]) < 1e-5
+    assert _rel(c(wf.windows(r)[k]), want[k]) < 3e-5
+
+
+@needs_cc
+@pytest.mark.skipif(not Path("/proc/cpuinfo").is_file() or "x86_64" not in
+                    __import__("platform").machine(), reason="reads x86-64 assembly")
+@pytest.mark.parametrize("name", ["pgnn", "lip_effects"])
+def test_float32_build_computes_no_double(name, fitted, effects_lip, tmp_path):
+    """The float build is for an FPU without double precision: compiled at -O2 it holds no
+    double-precision instruction (x86-64: no ``*sd`` instruction such as mulsd, cvtss2sd, movsd)
+    and -Wdouble-promotion finds no float promoted to double; the maths it calls are the float
+    functions (expf, sinf, ...). The default build does use them (the check can fail)."""
+    import subprocess
+    _, wf = _model(name, fitted, effects_lip)
+    c_source.write(wf, tmp_path)
+    for build, doubles in ((("-DCLM_FF_FLOAT", "-Wdouble-promotion"), False), ((), True)):
+        for f in ("clm_ff.c", "clm_ff_selftest.c"):
+            done = subprocess.run([compiler(), *STRICT, *build, "-O2", "-S", "-o", "-",
+                                   str(tmp_path / f), "-I", str(tmp_path)],
+                                  capture_output=True, text=True)
+            assert done.returncode == 0, done.stderr
+            found = set(re.findall(r"^\s+(\w+sd)\b", done.stdout, re.M))
+            calls = set(re.findall(r"call\s+(\w+)", done.stdout))
+            if not doubles:
+                assert not found, (f, found)
+                assert not calls & {"exp", "sin", "pow", "fabs", "log1p", "erf", "sqrt"}, calls
+            elif f == "clm_ff.c":
+                assert found
 
 
 @needs_cc
@@ -217,7 +250,10 @@ def test_header_states_the_contract(fitted):
     h, c = c_source.header(wf), c_source.source(wf)
     assert re.search(r"#define CLM_FF_TS 0\.0001\b", h)
     assert f"#define CLM_FF_LAG {wf.lag} " in h and f"#define CLM_FF_LEAD {wf.lead} " in h
-    assert "double clm_ff(const double *r);" in h
+    assert "clm_ff_real clm_ff(const clm_ff_pos *r);" in h
+    # the default build's types are double (m, N); the float build's int64 counts and float
+    assert re.search(r"#else\ntypedef double clm_ff_pos;.*\ntypedef double clm_ff_real;", h)
+    assert "typedef int64_t clm_ff_pos;" in h and "typedef float clm_ff_real;" in h
     assert "malloc" not in c  # no heap
     assert all(line.startswith("static const") for line in c.splitlines()
                if line.startswith("static") and "=" in line)  # no mutable globals
@@ -253,6 +289,55 @@ def test_onnx_is_the_product_feedforward(name, fitted, effects_lip, references, 
         got = _onnx_apply(session, meta, r, step)
         assert got.dtype == np.float64
         assert _rel(got, model.feedforward(r, TS)[::step]) < REL, key
+
+
+def _mlp_apply(session, wf, r):
+    """u_ff of record r by the plain-MLP graph: the features of every instant (the numpy window
+    form's, record held at its ends), the graph's force there, the held average."""
+    padded = np.concatenate([np.full(wf.half + 1, r[0]), r, np.full(wf.half + 2, r[-1])])
+    w = np.lib.stride_tricks.sliding_window_view(padded, 2 * wf.half + 3)
+    p = np.concatenate([session.run(["force"], {"features": wf.features(w[i:i + 4000])})[0][:, 0]
+                        for i in range(0, len(w), 4000)])
+    return 0.5 * (p[:-1] + p[1:])
+
+
+@pytest.mark.parametrize("name", ["pgnn", "lip"])
+def test_onnx_mlp_form_is_a_plain_mlp_and_the_product_feedforward(name, fitted, effects_lip,
+                                                                  references, tmp_path):
+    """--onnx-form mlp: the features in, the force out, MatMul/Add/Tanh only (a LIP: MatMul),
+    opset 17 / IR 8, the full checker; ONNX Runtime on the features, held-averaged, equals the
+    product's feedforward (its own Python path) within 1e-12 of the peak on r2 and an unseen
+    reference; its known-answer vectors are the graph's."""
+    onnx = pytest.importorskip("onnx")
+    from controllers.export import onnx_graph
+    from controllers.export.options import ExportOptions
+    model, wf = _model(name, fitted, effects_lip)
+    paths = onnx_graph.mlp_write(wf, tmp_path, ExportOptions(prefix="ax"))
+    assert [p.name for p in paths] == ["ax.onnx", "ax_kat.csv"]
+    proto = onnx.load(str(paths[0]))
+    onnx.checker.check_model(proto, full_check=True)
+    assert {n.op_type for n in proto.graph.node} <= {"MatMul", "Add", "Tanh"}
+    assert (name == "pgnn") == ("Tanh" in {n.op_type for n in proto.graph.node})
+    assert (proto.opset_import[0].version, proto.ir_version) == (17, 8)
+    assert [i.name for i in proto.graph.input] == ["features"]
+    session, meta = _onnx_session(paths[0])
+    assert meta["form"] == "mlp" and "N" in meta["units"]
+    for key in ("r2", "random"):
+        r = references[key]
+        assert _rel(_mlp_apply(session, wf, r), model.feedforward(r, TS)) < REL, key
+    kat = np.loadtxt(paths[1], delimiter=",", skiprows=2)
+    got = session.run(["force"], {"features": kat[:, 1:5]})[0][:, 0]
+    assert _rel(got, kat[:, 5]) < REL
+
+
+def test_onnx_mlp_form_refuses_what_is_not_a_plain_mlp(fitted):
+    pytest.importorskip("onnx")
+    from controllers.export import onnx_graph
+    _, wf = _model("pgnn", fitted, None)
+    from dataclasses import replace
+    sig = replace(wf, network=replace(wf.network, activation="sigmoid"))
+    with pytest.raises(UserError, match="sigmoid"):
+        onnx_graph.mlp_model(sig)
 
 
 # -- the command ---------------------------------------------------------------------------------
@@ -335,6 +420,12 @@ def test_cli_exports_a_run_pgnn_that_matches_on_an_unseen_reference(run_folder, 
     assert main(["export-ff", str(pt), "--to", "onnx", "--out", str(tmp_path / "onnx")]) == 0
     session, meta = _onnx_session(tmp_path / "onnx" / "clm_ff.onnx")
     assert _rel(_onnx_apply(session, meta, r, 5), want[::5]) < 1e-9
+    assert main(["export-ff", str(pt), "--to", "onnx", "--onnx-form", "mlp", "--out",
+                 str(tmp_path / "mlp")]) == 0
+    from controllers.export.window import from_pgnn
+    session, meta = _onnx_session(tmp_path / "mlp" / "clm_ff.onnx")
+    assert _rel(_mlp_apply(session, from_pgnn(model, TS, "x"), r), want) < 1e-9
+    assert json.loads((tmp_path / "mlp" / "export.json").read_text())["onnx_form"] == "mlp"
     if compiler() is None:
         pytest.skip("no C compiler")
     assert main(["export-ff", str(pt), "--to", "c", "--out", str(tmp_path / "c")]) == 0
@@ -344,6 +435,7 @@ def test_cli_exports_a_run_pgnn_that_matches_on_an_unseen_reference(run_folder, 
     assert _rel(_own_harness(tmp_path / "c", r), want) < 1e-9
     info = json.loads((tmp_path / "c" / "export.json").read_text())
     assert (info["kind"], info["lag"], info["lead"]) == ("pgnn", c.lag, c.lead)
+    assert info["float_build"]["count_m"] == 1e-12
     capsys.readouterr()
 
 
@@ -378,7 +470,9 @@ def test_identify_and_diagnosis_files_load(fitted, effects_lip, tmp_path):
 @pytest.mark.parametrize("case", ["missing", "foreign", "foreign_pt", "unknown_to",
                                   "unwritable", "out_is_a_file", "foreign_folder",
                                   "filter_tail_zero", "filter_tail_large", "bad_prefix",
-                                  "max_force_nan", "max_slew_negative", "limits_onnx"])
+                                  "max_force_nan", "max_slew_negative", "limits_onnx",
+                                  "onnx_form_unknown", "onnx_form_c", "count_m_onnx",
+                                  "count_m_zero", "mlp_with_effects"])
 def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, capsys):
     lip_file = tmp_path / "lip.json"
     lip_file.write_text(json.dumps(fitted["lip"].to_json()))
@@ -417,6 +511,20 @@ def test_bad_input_is_one_line_exit_2_nothing_written(case, fitted, tmp_path, ca
         extra = ["--max-slew", "-5"]
     elif case == "limits_onnx":
         to, extra = "onnx", ["--max-force", "10"]
+    elif case == "onnx_form_unknown":
+        to, extra = "onnx", ["--onnx-form", "tree"]
+    elif case == "onnx_form_c":
+        extra = ["--onnx-form", "mlp"]
+    elif case == "count_m_onnx":
+        to, extra = "onnx", ["--count-m", "1e-9"]
+    elif case == "count_m_zero":
+        extra = ["--count-m", "0"]
+    elif case == "mlp_with_effects":
+        pytest.importorskip("onnx")
+        model = tmp_path / "diagnosis.json"
+        model.write_text(json.dumps({"record": {"sample_time_s": TS}, "extended_model": {
+            **fitted["lip"].theta_, "effects": [{"type": "force_offset", "force_n": 1.0}]}}))
+        to, extra = "onnx", ["--onnx-form", "mlp"]
     before = sorted(p.name for p in tmp_path.rglob("*"))
     code = main(["export-ff", str(model), "--to", to, "--out", str(out), *extra])
     err = capsys.readouterr().err.strip().splitlines()

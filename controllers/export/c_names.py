@@ -12,7 +12,8 @@ from controllers.export.options import DEFAULT_PREFIX
 # build) as well as side by side.
 _LOCAL_MACROS = ("R", "MATHF", "SIN", "EXP", "POW", "FABS", "LOG1P", "ERF", "SQRT", "SGN",
                  "KERNEL", "IN_MEAN", "IN_STD", "OUT_W", "OUT_B", "OUT_WP", "SOS", "SOS_ZI",
-                 "BACK", "INV_TS2", "INV_2TS", "HALF", "NETWORK_AVX2", "NETWORK2_AVX2")
+                 "BACK", "INV_TS2", "INV_2TS", "HALF", "NETWORK_AVX2", "NETWORK2_AVX2", "D1", "D2",
+                 "POS_UNIT", "VEL", "ACC", "POS", "RHUGE", "TINY")
 _LOCAL_FUNCTIONS = ("physical", "advance", "flush_tiny", "features_finite", "is_finite_bits",
                     "network", "network_avx2",
                     "network1_avx2", "network2_avx2", "forward", "backward", "backward_avx2",

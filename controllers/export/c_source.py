@@ -1,8 +1,8 @@
 """C99 source of a :class:`~controllers.export.window.WindowFeedforward`: clm_ff.h, clm_ff.c.
 
-Standard C99 and ``<math.h>`` only, no dynamic memory, every weight a ``static const double``,
-no mutable globals (the streaming form keeps its state in a struct the caller owns). The
-feedforward ``double clm_ff(const double *r)`` reads ``r[-CLM_FF_LAG] .. r[CLM_FF_LEAD]`` around
+Standard C99 and ``<math.h>`` only, no dynamic memory, every weight a ``static const``, no
+mutable globals (the streaming form keeps its state in a struct the caller owns). The
+feedforward ``clm_ff_real clm_ff(const clm_ff_pos *r)`` (both types double by default) reads ``r[-CLM_FF_LAG] .. r[CLM_FF_LEAD]`` around
 the sample ``r[0]`` it is called for and returns the held force of that sample (N).
 
 The filtered features of a PGNN: ``clm_ff`` differences the window in the product's order and
@@ -12,10 +12,10 @@ only the backward half as an FIR, and keeps ``p[k+1]`` for the next call (about 
 Beside the portable C, the PGNN's sums and network have a second path with AVX2 and FMA
 intrinsics (GCC or Clang on x86-64), taken per call where the CPU has both, so that the ``-O2``
 build anyone compiles runs four doubles per instruction instead of SSE2's two
-(``-DCLM_FF_PORTABLE`` leaves it out). ``-DCLM_FF_FLOAT`` makes the arithmetic single precision
-(the weights stay decimal literals rounded once to float; portable path); the position
-differences and the stream's recursion stay in double (docs/export.md says why and what a target
-without double would need).
+(``-DCLM_FF_PORTABLE`` leaves it out). ``-DCLM_FF_FLOAT`` is a build for an FPU without double
+precision: the reference is an int64 fixed-point position (counts of ``CLM_FF_COUNT_M`` m, set by
+``--count-m``), differenced exactly in integers, and every other value is a float (the weights
+decimal literals rounded once to float; portable path); docs/export.md states its error.
 
 The streaming form, the status and the limits are in :mod:`controllers.export.c_stream`, the
 names and ``--prefix`` in :mod:`controllers.export.c_names`, the self-test in
@@ -26,16 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clm_sim.effects import (
-    CableSlab,
-    Cogging,
-    ForceOffset,
-    ForceRipple,
-    FrictionAsymmetry,
-    Stribeck,
-)
-from clm_sim.errors import UserError
 from controllers.export import selftest
+from controllers.export.c_law import activation_c, effect_c, rigid_body_c
 from controllers.export.c_literals import c_array, c_matrix, c_real
 from controllers.export.c_names import prefixed
 from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
@@ -65,53 +57,34 @@ def _comment_lines(text: str, width: int = 90) -> str:
     return "\n".join(f" *   {w}" for w in wrapped)
 
 
-# -- effects as C expressions of y (m), v (m/s) and base (N: the physical force) ---------------
-def _effect_c(e) -> str:
-    if isinstance(e, Cogging):
-        return (f"{c_real(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {c_real(e.period)} "
-                f"+ {c_real(e.phase)})")
-    if isinstance(e, ForceRipple):
-        return (f"-{c_real(e.amplitude)} * SIN(R(2.0) * R({np.pi!r}) * y / {c_real(e.period)} "
-                f"+ {c_real(e.phase)}) * base")
-    if isinstance(e, CableSlab):
-        horner = c_real(e.coefficients[-1])
-        for c in reversed(e.coefficients[:-1]):
-            horner = f"({c_real(c)} + (y - {c_real(e.center)}) * {horner})"
-        return horner
-    if isinstance(e, Stribeck):
-        return (f"{c_real(e.peak)} * SGN(v) * EXP(-POW(FABS(v) / {c_real(e.velocity)}, "
-                f"{c_real(e.exponent)}))")
-    if isinstance(e, FrictionAsymmetry):
-        return (f"(v > R(0.0) ? {c_real(e.coulomb_pos)} + {c_real(e.viscous_pos)} * v : "
-                f"(v < R(0.0) ? -{c_real(e.coulomb_neg)} + {c_real(e.viscous_neg)} * v : R(0.0)))")
-    if isinstance(e, ForceOffset):
-        return c_real(e.force_n)
-    raise UserError(f"export: effect {e.type!r} has no C form")
-
-
-_ACT = {
-    # 1 - 2/(1 + e^2x): one exp instead of libm's expm1-based tanh; its absolute error is a few
-    # 1e-16 (what the force sees through the output weights), and no overflow: e^2x = inf -> 1.
-    "tanh": "R(1.0) - R(2.0) / (R(1.0) + EXP(R(2.0) * x))",
-    "sigmoid": "R(1.0) / (R(1.0) + EXP(-x))",
-    "softplus": "(x > R(20.0) ? x : LOG1P(EXP(x)))",
-    "silu": "x / (R(1.0) + EXP(-x))",
-    "gelu": "R(0.5) * x * (R(1.0) + ERF(x / SQRT(R(2.0))))",
-    "relu": "(x > R(0.0) ? x : R(0.0))",
-}
-
 _PRELUDE = """\
 /* The maths functions: each overridable by a macro defined before this point (-D or a wrapper
  * that includes this file), e.g. -DCLM_FF_EXP=TcExp or CMSIS-DSP's versions. */
 #ifdef CLM_FF_FLOAT
-typedef float clm_ff_real;
 #define R(x) ((float)(x))
 #define MATHF(d, f) f
+/* The float build reads counts: the differences are exact in integers (|counts| <=
+ * CLM_FF_COUNT_MAX), then rounded once to float and scaled; no double is computed. */
+#define D2(q) (((q)[1] - (q)[0]) - ((q)[0] - (q)[-1]))
+#define POS_UNIT CLM_FF_COUNT_M
+#define VEL(q) ((clm_ff_real)D1(q) * (clm_ff_real)(CLM_FF_COUNT_M / (2.0 * CLM_FF_TS)))
+#define ACC(q) ((clm_ff_real)D2(q) * (clm_ff_real)(CLM_FF_COUNT_M / (CLM_FF_TS * CLM_FF_TS)))
+#define POS(q) ((clm_ff_real)(q) * (clm_ff_real)CLM_FF_COUNT_M)
+#define RHUGE HUGE_VALF
+#define TINY 1e-30f
 #else
-typedef double clm_ff_real;
 #define R(x) (x)
 #define MATHF(d, f) d
+/* metres, differenced in the product's order (its roundings are the product's own) */
+#define D2(q) (((q)[1] - 2.0 * (q)[0]) + (q)[-1])
+#define POS_UNIT 1.0
+#define VEL(q) (D1(q) / (2.0 * CLM_FF_TS))
+#define ACC(q) (D2(q) / (CLM_FF_TS * CLM_FF_TS))
+#define POS(q) (q)
+#define RHUGE HUGE_VAL
+#define TINY 1e-200
 #endif
+#define D1(q) ((q)[1] - (q)[-1])
 #ifndef SIN
 #define SIN MATHF(sin, sinf)
 #endif
@@ -138,16 +111,20 @@ typedef double clm_ff_real;
 #define CLM_FF_INLINE inline /* C99; -DCLM_FF_INLINE= for a compiler without it */
 #endif
 
-/* Finite, by the exponent bits where double is IEEE 754 binary64 (a test that -ffast-math cannot
+/* Finite, by the exponent bits where the real type is IEEE 754 (a test that -ffast-math cannot
  * assume away), else by comparisons. */
-static int is_finite_bits(double x)
+static int is_finite_bits(clm_ff_real x)
 {
-#if DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
+#if defined(CLM_FF_FLOAT) && FLT_MANT_DIG == 24 && FLT_MAX_EXP == 128
+    uint32_t b;
+    memcpy(&b, &x, sizeof b);
+    return (b & 0x7f800000UL) != 0x7f800000UL;
+#elif !defined(CLM_FF_FLOAT) && DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
     unsigned long long b;
     memcpy(&b, &x, sizeof b);
     return (b & 0x7ff0000000000000ULL) != 0x7ff0000000000000ULL;
 #else
-    return x == x && x - x == 0.0;
+    return x == x && x - x == R(0.0);
 #endif
 }
 """
@@ -206,8 +183,10 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
  * Compile: C99, link -lm. With GCC or Clang on x86-64 a PGNN's clm_ff.c also holds an AVX2 and
  * FMA path (intrinsics, target attributes), taken per call where the CPU has both: no flag
  * needed, and the same results to rounding; -DCLM_FF_PORTABLE leaves it out. -DCLM_FF_FLOAT
- * computes in single precision, but for the position differences and the stream's recursion
- * (see docs/export.md for the error that costs). The maths
+ * is for an FPU without double: the reference as int64 counts of CLM_FF_COUNT_M m, all
+ * arithmetic in float (against the double build on the same counts, measured 1e-7 of the peak
+ * force for a LIP, 6e-7 for clm_ff and 3e-6 for the stream of an n_l = 16 PGNN; docs/export.md
+ * also gives what the rounding to counts costs). The maths
  * functions are macros (CLM_FF_EXP, CLM_FF_SIN, CLM_FF_POW, CLM_FF_FABS, CLM_FF_LOG1P,
  * CLM_FF_ERF, CLM_FF_SQRT) a -D can replace (TcMath, CMSIS).
  */
@@ -230,6 +209,21 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
 #define CLM_FF_R_MAX 1e6 /* m: a stream sample beyond +-this is rejected as not finite is */
 #endif
 
+/* The build's types. Default: the reference in m (double), forces in N (double). With
+ * -DCLM_FF_FLOAT (an FPU without double precision): the reference as a fixed-point position,
+ * integer counts of CLM_FF_COUNT_M m (int64_t: differences exact, no cancellation), forces and
+ * all arithmetic in float; no double is computed anywhere (docs/export.md states the error). */
+#define CLM_FF_COUNT_M {_c_double(opt.count_m)} /* m per count of the float build (export --count-m) */
+#define CLM_FF_COUNT_MAX 2305843009213693951LL /* |counts| accepted: 2^61 - 1, no difference overflows */
+#ifdef CLM_FF_FLOAT
+#include <stdint.h>
+typedef int64_t clm_ff_pos; /* reference sample: a fixed-point position, counts of CLM_FF_COUNT_M m */
+typedef float clm_ff_real;  /* force (N) and arithmetic */
+#else
+typedef double clm_ff_pos;  /* reference sample, m */
+typedef double clm_ff_real; /* force (N) and arithmetic */
+#endif
+
 /* Status bits (0: CLM_FF_OK, the exact force of the product). */
 #define CLM_FF_OK 0u
 #define CLM_FF_REJECTED 1u /* this input was not finite (or out of range): not used */
@@ -243,46 +237,46 @@ extern "C" {{
 
 /* Force (N) to hold over sample k; r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid.
  * NaN where the window holds a NaN or an infinity. */
-double clm_ff(const double *r);
+clm_ff_real clm_ff(const clm_ff_pos *r);
 
 /* clm_ff with a status: *u_ff the force clamped to +-CLM_FF_MAX_FORCE (N), 0 if rejected. */
-unsigned clm_ff_eval(const double *r, double *u_ff);
+unsigned clm_ff_eval(const clm_ff_pos *r, clm_ff_real *u_ff);
 
 /* Streaming form: state of the caller (one per axis); no allocation. */
 typedef struct {{
-    double buf[2 * CLM_FF_WINDOW]; /* each sample twice: the window is always contiguous */
+    clm_ff_pos buf[2 * CLM_FF_WINDOW]; /* each sample twice: the window is always contiguous */
     int next;                      /* where the next sample goes, 0 .. CLM_FF_WINDOW-1 */
     /* PGNN: the forward half of the feature filter run recursively (exact), its last
      * CLM_FF_HALF + 1 outputs (twice, contiguous), and the force at the next instant. */
-    double zf[4][CLM_FF_NSEC][2];
-    double fwd[4][2 * (CLM_FF_HALF + 1)];
+    clm_ff_real zf[4][CLM_FF_NSEC][2];
+    clm_ff_real fwd[4][2 * (CLM_FF_HALF + 1)];
     int fnext;
-    double p_next;
-    double last_good;   /* m: the newest sample accepted */
-    int degraded;       /* pushes until a held sample has left the window */
-    double max_force;   /* N */
-    double max_step;    /* N per sample: max_slew * CLM_FF_TS */
-    double u_last;      /* N: the force returned last */
+    clm_ff_real p_next;
+    clm_ff_pos last_good;   /* the newest sample accepted */
+    int degraded;           /* pushes until a held sample has left the window */
+    clm_ff_real max_force;  /* N */
+    clm_ff_real max_step;   /* N per sample: max_slew * CLM_FF_TS */
+    clm_ff_real u_last;     /* N: the force returned last */
     unsigned status;    /* of the last call */
 }} clm_ff_stream;
 
 /* Fill the window with the rest position r0 (m): the machine at rest before the motion; the
  * limits from the export. CLM_FF_REJECTED (and the stream at 0 m) if r0 is not finite. */
-unsigned clm_ff_stream_init(clm_ff_stream *s, double r0);
+unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0);
 
 /* Start on a moving reference: r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid; the
  * next push takes r[k+1+CLM_FF_LEAD] and returns u_ff[k+1]. *u_ff: u_ff[k] (N, unlimited; the
  * slew limit starts from it). CLM_FF_REJECTED (stream unchanged) if the window is not finite. */
-unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff);
+unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real *u_ff);
 
 /* Set the limits (N, N/s; HUGE_VAL: none). CLM_FF_REJECTED (unchanged) unless both > 0. */
-unsigned clm_ff_stream_limits(clm_ff_stream *s, double max_force, double max_slew);
+unsigned clm_ff_stream_limits(clm_ff_stream *s, clm_ff_real max_force, clm_ff_real max_slew);
 
 /* Push the newest reference sample r[k + CLM_FF_LEAD] (m); *u_ff = u_ff[k] (N); the status. */
-unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff);
+unsigned clm_ff_stream_step(clm_ff_stream *s, clm_ff_pos r_newest, clm_ff_real *u_ff);
 
 /* clm_ff_stream_step returning the force (the status stays in s->status). */
-double clm_ff_stream_push(clm_ff_stream *s, double r_newest);
+clm_ff_real clm_ff_stream_push(clm_ff_stream *s, clm_ff_pos r_newest);
 
 /* Known-answer self-test (clm_ff_selftest.c, vectors in clm_ff_kat.csv): 0 if the compiled code
  * gives the product's forces on the vectors' motion, else 1 + the first failing sample. scratch:
@@ -300,16 +294,15 @@ def source(wf: WindowFeedforward) -> str:
     """``clm_ff.c``: the feedforward, weights as ``static const`` tables (names ``clm_ff``/
     ``CLM_FF`` and file-local ones unprefixed, as written here; :func:`write` prefixes them)."""
     th = wf.theta
-    effects = "".join(f"    p += {_effect_c(e)};\n" for e in wf.effects)
+    effects = "".join(f"    p += {effect_c(e)};\n" for e in wf.effects)
     physical = f"""\
 /* Force (N) at the sample instant of r[0]: physical layer and effects. */
-static CLM_FF_INLINE clm_ff_real physical(const double *r)
+static CLM_FF_INLINE clm_ff_real physical(const clm_ff_pos *r)
 {{
-    const clm_ff_real y = (clm_ff_real)r[0];
-    const clm_ff_real v = (clm_ff_real)((r[1] - r[-1]) / (2.0 * CLM_FF_TS));
-    const clm_ff_real a = (clm_ff_real)((r[1] - 2.0 * r[0] + r[-1]) / (CLM_FF_TS * CLM_FF_TS));
-    clm_ff_real p = {c_real(th['mass'])} * a + {c_real(th['viscous'])} * v
-        + {c_real(th['coulomb'])} * SGN(v) + {c_real(th['stiffness'])} * y;
+    const clm_ff_real y = (clm_ff_real)POS(r[0]);
+    const clm_ff_real v = (clm_ff_real)VEL(r);
+    const clm_ff_real a = (clm_ff_real)ACC(r);
+    clm_ff_real p = {rigid_body_c(th, "a", "v", "SGN(v)", "y")};
     const clm_ff_real base = p;
     (void)base;
 {effects}    return p;
@@ -321,16 +314,14 @@ static CLM_FF_INLINE clm_ff_real physical(const double *r)
 /* Physical layer (N) of the features f = [a, v, sign v, y] the network sees. */
 static clm_ff_real physical(const clm_ff_real f[4])
 {{
-    return {c_real(th['mass'])} * f[0] + {c_real(th['viscous'])} * f[1]
-        + {c_real(th['coulomb'])} * f[2] + {c_real(th['stiffness'])} * f[3];
+    return {rigid_body_c(th, "f[0]", "f[1]", "f[2]", "f[3]")};
 }}
 
 /* The features of both instants are finite (a NaN or an infinity in the window reaches them:
  * every instant has a non-zero weight). */
 static int features_finite(const clm_ff_real f0[4], const clm_ff_real f1[4])
 {{
-    return is_finite_bits((double)f0[0] + (double)f0[1] + (double)f0[2] + (double)f0[3]
-                          + (double)f1[0] + (double)f1[1] + (double)f1[2] + (double)f1[3]);
+    return is_finite_bits(f0[0] + f0[1] + f0[2] + f0[3] + f1[0] + f1[1] + f1[2] + f1[3]);
 }}
 """
     out = ["/* clm_ff.c -- generated by clm-sim export-ff; see clm_ff.h for the contract. */\n"
@@ -338,10 +329,10 @@ static int features_finite(const clm_ff_real f0[4], const clm_ff_real f1[4])
            f"{_PRELUDE}\n{physical}"]
     if wf.network is None:
         out.append("""
-double clm_ff(const double *r)
+clm_ff_real clm_ff(const clm_ff_pos *r)
 {
-    const double u = (double)(R(0.5) * (physical(r) + physical(r + 1)));
-    return is_finite_bits(u) ? u : (double)NAN;
+    const clm_ff_real u = R(0.5) * (physical(r) + physical(r + 1));
+    return is_finite_bits(u) ? u : (clm_ff_real)NAN;
 }
 """)
     else:
@@ -356,23 +347,23 @@ double clm_ff(const double *r)
 
 _RAW_FEATURES = """
 /* Raw features [a, v, sign v, y] at the instant of r[0], differenced as the product does. */
-static void raw_features(const double *r, clm_ff_real f[4])
+static void raw_features(const clm_ff_pos *r, clm_ff_real f[4])
 {
-    const double v = (r[1] - r[-1]) / (2.0 * CLM_FF_TS);
-    f[0] = (clm_ff_real)((r[1] - 2.0 * r[0] + r[-1]) / (CLM_FF_TS * CLM_FF_TS));
-    f[1] = (clm_ff_real)v;
-    f[2] = v > 0.0 ? R(1.0) : (v < 0.0 ? R(-1.0) : R(0.0));
-    f[3] = (clm_ff_real)r[0];
+    const clm_ff_real v = (clm_ff_real)VEL(r);
+    f[0] = (clm_ff_real)ACC(r);
+    f[1] = v;
+    f[2] = v > R(0.0) ? R(1.0) : (v < R(0.0) ? R(-1.0) : R(0.0));
+    f[3] = (clm_ff_real)POS(r[0]);
 }
 
-double clm_ff(const double *r)
+clm_ff_real clm_ff(const clm_ff_pos *r)
 {
     clm_ff_real f0[4], f1[4];
     raw_features(r, f0);
     raw_features(r + 1, f1);
     if (!features_finite(f0, f1))
-        return (double)NAN;
-    return (double)(R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1))));
+        return (clm_ff_real)NAN;
+    return R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1)));
 }
 """
 
@@ -383,24 +374,24 @@ double clm_ff(const double *r)
 # sums, not every term (a rounding apart from the product, far below the 1e-12 it is held to).
 _FILTERED_FEATURES = """
 /* Filtered features [a, v, sign v, y] at the instants k (f0) and k+1 (f1); portable C. */
-static void filtered_features(const double *r, clm_ff_real f0[4], clm_ff_real f1[4])
+static void filtered_features(const clm_ff_pos *r, clm_ff_real f0[4], clm_ff_real f1[4])
 {
     clm_ff_real a0 = R(0.0), a1 = R(0.0), v0 = R(0.0), v1 = R(0.0);
     clm_ff_real s0 = R(0.0), s1 = R(0.0), y0 = R(0.0), y1 = R(0.0);
     int i;
     for (i = 0; i < 2 * HALF + 2; ++i) {
-        const double *q = r + i - HALF;
-        const double dv = q[1] - q[-1];                               /* 2 ts v */
-        const clm_ff_real da = (clm_ff_real)((q[1] - 2.0 * q[0]) + q[-1]); /* ts^2 a */
+        const clm_ff_pos *q = r + i - HALF;
+        const clm_ff_pos dv = D1(q);                                  /* 2 ts v */
+        const clm_ff_real da = (clm_ff_real)D2(q);                    /* ts^2 a */
         const clm_ff_real dvr = (clm_ff_real)dv;
-        const clm_ff_real s = dv > 0.0 ? R(1.0) : (dv < 0.0 ? R(-1.0) : R(0.0));
-        const clm_ff_real y = (clm_ff_real)q[0];
+        const clm_ff_real s = dv > 0 ? R(1.0) : (dv < 0 ? R(-1.0) : R(0.0));
+        const clm_ff_real y = (clm_ff_real)POS(q[0]);
         const clm_ff_real w0 = KERNEL[i + 1], w1 = KERNEL[i];
         a0 += w0 * da; a1 += w1 * da; v0 += w0 * dvr; v1 += w1 * dvr;
         s0 += w0 * s; s1 += w1 * s; y0 += w0 * y; y1 += w1 * y;
     }
-    f0[0] = a0 * (clm_ff_real)INV_TS2; f0[1] = v0 * (clm_ff_real)INV_2TS; f0[2] = s0; f0[3] = y0;
-    f1[0] = a1 * (clm_ff_real)INV_TS2; f1[1] = v1 * (clm_ff_real)INV_2TS; f1[2] = s1; f1[3] = y1;
+    f0[0] = a0 * INV_TS2; f0[1] = v0 * INV_2TS; f0[2] = s0; f0[3] = y0;
+    f1[0] = a1 * INV_TS2; f1[1] = v1 * INV_2TS; f1[2] = s1; f1[3] = y1;
 }
 """
 
@@ -468,7 +459,7 @@ static void filtered_features_avx2(const double *r, double f0[4], double f1[4])
 """
 
 _FILTERED_CLM_FF = """
-double clm_ff(const double *r)
+clm_ff_real clm_ff(const clm_ff_pos *r)
 {
     clm_ff_real f0[4], f1[4];
 #ifdef CLM_FF_AVX2
@@ -483,8 +474,8 @@ double clm_ff(const double *r)
 #endif
     filtered_features(r, f0, f1);
     if (!features_finite(f0, f1))
-        return (double)NAN;
-    return (double)(R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1))));
+        return (clm_ff_real)NAN;
+    return R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1)));
 }
 """
 
@@ -639,8 +630,9 @@ def _network_source(wf: WindowFeedforward) -> str:
     tables = []
     if m > 0:
         tables += [
-            "static const double INV_TS2 = 1.0 / (CLM_FF_TS * CLM_FF_TS);\n"
-            "static const double INV_2TS = 1.0 / (2.0 * CLM_FF_TS);\n",
+            "/* 1/ts^2 and 1/(2 ts) per unit of the differences (m, or counts in the float build) */\n"
+            "static const clm_ff_real INV_TS2 = (clm_ff_real)(POS_UNIT / (CLM_FF_TS * CLM_FF_TS));\n"
+            "static const clm_ff_real INV_2TS = (clm_ff_real)(POS_UNIT / (2.0 * CLM_FF_TS));\n",
             "/* The feature filter's FIR h[-HALF .. HALF] with a zero either side: the weight of the\n"
             " * instant r[k-HALF+i] is KERNEL[i+1] for the features at k, KERNEL[i] for those at\n"
             " * k+1 (i = 0 .. 2 HALF + 1). */\n"
@@ -665,7 +657,7 @@ def _network_source(wf: WindowFeedforward) -> str:
             clm_ff_real x = B{li}[o];
             for (j = 0; j < {a}; ++j)
                 x += W{li}[o][j] * h{li}[j];
-            h{li + 1}[o] = {_ACT[net.activation]};
+            h{li + 1}[o] = {activation_c(net.activation)};
         }}
 """)
     last = len(net.layers)
@@ -701,4 +693,4 @@ def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -
     paths = [folder / f"{opt.prefix}.h", folder / f"{opt.prefix}.c"]
     paths[0].write_text(prefixed(header(wf, opt), opt.prefix))
     paths[1].write_text(prefixed(source(wf), opt.prefix))
-    return paths + selftest.write(wf, folder, opt.prefix, c=True)
+    return paths + selftest.write(wf, folder, opt.prefix, c=True, count_m=opt.count_m)

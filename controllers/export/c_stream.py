@@ -12,17 +12,17 @@ from controllers.export.window import WindowFeedforward
 
 # Both forms: step and push around the form's advance (inlined into both).
 STEP_AND_PUSH = """
-unsigned clm_ff_stream_step(clm_ff_stream *s, double r_newest, double *u_ff)
+unsigned clm_ff_stream_step(clm_ff_stream *s, clm_ff_pos r_newest, clm_ff_real *u_ff)
 {
     unsigned st;
-    const double u = advance(s, r_newest, &st);
+    const clm_ff_real u = advance(s, r_newest, &st);
     return finish(s, u, st, u_ff);
 }
 
-double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
+clm_ff_real clm_ff_stream_push(clm_ff_stream *s, clm_ff_pos r_newest)
 {
     unsigned st;
-    double u = advance(s, r_newest, &st);
+    clm_ff_real u = advance(s, r_newest, &st);
     (void)finish(s, u, st, &u);
     return u;
 }
@@ -31,10 +31,13 @@ double clm_ff_stream_push(clm_ff_stream *s, double r_newest)
 
 # What every form shares: the status of a call, the limits, the stateless call with a status.
 STREAM_COMMON = """
-/* A stream sample it can use: finite and within +-CLM_FF_R_MAX m. */
-static int in_range(double r)
+/* A stream sample it can use: finite and within +-CLM_FF_R_MAX m (float build: counts within
+ * +-CLM_FF_COUNT_MAX, so that no difference overflows). */
+static int in_range(clm_ff_pos r)
 {
-#if DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
+#ifdef CLM_FF_FLOAT
+    return r >= -CLM_FF_COUNT_MAX && r <= CLM_FF_COUNT_MAX;
+#elif DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
     /* |r| <= R_MAX as integers: positive doubles order as their bits, and NaN and inf lie
      * above every finite value (one compare, and -ffast-math cannot drop it) */
     const double limit = CLM_FF_R_MAX;
@@ -48,7 +51,7 @@ static int in_range(double r)
 }
 
 /* The force (N) clamped to +-max_force, with its status bit. */
-static double clamp(double u, double max_force, unsigned *st)
+static clm_ff_real clamp(clm_ff_real u, clm_ff_real max_force, unsigned *st)
 {
     if (u > max_force) {
         *st |= CLM_FF_CLAMPED;
@@ -61,40 +64,40 @@ static double clamp(double u, double max_force, unsigned *st)
     return u;
 }
 
-unsigned clm_ff_eval(const double *r, double *u_ff)
+unsigned clm_ff_eval(const clm_ff_pos *r, clm_ff_real *u_ff)
 {
     unsigned st = CLM_FF_OK;
-    const double u = clm_ff(r);
+    const clm_ff_real u = clm_ff(r);
     if (!is_finite_bits(u)) {
-        *u_ff = 0.0;
+        *u_ff = R(0.0);
         return CLM_FF_REJECTED;
     }
-    *u_ff = clamp(u, CLM_FF_MAX_FORCE, &st);
+    *u_ff = clamp(u, (clm_ff_real)CLM_FF_MAX_FORCE, &st);
     return st;
 }
 
 /* The state after init or start: the newest sample, the force last returned, export limits. */
-static void reset(clm_ff_stream *s, double last_good, double u)
+static void reset(clm_ff_stream *s, clm_ff_pos last_good, clm_ff_real u)
 {
     s->last_good = last_good;
     s->degraded = 0;
-    s->max_force = CLM_FF_MAX_FORCE;
-    s->max_step = CLM_FF_MAX_SLEW * CLM_FF_TS;
+    s->max_force = (clm_ff_real)CLM_FF_MAX_FORCE;
+    s->max_step = (clm_ff_real)(CLM_FF_MAX_SLEW * CLM_FF_TS);
     s->u_last = u;
     s->status = CLM_FF_OK;
 }
 
-unsigned clm_ff_stream_limits(clm_ff_stream *s, double max_force, double max_slew)
+unsigned clm_ff_stream_limits(clm_ff_stream *s, clm_ff_real max_force, clm_ff_real max_slew)
 {
-    if (!(max_force > 0.0 && max_slew > 0.0)) /* NaN fails too */
+    if (!(max_force > R(0.0) && max_slew > R(0.0))) /* NaN fails too */
         return CLM_FF_REJECTED;
     s->max_force = max_force;
-    s->max_step = max_slew * CLM_FF_TS;
+    s->max_step = max_slew * (clm_ff_real)CLM_FF_TS;
     return CLM_FF_OK;
 }
 
 /* The newest sample, or the last good one in place of a rejected one; *st: the status so far. */
-static CLM_FF_INLINE double accept(clm_ff_stream *s, double r_newest, unsigned *st)
+static CLM_FF_INLINE clm_ff_pos accept(clm_ff_stream *s, clm_ff_pos r_newest, unsigned *st)
 {
     *st = CLM_FF_OK;
     if (in_range(r_newest)) {
@@ -113,9 +116,10 @@ static CLM_FF_INLINE double accept(clm_ff_stream *s, double r_newest, unsigned *
 
 /* The limits on the force u (N) of a push (skipped where none is set: no chain of calls through
  * u_last then), its output and status. */
-static CLM_FF_INLINE unsigned finish(clm_ff_stream *s, double u, unsigned st, double *u_ff)
+static CLM_FF_INLINE unsigned finish(clm_ff_stream *s, clm_ff_real u, unsigned st,
+                                     clm_ff_real *u_ff)
 {
-    if (s->max_step < HUGE_VAL || s->max_force < HUGE_VAL) {
+    if (s->max_step < RHUGE || s->max_force < RHUGE) {
         if (u > s->u_last + s->max_step) {
             u = s->u_last + s->max_step;
             st |= CLM_FF_SLEWED;
@@ -133,12 +137,12 @@ static CLM_FF_INLINE unsigned finish(clm_ff_stream *s, double u, unsigned st, do
 """
 
 GENERIC_STREAM = """
-unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
+unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0)
 {
     unsigned st = CLM_FF_OK;
     int i;
     if (!in_range(r0)) {
-        r0 = 0.0;
+        r0 = 0;
         st = CLM_FF_REJECTED;
     }
     for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
@@ -149,7 +153,7 @@ unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
     return st;
 }
 
-unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
+unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real *u_ff)
 {
     int i;
     for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
@@ -164,7 +168,7 @@ unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
 }
 
 /* One push before the limits: the force (N) and *st. */
-static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned *st)
+static CLM_FF_INLINE clm_ff_real advance(clm_ff_stream *s, clm_ff_pos r_newest, unsigned *st)
 {
     r_newest = accept(s, r_newest, st);
     s->buf[s->next] = r_newest;
@@ -177,13 +181,13 @@ static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned 
 
 
 def fast_stream(wf: WindowFeedforward) -> str:
-    """The PGNN's streaming form: forward sections recursively, backward half as an FIR. The
-    sections and their state stay in double whatever ``clm_ff_real`` is (a recursion is where
-    single precision would accumulate)."""
+    """The PGNN's streaming form: forward sections recursively, backward half as an FIR; state
+    and arithmetic in ``clm_ff_real`` (float in the float build, whose error docs/export.md
+    states)."""
     sos, zi, g = wf.forward_filter()
     return f"""
-static const double SOS[CLM_FF_NSEC][6] = {c_matrix(sos).replace("R(", "(")};
-static const double SOS_ZI[CLM_FF_NSEC][2] = {c_matrix(zi).replace("R(", "(")};
+static const clm_ff_real SOS[CLM_FF_NSEC][6] = {c_matrix(sos)};
+static const clm_ff_real SOS_ZI[CLM_FF_NSEC][2] = {c_matrix(zi)};
 /* Causal impulse response of the sections, run backwards over the next HALF samples. */
 static const clm_ff_real BACK[HALF + 1] = {c_array(g)};
 
@@ -191,19 +195,19 @@ static const clm_ff_real BACK[HALF + 1] = {c_array(g)};
  * states of a, v and sign v decay geometrically and would turn subnormal within seconds and stay
  * (each push then some 20 % slower on x86, more elsewhere); flushed, they reach an exact 0 and
  * the outputs with them. What this changes of a force is far below its rounding. */
-static CLM_FF_INLINE double flush_tiny(double z)
+static CLM_FF_INLINE clm_ff_real flush_tiny(clm_ff_real z)
 {{
-    return fabs(z) < 1e-200 ? 0.0 : z;
+    return FABS(z) < TINY ? R(0.0) : z;
 }}
 
 /* Push raw features x[4] = [a, v, sign v, y] of the newest instant through the sections. */
-static void forward(clm_ff_stream *s, const double x[4])
+static void forward(clm_ff_stream *s, const clm_ff_real x[4])
 {{
     int c, j;
     for (c = 0; c < 4; ++c) {{
-        double xc = x[c];
+        clm_ff_real xc = x[c];
         for (j = 0; j < CLM_FF_NSEC; ++j) {{ /* transposed direct form II, as scipy's sosfilt */
-            const double y = SOS[j][0] * xc + s->zf[c][j][0];
+            const clm_ff_real y = SOS[j][0] * xc + s->zf[c][j][0];
             s->zf[c][j][0] = flush_tiny(SOS[j][1] * xc - SOS[j][4] * y + s->zf[c][j][1]);
             s->zf[c][j][1] = flush_tiny(SOS[j][2] * xc - SOS[j][5] * y);
             xc = y;
@@ -251,8 +255,8 @@ static void backward_avx2(const double *w0, const double *w1, const double *w2,
 /* The backward FIR over the forward outputs held: the filtered features f. */
 static void backward(const clm_ff_stream *s, clm_ff_real f[4])
 {{
-    const double *w0 = s->fwd[0] + s->fnext, *w1 = s->fwd[1] + s->fnext;
-    const double *w2 = s->fwd[2] + s->fnext, *w3 = s->fwd[3] + s->fnext;
+    const clm_ff_real *w0 = s->fwd[0] + s->fnext, *w1 = s->fwd[1] + s->fnext;
+    const clm_ff_real *w2 = s->fwd[2] + s->fnext, *w3 = s->fwd[3] + s->fnext;
     clm_ff_real a0 = R(0.0), v0 = R(0.0), s0 = R(0.0), y0 = R(0.0);
     clm_ff_real a1 = R(0.0), v1 = R(0.0), s1 = R(0.0), y1 = R(0.0);
     int i;
@@ -264,20 +268,20 @@ static void backward(const clm_ff_stream *s, clm_ff_real f[4])
 #endif
     for (i = 0; i + 1 <= HALF; i += 2) {{ /* two chains per feature: the additions overlap */
         const clm_ff_real g0 = BACK[i], g1 = BACK[i + 1];
-        a0 += g0 * (clm_ff_real)w0[i]; v0 += g0 * (clm_ff_real)w1[i];
-        s0 += g0 * (clm_ff_real)w2[i]; y0 += g0 * (clm_ff_real)w3[i];
-        a1 += g1 * (clm_ff_real)w0[i + 1]; v1 += g1 * (clm_ff_real)w1[i + 1];
-        s1 += g1 * (clm_ff_real)w2[i + 1]; y1 += g1 * (clm_ff_real)w3[i + 1];
+        a0 += g0 * w0[i]; v0 += g0 * w1[i];
+        s0 += g0 * w2[i]; y0 += g0 * w3[i];
+        a1 += g1 * w0[i + 1]; v1 += g1 * w1[i + 1];
+        s1 += g1 * w2[i + 1]; y1 += g1 * w3[i + 1];
     }}
     for (; i <= HALF; ++i) {{
-        a0 += BACK[i] * (clm_ff_real)w0[i]; v0 += BACK[i] * (clm_ff_real)w1[i];
-        s0 += BACK[i] * (clm_ff_real)w2[i]; y0 += BACK[i] * (clm_ff_real)w3[i];
+        a0 += BACK[i] * w0[i]; v0 += BACK[i] * w1[i];
+        s0 += BACK[i] * w2[i]; y0 += BACK[i] * w3[i];
     }}
     f[0] = a0 + a1; f[1] = v0 + v1; f[2] = s0 + s1; f[3] = y0 + y1;
 }}
 
 /* Force at the oldest instant of the forward outputs held. */
-static double stream_point(const clm_ff_stream *s)
+static clm_ff_real stream_point(const clm_ff_stream *s)
 {{
     clm_ff_real f[4];
     backward(s, f);
@@ -285,20 +289,20 @@ static double stream_point(const clm_ff_stream *s)
     if (CLM_FF_HAS_AVX2())
         return physical(f) + NETWORK_AVX2(f);
 #endif
-    return (double)(physical(f) + network(f));
+    return physical(f) + network(f);
 }}
 
-/* The raw features [a, v, sign v, y] (double) of the instant n[0], as the product differences. */
-static void differences(const double *n, double x[4])
+/* The raw features [a, v, sign v, y] of the instant n[0], as the product differences. */
+static void differences(const clm_ff_pos *n, clm_ff_real x[4])
 {{
-    x[1] = (n[1] - n[-1]) / (2.0 * CLM_FF_TS);
-    x[0] = (n[1] - 2.0 * n[0] + n[-1]) / (CLM_FF_TS * CLM_FF_TS);
-    x[2] = x[1] > 0.0 ? 1.0 : (x[1] < 0.0 ? -1.0 : 0.0);
-    x[3] = n[0];
+    x[1] = (clm_ff_real)VEL(n);
+    x[0] = (clm_ff_real)ACC(n);
+    x[2] = x[1] > R(0.0) ? R(1.0) : (x[1] < R(0.0) ? R(-1.0) : R(0.0));
+    x[3] = (clm_ff_real)POS(n[0]);
 }}
 
 /* The sections in their steady state for the constant features x. */
-static void steady(clm_ff_stream *s, const double x[4])
+static void steady(clm_ff_stream *s, const clm_ff_real x[4])
 {{
     int j, c;
     for (c = 0; c < 4; ++c)
@@ -308,25 +312,25 @@ static void steady(clm_ff_stream *s, const double x[4])
         }}
 }}
 
-unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
+unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0)
 {{
     unsigned st = CLM_FF_OK;
-    double x[4];
+    clm_ff_real x[4];
     int i;
     if (!in_range(r0)) {{
-        r0 = 0.0;
+        r0 = 0;
         st = CLM_FF_REJECTED;
     }}
     for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
         s->buf[i] = r0;
     s->next = 0;
     /* at rest: a = v = sign v = 0, y = r0; the sections in their steady state */
-    x[0] = x[1] = x[2] = 0.0;
-    x[3] = r0;
+    x[0] = x[1] = x[2] = R(0.0);
+    x[3] = (clm_ff_real)POS(r0);
     steady(s, x);
     for (i = 0; i < 2 * (HALF + 1); ++i) {{
-        s->fwd[0][i] = s->fwd[1][i] = s->fwd[2][i] = 0.0;
-        s->fwd[3][i] = r0;
+        s->fwd[0][i] = s->fwd[1][i] = s->fwd[2][i] = R(0.0);
+        s->fwd[3][i] = x[3];
     }}
     s->fnext = 0;
     s->p_next = stream_point(s);
@@ -335,9 +339,9 @@ unsigned clm_ff_stream_init(clm_ff_stream *s, double r0)
     return st;
 }}
 
-unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
+unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real *u_ff)
 {{
-    double x[4], p;
+    clm_ff_real x[4], p;
     int i;
     for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
         if (!in_range(r[i]))
@@ -359,16 +363,16 @@ unsigned clm_ff_stream_start(clm_ff_stream *s, const double *r, double *u_ff)
     differences(r + HALF + 1, x);
     forward(s, x);
     s->p_next = stream_point(s);         /* force at k+1 */
-    *u_ff = 0.5 * (p + s->p_next);
+    *u_ff = R(0.5) * (p + s->p_next);
     reset(s, r[CLM_FF_LEAD], *u_ff);
     return CLM_FF_OK;
 }}
 
 /* One push before the limits: the force (N) and *st. */
-static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned *st)
+static CLM_FF_INLINE clm_ff_real advance(clm_ff_stream *s, clm_ff_pos r_newest, unsigned *st)
 {{
-    const double *r;
-    double x[4], p, u;
+    const clm_ff_pos *r;
+    clm_ff_real x[4], p, u;
     r_newest = accept(s, r_newest, st);
     s->buf[s->next] = r_newest;
     s->buf[s->next + CLM_FF_WINDOW] = r_newest;
@@ -377,7 +381,7 @@ static CLM_FF_INLINE double advance(clm_ff_stream *s, double r_newest, unsigned 
     differences(r + CLM_FF_LAG, x);      /* r[k + HALF + 1]: the newest instant with differences */
     forward(s, x);                       /* forward outputs now cover k+1 .. k+HALF+1 */
     p = stream_point(s);                 /* force at k+1 */
-    u = 0.5 * (s->p_next + p);
+    u = R(0.5) * (s->p_next + p);
     s->p_next = p;
     return u;
 }}

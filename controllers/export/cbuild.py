@@ -47,8 +47,6 @@ class CompiledFeedforward:
         self.command = " ".join(cmd)
         self.lib = ctypes.CDLL(str(lib))
         dp = ctypes.POINTER(ctypes.c_double)
-        self.lib.clm_ff.restype = ctypes.c_double
-        self.lib.clm_ff.argtypes = [dp]
         self.lib.clm_ff_windows.restype = None
         self.lib.clm_ff_windows.argtypes = [dp, ctypes.c_long, ctypes.c_long, dp]
         self.lib.clm_ff_record.restype = None
@@ -65,6 +63,18 @@ class CompiledFeedforward:
         self.lib.clm_ff_eval_windows.argtypes = [dp, ctypes.c_long, ctypes.c_long, dp, up]
         self.lag = int(self.lib.clm_ff_lag())
         self.lead = int(self.lib.clm_ff_lead())
+        self.lib.clm_ff_count_m.restype = ctypes.c_double
+        # m per count where the build reads integer counts (-DCLM_FF_FLOAT), else 0: the
+        # harness rounds the metres it is given to counts, see quantized()
+        self.count_m = float(self.lib.clm_ff_count_m())
+
+    def quantized(self, r: np.ndarray) -> np.ndarray:
+        """``r`` (m) as the build reads it: rounded to counts in the float build, else as is."""
+        r = np.asarray(r, dtype=np.float64)
+        if not self.count_m:
+            return r
+        c = r / self.count_m
+        return np.sign(c) * np.floor(np.abs(c) + 0.5) * self.count_m  # llround's halves
 
     @staticmethod
     def _ptr(a: np.ndarray):

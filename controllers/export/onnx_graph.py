@@ -13,17 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from clm_sim.effects import (
-    CableSlab,
-    Cogging,
-    ForceOffset,
-    ForceRipple,
-    FrictionAsymmetry,
-    Stribeck,
-)
 from clm_sim.errors import UserError
+from clm_sim.rigid_body import rigid_body
 from controllers.export.options import ExportOptions, safe_text
-from controllers.export.window import WindowFeedforward
+from controllers.export.window import ACTIVATION_LAWS, WindowFeedforward
 
 # The opset the graph is written in: 17, which most runtimes accept (every operator used here is
 # defined there), and the IR version of that opset (onnx's table: opset 17 is
@@ -65,49 +58,103 @@ class _Graph:
                        self.const(np.array([1], np.int64)))
 
 
+class _Node:
+    """A node's output in the graph under construction: the ONNX namespace of a force law
+    (:mod:`clm_sim.namespace`); arithmetic on it adds nodes (numbers become constants)."""
+
+    __array_priority__ = 1000  # numpy scalars defer to these operators
+
+    def __init__(self, g: _Graph, name: str):
+        self.g, self.name = g, name
+
+    def _in(self, x) -> str:
+        return x.name if isinstance(x, _Node) else self.g.const(float(x))
+
+    def _op(self, op: str, *inputs) -> "_Node":
+        names = [self._in(x) for x in inputs]
+        return _Node(self.g, self.g.op(op, *names))
+
+    def __add__(self, o): return self._op("Add", self, o)
+    def __radd__(self, o): return self._op("Add", o, self)
+    def __sub__(self, o): return self._op("Sub", self, o)
+    def __rsub__(self, o): return self._op("Sub", o, self)
+    def __mul__(self, o): return self._op("Mul", self, o)
+    def __rmul__(self, o): return self._op("Mul", o, self)
+    def __truediv__(self, o): return self._op("Div", self, o)
+    def __rtruediv__(self, o): return self._op("Div", o, self)
+    def __gt__(self, o): return self._op("Greater", self, o)
+    def __lt__(self, o): return self._op("Less", self, o)
+    def __neg__(self): return self._op("Neg", self)
+    def __pow__(self, o): return self._op("Pow", self, o)
+
+
+class _OnnxNamespace:
+    """The members of :mod:`clm_sim.namespace` as ONNX nodes (numbers fold in Python first, as
+    ``2.0 * xp.pi``, and become one constant)."""
+
+    pi = float(np.pi)
+    sin = staticmethod(lambda x: x._op("Sin", x))
+    exp = staticmethod(lambda x: x._op("Exp", x))
+    abs = staticmethod(lambda x: x._op("Abs", x))
+    sign = staticmethod(lambda x: x._op("Sign", x))
+    tanh = staticmethod(lambda x: x._op("Tanh", x))
+    relu = staticmethod(lambda x: x._op("Relu", x))
+
+    @staticmethod
+    def const(x: float) -> float:
+        return float(x)
+
+    @staticmethod
+    def full_like(x: _Node, value: float) -> _Node:
+        return x * 0.0 + value  # the shape of x
+
+    @staticmethod
+    def where(condition: _Node, a, b) -> _Node:
+        return condition._op("Where", condition, a, b)
+
+
+class _Deferred(_Node):
+    """A node made when it is first read (so that the constant beside it comes first)."""
+
+    def __init__(self, g: _Graph, op: str, x: str):
+        self.g, self._op_input, self._name = g, (op, x), None
+
+    @property
+    def name(self) -> str:
+        if self._name is None:
+            self._name = self.g.op(*self._op_input)
+        return self._name
+
+
+def _rename(g: _Graph, name: str, base: str) -> str:
+    """The last node's output ``name`` renamed ``<base>_<n>`` (a readable graph)."""
+    new = f"{base}_{name.rsplit('_', 1)[1]}"
+    assert g.nodes[-1].output[0] == name
+    g.nodes[-1].output[0] = new
+    return new
+
+
 def _effect(g: _Graph, e, y: str, v: str, base: str) -> str:
-    """Force (N) of effect ``e`` as graph nodes of ``y`` (m), ``v`` (m/s), ``base`` (N)."""
-    if isinstance(e, (Cogging, ForceRipple)):
-        arg = g.op("Div", g.op("Mul", g.const(2.0 * np.pi), y), g.const(e.period))
-        sin = g.op("Sin", g.op("Add", arg, g.const(e.phase)))
-        if isinstance(e, Cogging):
-            return g.op("Mul", g.const(e.amplitude), sin)
-        return g.op("Mul", g.op("Mul", g.const(-e.amplitude), sin), base)
-    if isinstance(e, CableSlab):
-        x = g.op("Sub", y, g.const(e.center))
-        out = g.op("Mul", g.const(e.coefficients[-1]), g.op("Mul", x, g.const(0.0)))
-        out = g.op("Add", out, g.const(e.coefficients[-1]))
-        for c in reversed(e.coefficients[:-1]):
-            out = g.op("Add", g.const(c), g.op("Mul", x, out))
-        return out
-    if isinstance(e, Stribeck):
-        ratio = g.op("Div", g.op("Abs", v), g.const(e.velocity))
-        shape = g.op("Mul", g.op("Sign", v),
-                     g.op("Exp", g.op("Neg", g.op("Pow", ratio, g.const(e.exponent)))))
-        return g.op("Mul", g.const(e.peak), shape)
-    if isinstance(e, FrictionAsymmetry):
-        zero = g.const(0.0)
-        pos = g.op("Add", g.const(e.coulomb_pos), g.op("Mul", g.const(e.viscous_pos), v))
-        neg = g.op("Add", g.const(-e.coulomb_neg), g.op("Mul", g.const(e.viscous_neg), v))
-        inner = g.op("Where", g.op("Less", v, zero), neg, g.op("Mul", v, zero))
-        return g.op("Where", g.op("Greater", v, zero), pos, inner)
-    if isinstance(e, ForceOffset):
-        return g.op("Add", g.op("Mul", y, g.const(0.0)), g.const(e.force_n))
-    raise UserError(f"export: effect {e.type!r} has no ONNX form")
+    """Force (N) of effect ``e`` (its law) as graph nodes of ``y`` (m), ``v`` (m/s), ``base``
+    (N)."""
+    try:
+        out = e.law(_Node(g, y), _Node(g, v), _Node(g, base), _OnnxNamespace())
+    except NotImplementedError:
+        raise UserError(f"export: effect {e.type!r} has no ONNX form (no law of y, v, u)") \
+            from None
+    return out.name if isinstance(out, _Node) else _Node(g, y).__mul__(0.0).__add__(out).name
 
 
 def _activation(g: _Graph, name: str, x: str) -> str:
-    if name == "tanh":
-        return g.op("Tanh", x)
-    # 1/(1 + e^-x), not the Sigmoid operator: ONNX Runtime's float64 Sigmoid is an approximation
-    # (1e-4 off, measured with 1.32), its Exp is exact to rounding.
-    if name in ("sigmoid", "silu"):
-        one = g.const(1.0)
-        sig = g.op("Div", one, g.op("Add", one, g.op("Exp", g.op("Neg", x))))
-        return sig if name == "sigmoid" else g.op("Mul", x, sig)
-    if name == "relu":
-        return g.op("Relu", x)
-    raise UserError(f"export: activation {name!r} has no ONNX form here (use --to c)")
+    """The activation ``name`` (its law, :data:`~controllers.export.window.ACTIVATION_LAWS`) as
+    graph nodes of ``x``. A sigmoid is ``1/(1 + e^-x)``, not the Sigmoid operator: ONNX
+    Runtime's float64 Sigmoid is an approximation (1e-4 off, measured with 1.32), its Exp is
+    exact to rounding. softplus and gelu need log1p and erf, which this namespace lacks."""
+    try:
+        return ACTIVATION_LAWS[name](_Node(g, x), _OnnxNamespace()).name
+    except AttributeError:
+        raise UserError(f"export: activation {name!r} has no ONNX form here (use --to c)") \
+            from None
 
 
 def model(wf: WindowFeedforward, options: ExportOptions | None = None):
@@ -131,10 +178,8 @@ def model(wf: WindowFeedforward, options: ExportOptions | None = None):
                  g.const(wf.ts * wf.ts), base="a")
     th = wf.theta
     if wf.network is None:  # a LIP: theta and the effects on the raw differences
-        p = g.op("Add", g.op("Add", g.op("Add", g.op("Mul", g.const(th["mass"]), a),
-                                         g.op("Mul", g.const(th["viscous"]), v)),
-                             g.op("Mul", g.const(th["coulomb"]), g.op("Sign", v))),
-                 g.op("Mul", g.const(th["stiffness"]), x0), base="physical")
+        p = rigid_body(th, _Node(g, a), _Node(g, v), _Deferred(g, "Sign", v), _Node(g, x0))
+        p = _rename(g, p.name, "physical")
         base = p
         for e in wf.effects:
             p = g.op("Add", p, _effect(g, e, x0, v, base))
@@ -208,3 +253,90 @@ def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -
     from controllers.export import selftest
 
     return [path, *selftest.write(wf, folder, opt.prefix, c=False)]
+
+
+# -- the plain-MLP form: the features in, the force at that instant out ----------------------
+# The operators a runtime that accepts only plain MLPs runs (and Relu for a relu network).
+MLP_OPS = {"tanh": "Tanh", "relu": "Relu"}
+
+
+def mlp_model(wf: WindowFeedforward, options: ExportOptions | None = None):
+    """The plain-MLP ONNX ``ModelProto`` of ``wf``: input ``features`` (float64, ``[batch, 4]``,
+    ``[a, v, sign v, y]`` in SI units, filtered as the network and theta see them,
+    :meth:`WindowFeedforward.features`), output ``force`` (float64, ``[batch, 1]``, N): the point
+    force ``p = theta . f + f_NN(f)`` at that instant. Only MatMul, Add and the activation (Tanh;
+    Relu for a relu network): the input scaling is folded into the first layer, theta is a linear
+    branch in parallel, added at the end. The caller differences, filters and averages
+    ``u_ff[k] = (p[k] + p[k+1])/2`` (docs/export.md). A LIP without effects is theta alone."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    if wf.effects:
+        raise UserError("--onnx-form mlp: a LIP with effects is not a plain MLP (use the window "
+                        "form)")
+    net = wf.network
+    if net is not None and net.activation not in MLP_OPS:
+        raise UserError(f"--onnx-form mlp: activation {net.activation!r} is not a plain-MLP "
+                        f"operator here ({', '.join(MLP_OPS)}); use the window form")
+    g = _Graph()
+    p = g.op("MatMul", "features", g.const(wf.theta_vector()[:, None], "theta"), base="physical")
+    if net is not None:
+        # (f - mean)/std then W: W/std on f, and b - W (mean/std) (a rounding apart)
+        w0, b0 = net.layers[0]
+        w_in = w0 / net.input_std[None, :]
+        b_in = b0 - w_in @ net.input_mean
+        layers = ((w_in, b_in),) + tuple(net.layers[1:])
+        h = "features"
+        for wl, bl in layers:
+            h = g.op(MLP_OPS[net.activation],
+                     g.op("Add", g.op("MatMul", h, g.const(wl.T.copy(), "weight")),
+                          g.const(bl[None, :], "bias")))
+        out = g.op("MatMul", h, g.const(net.out_w[:, None], "out_weight"))
+        p = g.op("Add", p, out)
+        g.nodes.append(helper.make_node("Add", [p, g.const(np.array([[net.out_b]]), "out_bias")],
+                                        ["force"]))
+    else:
+        g.nodes[-1].output[0] = "force"
+    opt = options or ExportOptions()
+    graph = helper.make_graph(
+        g.nodes, opt.prefix,
+        [helper.make_tensor_value_info("features", TensorProto.DOUBLE, ["batch", 4])],
+        [helper.make_tensor_value_info("force", TensorProto.DOUBLE, ["batch", 1])],
+        initializer=g.inits)
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                              producer_name="clm-sim export-ff", producer_version=opt.version,
+                              doc_string=safe_text(wf.describe()))
+    proto.ir_version = IR_VERSION
+    meta = {"ts": repr(wf.ts), "form": "mlp",
+            "units": "features: [a m/s^2, v m/s, sign v, y m], filtered as the model's network "
+                     "and theta see them; force: N at the instant of the features; "
+                     "u_ff[k] = (force[k] + force[k+1])/2",
+            "filter": _filter_text(wf), "kind": wf.kind, "model": safe_text(wf.describe()),
+            **{k: safe_text(v) for k, v in opt.trace().items()}}
+    helper.set_model_props(proto, meta)
+    onnx.checker.check_model(proto, full_check=True)
+    return proto
+
+
+def _filter_text(wf: WindowFeedforward) -> str:
+    """How the MLP form's features are filtered (for its metadata)."""
+    if wf.network is None or not wf.filter.get("cutoff_hz"):
+        return "none: central differences of the reference"
+    return (f"central differences of the reference, then the zero-phase Butterworth of order "
+            f"{wf.filter['order']} at {wf.filter['cutoff_hz']:g} Hz (scipy sosfiltfilt; as an "
+            f"FIR, {len(wf.kernel)} taps)")
+
+
+def mlp_write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -> list:
+    """Write ``<prefix>.onnx`` (the plain-MLP form) and its known-answer vectors
+    ``<prefix>_kat.csv`` (features and force at every instant of the vectors' motion)."""
+    from pathlib import Path
+
+    from controllers.export import selftest
+
+    opt = options or ExportOptions()
+    path = Path(folder) / f"{opt.prefix}.onnx"
+    path.write_bytes(mlp_model(wf, opt).SerializeToString())
+    kat = Path(folder) / f"{opt.prefix}_kat.csv"
+    kat.write_text(selftest.features_kat_csv(wf))
+    return [path, kat]

@@ -16,6 +16,10 @@ from pathlib import Path
 from clm_sim.errors import UserError
 
 DEFAULT_PREFIX = "clm_ff"
+# One count of the float build's reference (an int64 fixed-point position): 1 pm. Its cost (the
+# force of a reference rounded to counts) is below the sign term's own ambiguity from 1e-10 m
+# down (docs/export.md); int64 counts of 1 pm reach +-2.3e6 m within CLM_FF_COUNT_MAX.
+DEFAULT_COUNT_M = 1e-12
 # C keywords and the C library's reserved spellings a prefix must not become.
 _RESERVED = {"auto", "break", "case", "char", "const", "continue", "default", "do", "double",
              "else", "enum", "extern", "float", "for", "goto", "if", "inline", "int", "long",
@@ -88,11 +92,14 @@ def export_date() -> str:
 @dataclass(frozen=True)
 class ExportOptions:
     """prefix: the names' prefix (``clm_ff``); max_force (N) and max_slew (N/s): the export's
-    output limits (``None``: none); model_name, model_sha256, version, commit, date: the trace."""
+    output limits (``None``: none); count_m (m): one count of the float build's reference
+    (integer counts, as a drive's set-point); model_name, model_sha256, version, commit, date:
+    the trace."""
 
     prefix: str = DEFAULT_PREFIX
     max_force: float | None = None
     max_slew: float | None = None
+    count_m: float = DEFAULT_COUNT_M
     model_name: str = "unknown"
     model_sha256: str = "unknown"
     version: str = "unknown"
@@ -101,7 +108,7 @@ class ExportOptions:
 
     def __post_init__(self):
         check_prefix(self.prefix)
-        for key in ("max_force", "max_slew"):
+        for key in ("max_force", "max_slew", "count_m"):
             value = getattr(self, key)
             if value is not None and not (isinstance(value, (int, float))
                                           and 0 < float(value) < float("inf")):

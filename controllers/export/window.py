@@ -26,11 +26,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.signal
-import scipy.special
 
-from clm_sim.effects import Presliding
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
+from clm_sim.namespace import NUMPY
+from clm_sim.rigid_body import rigid_body
 
 ACTIVATIONS = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
 DEFAULT_TOL = 1e-15
@@ -98,19 +98,25 @@ class Network:
         return h @ self.out_w + self.out_b
 
 
+# The activations of controllers.pgnn.network.ACTIVATIONS, each written once against an array
+# namespace (clm_sim.namespace): numpy here (as torch computes them), C (controllers/export/
+# c_law.py) and ONNX (onnx_graph.py) evaluate the same law. The C's AVX2 path keeps its own
+# intrinsics (c_source._ACT_AVX2).
+ACTIVATION_LAWS = {
+    "tanh": lambda x, xp: xp.tanh(x),
+    "sigmoid": lambda x, xp: 1.0 / (1.0 + xp.exp(-x)),
+    "softplus": lambda x, xp: xp.where(x > 20.0, x, xp.log1p(xp.exp(x))),  # torch: threshold 20
+    "silu": lambda x, xp: x / (1.0 + xp.exp(-x)),
+    "gelu": lambda x, xp: 0.5 * x * (1.0 + xp.erf(x / xp.sqrt(2.0))),
+    "relu": lambda x, xp: xp.relu(x),
+}
+
+
 def activate(name: str, x: np.ndarray) -> np.ndarray:
-    """The activations of :data:`controllers.pgnn.network.ACTIVATIONS` as torch computes them."""
-    if name == "tanh":
-        return np.tanh(x)
-    if name == "sigmoid":
-        return 1.0 / (1.0 + np.exp(-x))
-    if name == "softplus":  # torch: beta 1, linear above threshold 20
-        return np.where(x > 20.0, x, np.log1p(np.exp(np.minimum(x, 20.0))))
-    if name == "silu":
-        return x / (1.0 + np.exp(-x))
-    if name == "gelu":
-        return 0.5 * x * (1.0 + scipy.special.erf(x / np.sqrt(2.0)))
-    return np.maximum(x, 0.0)
+    """The activation ``name``'s law on numpy arrays (e^x of a saturated unit may overflow to
+    inf where the law then takes its limit)."""
+    with np.errstate(over="ignore"):
+        return ACTIVATION_LAWS[name](x, NUMPY)
 
 
 @dataclass(frozen=True)
@@ -134,7 +140,7 @@ class WindowFeedforward:
 
     def __post_init__(self):
         for e in self.effects:
-            if isinstance(e, Presliding):
+            if e.path_dependent:
                 raise UserError("export: pre-sliding friction has a state along the whole path; "
                                 "it has no window form and is not exportable")
         if (self.kernel is None) != (self.network is None):
@@ -180,28 +186,37 @@ class WindowFeedforward:
         """``p[j]`` (N) from windows ``w`` (B, 2M+3) = ``r[j-M-1 .. j+M+1]`` (m)."""
         m, ts, th = self.half, self.ts, self.theta
         c = m + 1
-        r0 = w[:, c]
-        v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
-        a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
         if self.network is None:  # a LIP: theta and the effects on the raw differences
-            p = (th["mass"] * a + th["viscous"] * v + th["coulomb"] * np.sign(v)
-                 + th["stiffness"] * r0)
+            r0 = w[:, c]
+            v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
+            a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
+            p = rigid_body(th, a, v, np.sign(v), r0)
             base = p
             for e in self.effects:
                 p = p + e.force(r0, v, base)
             return p
-        if m == 0:  # no feature filter: the raw features
-            f = np.column_stack([a, v, np.sign(v), r0])
-        else:
-            # The features at every instant of the window, differenced as the product does,
-            # then the filter's FIR.
-            va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
-            aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
-            h = self.kernel
-            f = np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
         # A PGNN: theta . filt(T) + f_NN(filt(T)), both parts on the filtered features (as
         # fitted, PGNNFeedforward.predict_parts); a PGNN carries no effects.
+        f = self.features(w)
         return f @ self.theta_vector() + self.network(f)
+
+    def features(self, w: np.ndarray) -> np.ndarray:
+        """The features ``[a, v, sign v, y]`` (SI, (B, 4)) that theta and the network read at
+        ``j`` from windows ``w`` (B, 2M+3) = ``r[j-M-1 .. j+M+1]`` (m): a PGNN's filtered by the
+        FIR of its regression filter (raw without one, and for a LIP)."""
+        m, ts = self.half, self.ts
+        c = m + 1
+        if self.network is None or m == 0:  # the raw features
+            r0 = w[:, c]
+            v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
+            a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
+            return np.column_stack([a, v, np.sign(v), r0])
+        # The features at every instant of the window, differenced as the product does, then
+        # the filter's FIR.
+        va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
+        aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
+        h = self.kernel
+        return np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
 
     def theta_vector(self) -> np.ndarray:
         """``theta`` in the order of the features ``[a, v, sign v, y]``: mass, viscous, coulomb,
