@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -20,6 +21,9 @@ from matplotlib.transforms import offset_copy
 from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
 from experiments.table import THETA_UNITS, series
+
+if TYPE_CHECKING:
+    from experiments.results import ForceSplit
 
 # Okabe & Ito's colour-blind-safe set (yellow left out: unreadable on white), then grey, and
 # Tol's wine and olive (apart from every colour before them).
@@ -269,32 +273,32 @@ def cost_figure(summary: dict, models: dict) -> Figure:
     return fig
 
 
-def split_figure(summary: dict, models: dict, lip, r: np.ndarray, ts: float, ref: str,
-                 beyond: np.ndarray, truth: np.ndarray | None = None) -> Figure:
-    """The feedforward on ``ref`` split into its physical part (minus the LIP force: what the
-    drift of θ_phy changes) and its network part, and their sum against the true plant force,
-    for λ = 0, the paper's λ and sequential (seed 0); shaded: samples of ``beyond`` (outside
-    the training range)."""
+def split_figure(summary: dict, split: ForceSplit) -> Figure:
+    """The feedforward on ``split.reference`` split into its physical part (minus the LIP force:
+    what the drift of θ_phy changes) and its network part, and their sum against the true plant
+    force, for λ = 0, the paper's λ and sequential (one seed, as the study predicted them);
+    shaded: the samples beyond the training range."""
     keys = ["lambda=0", f"lambda={summary['paper_lambda']:g}", "sequential"]
     colors = variant_colors(summary)
     limit = summary["ranges"][summary["inside"]]["position_m"]
-    t = np.arange(len(r)) * ts
-    lip_force = lip.predict(y=r, ts=ts)
+    r, lip_force, beyond = split.r, split.lip_force, split.beyond
+    t = np.arange(len(r)) * split.ts
     fig, axes = _panels(4, [0.8, 1, 1, 1], width=11)
     axes[0].plot(t, r * MM, "k", lw=1)
     for sign in (1, -1):
         axes[0].axhline(sign * limit * MM, color=PALETTE[4], lw=0.8, ls=":")
     axes[0].set_ylabel("r [mm]")
-    axes[0].set_title(f"{ref}; dotted: training position range; shaded: position, velocity or "
-                      f"acceleration outside the training range", loc="left", fontsize=9)
+    axes[0].set_title(f"{split.reference}; dotted: training position range; shaded: position, "
+                      f"velocity or acceleration outside the training range", loc="left",
+                      fontsize=9)
     for key in keys:
-        phys, net = models[key][0].predict_parts(y=r, ts=ts)
+        phys, net = split.parts[key]
         kw = {"color": colors[key], "lw": 0.9, "label": _lambda_label(key)}
         axes[1].plot(t, phys - lip_force, **kw)
         axes[2].plot(t, net, **kw)
         axes[3].plot(t, phys + net - lip_force, **kw)
-    if truth is not None:
-        axes[3].plot(t, truth - lip_force, color=PALETTE[7], ls="--", lw=0.9,
+    if split.truth is not None:
+        axes[3].plot(t, split.truth - lip_force, color=PALETTE[7], ls="--", lw=0.9,
                      label="true plant force")
     titles = ["physical part θ_phy·filt(T) minus the LIP force", "network part f_NN",
               "whole model minus the LIP force"]

@@ -19,123 +19,36 @@ import dataclasses
 import io
 import json
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.stats
 
 from clm_sim.plant import THETA_NAMES
+from experiments.paired import Paired, holm, t_interval  # noqa: F401 (t_interval: re-exported)
 
-FIT = "fit"  # key of the fit record in a seed's metrics (beside the references)
+if TYPE_CHECKING:  # the record type only; importing it would import torch
+    from controllers.pgnn.fit_record import FitRecord
+
 THETA_UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
 
-def _stat(vals) -> dict:
-    vals = np.asarray(vals, dtype=float)
-    return {"mean": float(vals.mean()), "std": float(vals.std(ddof=1) if len(vals) > 1 else 0.0)}
-
-
-def make_row(spec, metrics_per_seed: list[dict[str, dict]],
-             thetas: list[dict[str, float]] | None) -> dict:
-    """One table row from per-seed metrics ``[{ref: {"mae", "rms", "max", ...}, "fit": {...}}]``
-    (the fit record for PGNN rows only) and thetas."""
-    refs = [k for k in metrics_per_seed[0] if k != FIT]
-
-    def stat(ref, key):
-        return _stat([m[ref][key] for m in metrics_per_seed])
-
-    theta = None
-    if thetas:
-        theta = {k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES}
-    row = {
-        "kind": spec.kind, "training": spec.training, "lambda": spec.lam, "hidden": spec.hidden,
-        "n_seeds": len(metrics_per_seed),
-        "mae": {ref: stat(ref, "mae") for ref in refs},
-        "theta_phy": theta,
-        "label": spec.label(),
-        "rms": {ref: stat(ref, "rms") for ref in refs},
-        "max": {ref: stat(ref, "max") for ref in refs},
-        "mae_per_seed": {ref: [m[ref]["mae"] for m in metrics_per_seed] for ref in refs},
-        "theta_phy_per_seed": thetas or None,
-    }
-    if FIT in metrics_per_seed[0]:
-        fits = [m[FIT] for m in metrics_per_seed]
-        row["regularizers"] = regularizers(spec, fits)
-        row["settings"] = row_settings(spec, fits)
-        row["fits"] = fits
-        row["converged"] = sum(f["stop"] == "converged" for f in fits)
-        row["data_cost"] = _stat([f["data_cost"] for f in fits])
-        row["reg_cost"] = _stat([f["reg_cost"] for f in fits])
-        row["theta_drift"] = _stat([f["theta_drift"] for f in fits])
-        row["network_peak_beyond_n"] = {
-            ref: _stat([m[ref]["network_peak_beyond_n"] for m in metrics_per_seed])
-            for ref in refs if metrics_per_seed[0][ref].get("network_peak_beyond_n") is not None}
-    return row
-
-
-def regularizers(spec, fits: list[dict]) -> dict:
+def regularizers(spec, fits: list[FitRecord]) -> dict:
     """Every term and start that shaped a PGNN row besides the data: the pull toward theta_LIP
     (``lambda``, ``lambda_diag``), the network L2 (``weight_decay``), the other penalties, the
     continuation start (``continuation_lambda``: the lambda of the extra start where it applied,
     else 0), the initialization (``init``: ``lemma`` is the paper's least-squares start) and the
     starts whose best fit was kept (``starts_kept``, counted over seeds)."""
     pg = spec.pgnn
-    kept = [f.get("start", "draw") for f in fits]
+    kept = [f.start or "draw" for f in fits]
     return {"lambda": spec.lam if spec.training != "sequential" else None,
-            "lambda_diag": pg.lambda_diag,
+            "lambda_diag": pg.lam_diag,
             "weight_decay": pg.weight_decay,
             "orthogonal_weight": pg.orthogonal_weight,
             "pinn_weight": pg.pinn_weight if spec.training == "pinn" else 0.0,
-            "continuation_lambda": max((f.get("continuation_lambda", 0.0) for f in fits),
-                                       default=0.0),
+            "continuation_lambda": max((f.continuation_lam or 0.0 for f in fits), default=0.0),
             "init": "lemma" if pg.init == "optimized" else "random",
             "restarts": pg.restarts,
             "starts_kept": {k: kept.count(k) for k in sorted(set(kept))}}
-
-
-def t_interval(d, confidence: float = 0.95) -> tuple[float, float, float]:
-    """Mean of paired differences ``d`` and its t-interval at ``confidence`` (infinite for one
-    difference)."""
-    d = np.asarray(d, dtype=float)
-    n = len(d)
-    half = (scipy.stats.t.ppf(0.5 + confidence / 2, n - 1) * d.std(ddof=1) / np.sqrt(n)
-            if n > 1 else np.inf)
-    return float(d.mean()), float(d.mean() - half), float(d.mean() + half)
-
-
-def paired_tests(d) -> dict:
-    """Two-sided p-values of paired differences ``d``: the t-test (``p_t``; assumes roughly
-    normal differences) and the Wilcoxon signed-rank test (``p_wilcoxon``; ranks, so one
-    exploded seed cannot carry it; exact for small n without ties). None where undefined
-    (fewer than two differences, or all equal)."""
-    d = np.asarray(d, dtype=float)
-    if len(d) < 2 or not np.any(d != d[0]):
-        return {"p_t": None, "p_wilcoxon": None}
-    p_t = float(scipy.stats.ttest_1samp(d, 0.0).pvalue)
-    p_w = float(scipy.stats.wilcoxon(d).pvalue) if np.any(d != 0) else None
-    return {"p_t": p_t, "p_wilcoxon": p_w}
-
-
-def log_ratio(a, b, confidence: float = 0.95) -> dict | None:
-    """Paired ratio of positive values ``a / b`` as the geometric mean ``exp(mean(ln a - ln b))``
-    with its t-interval on the log scale (heavy-tailed errors: a ratio of 100 weighs as much as
-    one of 1/100). None where a value is not positive or there is one pair."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    if len(a) < 2 or np.any(a <= 0) or np.any(b <= 0):
-        return None
-    mean, lo, hi = t_interval(np.log(a) - np.log(b), confidence)
-    return {"ratio": float(np.exp(mean)), "ci95": [float(np.exp(lo)), float(np.exp(hi))]}
-
-
-def holm(pvalues: list[float | None]) -> list[float | None]:
-    """Holm's step-down adjustment of a family of p-values (None: not part of the family)."""
-    idx = [i for i, p in enumerate(pvalues) if p is not None]
-    order = sorted(idx, key=lambda i: pvalues[i])
-    out: list[float | None] = [None] * len(pvalues)
-    running = 0.0
-    for rank, i in enumerate(order):
-        running = max(running, min(1.0, (len(order) - rank) * pvalues[i]))
-        out[i] = running
-    return out
 
 
 # What a PGNN row is, setting by setting, for "one setting at a time". The regularizer that pulls
@@ -148,7 +61,7 @@ OTHER_KEYS = ("weight_decay", "continuation_lambda", "init", "restarts", "optimi
               "validation_fraction", "adam_lr")
 
 
-def row_settings(spec, fits: list[dict]) -> dict:
+def row_settings(spec, fits: list[FitRecord]) -> dict:
     """The settings of a PGNN row that :func:`comparisons` compares: the regularizer's keys,
     the network weight decay, the continuation start as it ran (0 where none did), and the
     optimizer's settings."""
@@ -190,16 +103,13 @@ def comparisons(rows: list[dict]) -> list[dict]:
     lip = next((r for r in rows if r["kind"] == "lip"), None)
 
     def add(a, b, metric, ref, da, db, setting, values):
-        d = np.asarray(da, dtype=float) - np.asarray(db, dtype=float)
-        mean, lo, hi = t_interval(d)
-        ci = [lo, hi] if len(d) > 1 else None  # one seed: no interval (JSON has no infinity)
+        pair = Paired.of(da, db)  # one seed: no interval (JSON has no infinity)
         entry = {"a": a["label"], "b": b["label"], "metric": metric, "reference": ref,
                  "varies": setting, "values": values,
-                 "n": len(d), "mean_a": float(np.mean(da)), "mean_b": float(np.mean(db)),
-                 "diff": mean, "ci95": ci, "excludes_zero": bool(ci and (lo > 0 or hi < 0)),
-                 **paired_tests(d)}
+                 "n": pair.n, "mean_a": pair.mean_a, "mean_b": pair.mean_b,
+                 **pair.difference_json()}
         if metric == "mae":
-            entry["log_ratio"] = log_ratio(da, db)
+            entry["log_ratio"] = pair.log_ratio and pair.log_ratio.to_json()
         out.append(entry)
 
     for j, a in enumerate(pgnn):

@@ -133,8 +133,8 @@ def test_a_progress_line_per_pgnn_fit():
     models = tb.fit_row(spec, run, lip)
     done = [x for x in lines if "done" in x]
     assert len(models) == 1 and len(done) == 1
-    assert done[0].endswith(f"fit 1/1 done ({models[0].fit_['stop']}, "
-                            f"{models[0].fit_['iterations']} it)")
+    assert done[0].endswith(f"fit 1/1 done ({models[0].fit_.stop}, "
+                            f"{models[0].fit_.iterations} it)")
 
 
 def test_pgnn_settings_declared_once():

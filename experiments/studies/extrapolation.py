@@ -26,6 +26,7 @@ from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
+from experiments.results import ForceSplit
 from experiments.runner import preflight
 from experiments.studies.kinds import take_kind
 from experiments.table import THETA_UNITS, t_interval
@@ -145,14 +146,18 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
     for k, r in refs.items():  # the simulator's own plant: the oracle a real machine lacks
         y, v, a = config.features.motion(r, ts)
         truth[k] = tb.machine.inverse_force(y, v, a)
-    summary = _summarize(config, study, lip, refs, models, mae, runs, truth)
+    # Each model's two parts on each reference, predicted once: the summary and the figures
+    # read them (a figure never predicts).
+    parts = {key: {r: [m.predict_parts(y=ref, ts=ts) for m in ms] for r, ref in refs.items()}
+             for key, ms in models.items()}
+    summary = _summarize(config, study, lip, refs, models, mae, runs, truth, parts)
     (out / "study.json").write_text(json.dumps(summary, indent=1))
-    _figures(summary, config, lip, refs, models, runs, truth, out / "figures")
+    _figures(summary, config, lip, refs, models, runs, truth, parts, out / "figures")
     (out / "report.md").write_text(_report(summary, study))
     return summary
 
 
-def _figures(summary, config, lip, refs, models, runs, truth, folder: Path) -> None:
+def _figures(summary, config, lip, refs, models, runs, truth, parts, folder: Path) -> None:
     """The report's figures into ``folder``."""
     ts = config.ts
     plots.save(plots.theta_figure(summary, models), folder / "theta_training.png")
@@ -160,8 +165,11 @@ def _figures(summary, config, lip, refs, models, runs, truth, folder: Path) -> N
     inside = TrainingRange(**summary["ranges"][summary["inside"]])
     for ref in summary["outside"]:
         beyond = inside.beyond(config.features, refs[ref], ts)
-        plots.save(plots.split_figure(summary, models, lip, refs[ref], ts, ref, beyond,
-                                      truth[ref]), folder / f"split_{ref}.png")
+        split = ForceSplit(reference=ref, ts=ts, r=refs[ref],
+                           lip_force=lip.predict(y=refs[ref], ts=ts), beyond=beyond,
+                           parts={key: p[ref][0] for key, p in parts.items()},
+                           truth=truth[ref])
+        plots.save(plots.split_figure(summary, split), folder / f"split_{ref}.png")
     shown = ["feedback only", "LIP", "sequential", "lambda=0",
              f"lambda={summary['paper_lambda']:g}"]
     colors = {_label(k): c for k, c in plots.variant_colors(summary).items()}
@@ -176,14 +184,14 @@ def _label(key: str) -> str:
     return {"sequential": "PGNN sequential"}.get(key, key.replace("lambda=", "PGNN λ = "))
 
 
-def _summarize(config, study, lip, refs, models, mae, runs, truth) -> dict:
+def _summarize(config, study, lip, refs, models, mae, runs, truth, predicted) -> dict:
     ts = config.ts
     ranges = {r: TrainingRange.of(config.features, ref, ts) for r, ref in refs.items()}
     variants = {}
     for key, ms in models.items():
         parts = {}
         for r, ref in refs.items():
-            phys, net = zip(*(m.predict_parts(y=ref, ts=ts) for m in ms))
+            phys, net = zip(*predicted[key][r])
             beyond = ranges[study.inside].beyond(config.features, ref, ts)
             net_abs = np.abs(np.array(net))
             parts[r] = {

@@ -33,7 +33,7 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import yaml
@@ -44,12 +44,16 @@ from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
-from controllers.pgnn_settings import PGNNSettings
+from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study
 from experiments.sweeps.store import code_version
-from experiments.table import THETA_UNITS, holm, t_interval
+from experiments.paired import LogRatio, Paired, holm
+from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
+
+if TYPE_CHECKING:  # the record type only; importing it would import torch
+    from controllers.pgnn.fit_record import FitRecord
 
 VERDICTS = ("holds", "reversed", "undecided")
 
@@ -86,7 +90,7 @@ class FailureMapSettings:
     seeds: int = 10
     confidence: float = 0.95
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases: ClassVar[dict[str, str]] = {"lambda": "lam"}  # config name -> field
+    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"]}  # config -> field
 
     def __post_init__(self):
         if not self.cases:
@@ -125,30 +129,12 @@ class Cell:
     seed: int
 
 
-def fit_record(model, max_iter: int) -> dict:
-    """How a fit stopped: the model's own record (``fit_``: ``stop`` is ``converged`` or
-    ``max_iter``) where it keeps one, else the iteration count against the cap (``max_iter`` at
-    the cap, ``unknown`` below it: an optimizer without a convergence test cannot say more)."""
-    info = getattr(model, "fit_", None)
-    if isinstance(info, dict) and "stop" in info:
-        keys = ("stop", "iterations", "data_cost", "reg_cost", "grad_norm")
-        out = {k: _plain(info.get(k)) for k in keys}
-        out["restarts"] = len(info.get("starts") or [None])
-        return out
-    history = getattr(model, "history_", None) or []
-    iterations = max(len(history) - 1, 0)
-    cost = getattr(model, "cost_", {}) or {}
-    return {"stop": "max_iter" if iterations >= max_iter else "unknown",
-            "iterations": iterations, "data_cost": _plain(cost.get("data")),
-            "reg_cost": _plain(cost.get("deviation")), "grad_norm": None}
-
-
-def _plain(x):
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if hasattr(x, "item") and getattr(x, "ndim", 1) == 0:  # a torch scalar
-        return x.item()
-    return x
+def fit_entry(record: FitRecord) -> dict:
+    """A fit as ``failure_map.json`` keeps it: why it stopped (``converged`` or not), its
+    iterations, costs (N**2), last gradient norm and how many starts it ran."""
+    return {"stop": record.stop, "iterations": record.iterations,
+            "data_cost": record.data_cost, "reg_cost": record.reg_cost,
+            "grad_norm": record.grad_norm, "restarts": record.restarts}
 
 
 def run_cell(cell: Cell) -> dict:
@@ -213,39 +199,15 @@ def _cell(cell: Cell) -> dict:
                         "error_beyond_rms_n": error_beyond(phys + net, k)}
         out[key] = {"lambda": lam, "theta": {k: float(v) for k, v in model.theta_.items()},
                     "mae": {k: tb.replay(model, k).mae for k in names}, "parts": parts,
-                    "fit": fit_record(model, st.pgnn.max_iter)}
+                    "fit": fit_entry(model.fit_)}
     return out
 
 
 # ----------------------------------------------------------------------------- statistics
 
-def paired_log_ratio(a, b, confidence: float = 0.95) -> dict:
-    """The ratio ``a / b`` of paired positive samples: ``exp(mean(ln a - ln b))`` with its
-    t-interval at ``confidence`` and the two-sided p-value of ``mean(ln a - ln b) = 0``."""
-    from scipy import stats
-
-    d = np.log(np.asarray(a, dtype=float)) - np.log(np.asarray(b, dtype=float))
-    n = len(d)
-    if n < 2:
-        raise ValueError("a paired interval needs at least two pairs")
-    mean, sd = float(np.mean(d)), float(np.std(d, ddof=1))
-    se = sd / math.sqrt(n)
-    q = float(stats.t.ppf(0.5 + confidence / 2, n - 1))
-    p = float(2 * stats.t.sf(abs(mean) / se, n - 1)) if se > 0 else (0.0 if mean else 1.0)
-    return {"ratio": math.exp(mean), "low": math.exp(mean - q * se),
-            "high": math.exp(mean + q * se), "p": p, "n": n, "log_mean": mean, "log_sd": sd}
-
-
-def paired_difference(a, b, confidence: float = 0.95) -> dict:
-    """Mean of ``a - b`` over pairs with its t-interval (same units as the samples)."""
-    mean, low, high = t_interval(np.asarray(a, dtype=float) - np.asarray(b, dtype=float),
-                                 confidence)
-    return {"mean": mean, "low": low, "high": high}
-
-
-def verdict(stat: dict) -> str:
+def verdict(ratio: LogRatio) -> str:
     """``holds`` (interval above 1: lambda = 0 loses), ``reversed`` (below 1) or ``undecided``."""
-    return "holds" if stat["low"] > 1 else "reversed" if stat["high"] < 1 else "undecided"
+    return "holds" if ratio.low > 1 else "reversed" if ratio.high < 1 else "undecided"
 
 
 def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
@@ -305,7 +267,8 @@ def _mean(values):
 def _cell_stats(settings, case, hidden, direction, ref, rows) -> dict:
     a = [r["lam0"]["mae"][ref] for r in rows]
     b = [r["reg"]["mae"][ref] for r in rows]
-    stat = paired_log_ratio(a, b, settings.confidence)
+    pair = Paired.of(a, b, settings.confidence)
+    ratio = pair.log_ratio  # MAEs are positive and a cell has >= 2 seeds
     part = {k: {q: _mean([r[k]["parts"][ref][q] for r in rows])
                 for q in ("network_peak_beyond_n", "network_peak_within_n", "error_beyond_rms_n")}
             for k in ("lam0", "reg")}
@@ -315,8 +278,9 @@ def _cell_stats(settings, case, hidden, direction, ref, rows) -> dict:
             "mae_lam0": {"mean": float(np.mean(a)), "per_seed": a},
             "mae_reg": {"mean": float(np.mean(b)), "per_seed": b},
             "mae_lip": {"mean": float(np.mean([r["lip"]["mae"][ref] for r in rows]))},
-            "ratio": stat, "difference_m": paired_difference(a, b, settings.confidence),
-            "verdict": verdict(stat),
+            "ratio": dataclasses.asdict(ratio),
+            "difference_m": {"mean": pair.diff, "low": pair.ci[0], "high": pair.ci[1]},
+            "verdict": verdict(ratio),
             "network": part, "lip_error_beyond_rms_n":
                 _mean([r["lip"]["error_beyond_rms_n"][ref] for r in rows]),
             "capped_fits": stops.count("max_iter"),
