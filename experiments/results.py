@@ -179,3 +179,42 @@ class ForceSplit:
     parts: dict[str, tuple[np.ndarray, np.ndarray]]
     beyond: np.ndarray
     truth: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class BeyondRange:
+    """A PGNN's force on one reference against the training range, computed once for the
+    testbed, the studies and the failure map: the network part's peak |force| over the reference,
+    beyond the training range and within it, its rms, the share of samples beyond, and the rms
+    of the whole model's force minus the true plant force over the samples beyond (N; None where
+    no sample leaves the range or the truth is unknown)."""
+
+    network_peak_n: float
+    network_rms_n: float
+    network_peak_beyond_n: float | None
+    network_peak_within_n: float | None
+    fraction_beyond: float
+    error_beyond_rms_n: float | None
+
+    @classmethod
+    def of(cls, physical: np.ndarray, network: np.ndarray, beyond: np.ndarray,
+           truth: np.ndarray | None = None) -> BeyondRange:
+        """From the model's physical and network parts (N) on a reference, the mask of its
+        samples beyond the training range and the true plant force (N; None: unknown)."""
+        net = np.abs(np.asarray(network, dtype=float))
+        within = ~beyond
+        return cls(
+            network_peak_n=float(np.max(net)),
+            network_rms_n=float(np.sqrt(np.mean(net ** 2))),
+            network_peak_beyond_n=float(np.max(net[beyond])) if beyond.any() else None,
+            network_peak_within_n=float(np.max(net[within])) if within.any() else None,
+            fraction_beyond=float(beyond.mean()),
+            error_beyond_rms_n=None if truth is None else error_beyond_rms(
+                np.asarray(physical, dtype=float) + np.asarray(network, dtype=float), truth,
+                beyond))
+
+
+def error_beyond_rms(force: np.ndarray, truth: np.ndarray, beyond: np.ndarray) -> float | None:
+    """rms of a model's force minus the true plant force over the samples ``beyond`` the
+    training range (N; None where there is none)."""
+    return float(np.sqrt(np.mean((force - truth)[beyond] ** 2))) if beyond.any() else None

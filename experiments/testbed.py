@@ -32,7 +32,8 @@ from clm_sim.record import Run
 from controllers.lip import LIPFeedforward
 from controllers.pid import PIDController, design_pid
 from experiments.config import ExperimentConfig, FeedforwardSpec, load_config, resolved
-from experiments.results import ReferenceMetrics, RowResult, SeedFit, SeedResult, theta_drift
+from experiments.results import (BeyondRange, ReferenceMetrics, RowResult, SeedFit, SeedResult,
+                                 theta_drift)
 
 # Purposes of the child random streams; the numbers are part of the reproducibility contract.
 STREAM_TRAINING_DITHER = 0
@@ -240,11 +241,10 @@ class Testbed:
                 peaks = {}
                 if spec.kind == "pgnn":
                     r = self.reference(name)
-                    _, net = model.predict_parts(y=r, ts=ts)
-                    beyond = inside.beyond(features, r, ts)
-                    peaks = {"network_peak_n": float(np.max(np.abs(net))),
-                             "network_peak_beyond_n": (float(np.max(np.abs(net[beyond])))
-                                                       if beyond.any() else None)}
+                    b = BeyondRange.of(*model.predict_parts(y=r, ts=ts),
+                                       inside.beyond(features, r, ts))
+                    peaks = {"network_peak_n": b.network_peak_n,
+                             "network_peak_beyond_n": b.network_peak_beyond_n}
                 per_ref[name] = ReferenceMetrics(**rep.metrics(), **peaks)
                 if s == 0:
                     first[name] = rep

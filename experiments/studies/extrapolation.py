@@ -11,6 +11,7 @@ reference that leaves the training range (r2).
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +27,7 @@ from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
-from experiments.results import ForceSplit
+from experiments.results import BeyondRange, ForceSplit
 from experiments.runner import preflight
 from experiments.studies.kinds import take_kind
 from experiments.table import THETA_UNITS, t_interval
@@ -184,6 +185,12 @@ def _label(key: str) -> str:
     return {"sequential": "PGNN sequential"}.get(key, key.replace("lambda=", "PGNN λ = "))
 
 
+def _seed_mean(seeds: list[BeyondRange], name: str) -> float | None:
+    """The mean over seeds of one quantity (None where no sample leaves the range)."""
+    values = [getattr(b, name) for b in seeds]
+    return None if None in values else float(np.mean(values))
+
+
 def _summarize(config, study, lip, refs, models, mae, runs, truth, predicted) -> dict:
     ts = config.ts
     ranges = {r: TrainingRange.of(config.features, ref, ts) for r, ref in refs.items()}
@@ -191,21 +198,18 @@ def _summarize(config, study, lip, refs, models, mae, runs, truth, predicted) ->
     for key, ms in models.items():
         parts = {}
         for r, ref in refs.items():
-            phys, net = zip(*predicted[key][r])
             beyond = ranges[study.inside].beyond(config.features, ref, ts)
-            net_abs = np.abs(np.array(net))
+            seeds = [BeyondRange.of(p, n, beyond, truth[r]) for p, n in predicted[key][r]]
+            mean = functools.partial(_seed_mean, seeds)
             parts[r] = {
-                "network_max_abs_n": float(np.mean(net_abs.max(axis=1))),
-                "network_rms_n": float(np.mean(np.sqrt(np.mean(np.array(net) ** 2, axis=1)))),
-                "network_max_abs_beyond_n": float(np.mean(net_abs[:, beyond].max(axis=1)))
-                if beyond.any() else None,
-                "network_max_abs_within_n": float(np.mean(net_abs[:, ~beyond].max(axis=1))),
+                "network_max_abs_n": mean("network_peak_n"),
+                "network_rms_n": mean("network_rms_n"),
+                "network_max_abs_beyond_n": mean("network_peak_beyond_n"),
+                "network_max_abs_within_n": mean("network_peak_within_n"),
                 "fraction_beyond": float(beyond.mean()),
                 # Model force minus the true plant force, rms over the samples beyond the
                 # training range (N), mean over seeds.
-                "model_error_beyond_rms_n": float(np.mean([np.sqrt(np.mean(
-                    (p + n - truth[r])[beyond] ** 2)) for p, n in zip(phys, net)]))
-                if beyond.any() else None,
+                "model_error_beyond_rms_n": mean("error_beyond_rms_n"),
             }
         variants[key] = {
             "mae": {r: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1))
