@@ -158,7 +158,7 @@ def test_pgnn_settings_declared_once():
     for bad, key in ((dict(max_iter=0), "pgnn.max_iter"), (dict(ftol=1.0), "pgnn.ftol"),
                      (dict(activation="elu"), "pgnn.activation"),
                      (dict(init="random"), "pgnn.init"),
-                     (dict(lambda_diag={"mas": 1.0}), "pgnn.lambda_diag")):
+                     (dict(lam_diag={"mas": 1.0}), "pgnn.lambda_diag")):
         with pytest.raises(UserError, match=key):
             PGNNSettings(**bad)
         with pytest.raises(UserError, match=key):

@@ -410,7 +410,7 @@ def test_mechanism_config_loads_and_errors_name_the_key(tmp_path):
     from experiments.studies.mechanism import load_mechanism
 
     config, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism.yaml")
-    assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lambda == 0
+    assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lam == 0
     assert set(st.cases) == {"cable_cubic", "cable_linear"}
     bad = tmp_path / "bad.yaml"
     bad.write_text("mechanism: {records: 1}\n")

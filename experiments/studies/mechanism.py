@@ -36,7 +36,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -150,7 +150,7 @@ def _cell(cell: Cell) -> dict:
     ts = config.ts
     run = tb.training_run(seed=cell.record)
     lip = tb.fit_lip(run)
-    settings = to_plain(st.pgnn)
+    settings = asdict(st.pgnn)  # Python names (lam, continuation_lam), as fit_pgnn takes them
     data = training_data(config.features, y=run.y, u=run.u, ts=run.ts,
                          decimation=settings.get("decimation"))
     inside = TrainingRange.of(config.features, tb.reference(st.inside), ts)
