@@ -94,3 +94,19 @@ def test_table_row_from_seed_results(fitted):
     none = TableRow(FeedforwardSpec(kind="none"), (SeedResult({"r1": ReferenceMetrics(
         1e-5, 2e-5, 3e-5)}),)).to_json()
     assert "fits" not in none and none["theta_phy"] is None
+
+
+def test_figures_take_results_and_never_run_a_model():
+    """No figure module calls a model: whoever computed a result hands it to the figure."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    modules = [root / "experiments" / "plots.py",
+               *sorted((root / "experiments").rglob("*_figures.py"))]
+    assert len(modules) >= 2
+    for path in modules:
+        calls = {node.func.attr for node in ast.walk(ast.parse(path.read_text("utf-8")))
+                 if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)}
+        ran = calls & {"predict", "predict_parts", "feedforward", "network", "fit", "fit_data"}
+        assert not ran, f"{path.name} calls {sorted(ran)}"

@@ -579,8 +579,9 @@ def _region_sentence(s: dict, outside: list[dict]) -> str:
 # ----------------------------------------------------------------------------- figures
 
 def draw(summary: dict, folder: Path) -> None:
-    """The report's figures (``experiments.plots.failure_map_figures``) as PNG files."""
+    """The report's figures (:func:`failure_map_figures`) as PNG files."""
     from experiments import plots
+    from experiments.studies.failure_map_figures import failure_map_figures
 
-    for stem, fig in plots.failure_map_figures(summary).items():
+    for stem, fig in failure_map_figures(summary).items():
         plots.save(fig, Path(folder) / f"{stem}.png")
