@@ -109,7 +109,9 @@ class OrNone:
 
 
 # The one table of lambda's spellings: a config or a results file says "lambda", Python "lam".
-LAMBDA_KEYS = {"lambda": "lam", "lambda_diag": "lam_diag", "continuation_lambda": "continuation_lam"}
+LAMBDA_KEYS = {"lambda": "lam", "lambda_diag": "lam_diag",
+               "continuation_lambda": "continuation_lam", "lambdas": "lams",
+               "paper_lambda": "paper_lam"}
 
 # setting -> (its key in a config file, what it may be)
 CONSTRAINTS = {

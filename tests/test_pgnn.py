@@ -410,7 +410,7 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
 
     root = Path(__file__).resolve().parents[1]
     _, study = load_study(root / "experiments/configs/extrapolation_study.yaml")
-    assert 0.0 in study.lambdas and study.paper_lambda in study.lambdas
+    assert 0.0 in study.lams and study.paper_lam in study.lams
     bad = tmp_path / "bad.yaml"
     bad.write_text("study:\n  lambdaz: [0]\n")
     with pytest.raises(UserError, match=r"bad.yaml: study.lambdaz: unknown key"):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import json
 from dataclasses import dataclass, field
+from typing import ClassVar
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import PGNNSettings
+from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.results import BeyondRange, ForceSplit
@@ -36,26 +37,27 @@ from experiments.testbed import Progress, Testbed
 
 @dataclass(frozen=True)
 class StudySettings:
-    """lambdas: the sweep (>= 0, physical units; include 0); paper_lambda: the regularized value
-    the report compares with lambda = 0; hidden: neurons n_l; seeds: training seeds per lambda;
-    inside: the training reference; outside: references that leave its range (first: the
-    paper's r2);
-    pgnn: network and optimizer settings shared by every model."""
+    """lams: the sweep (>= 0, physical units; include 0); paper_lam: the regularized value
+    the report compares with lambda = 0 (config keys ``lambdas``, ``paper_lambda``); hidden:
+    neurons n_l; seeds: training seeds per lambda; inside: the training reference; outside:
+    references that leave its range (first: the paper's r2); pgnn: network and optimizer
+    settings shared by every model."""
 
-    lambdas: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
-    paper_lambda: float = 0.01
+    lams: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+    paper_lam: float = 0.01
     hidden: int = 16
     seeds: int = 3
     inside: str = "r1"
     outside: tuple[str, ...] = ("r2",)
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
+    aliases: ClassVar[dict[str, str]] = {k: LAMBDA_KEYS[k] for k in ("lambdas", "paper_lambda")}
 
     def __post_init__(self):
-        if not self.lambdas or any(lam < 0 for lam in self.lambdas):
+        if not self.lams or any(lam < 0 for lam in self.lams):
             raise UserError("lambdas: expected a non-empty list of numbers >= 0")
-        if 0.0 not in self.lambdas or self.paper_lambda not in self.lambdas:
+        if 0.0 not in self.lams or self.paper_lam not in self.lams:
             raise UserError(f"lambdas: must contain 0 and paper_lambda "
-                            f"({self.paper_lambda:g})")
+                            f"({self.paper_lam:g})")
         if not (isinstance(self.seeds, int) and self.seeds >= 1) or self.hidden < 1:
             raise UserError("seeds and hidden: expected integers >= 1")
 
@@ -108,7 +110,7 @@ def _variants(study: StudySettings):
     """(key, label, spec) of every trained PGNN variant, sequential first."""
     common = {"kind": "pgnn", "hidden": study.hidden, "seeds": study.seeds, "pgnn": study.pgnn}
     out = [("sequential", "sequential", FeedforwardSpec(training="sequential", **common))]
-    for lam in sorted(study.lambdas):
+    for lam in sorted(study.lams):
         out.append((f"lambda={lam:g}", f"λ = {lam:g}",
                     FeedforwardSpec(training="simultaneous", lam=lam, **common)))
     return out
@@ -230,7 +232,7 @@ def _summarize(config, study, lip, refs, models, mae, runs, truth, predicted) ->
             lip_beyond[r] = float(np.sqrt(np.mean(
                 (lip.predict(y=ref, ts=ts) - truth[r])[beyond] ** 2)))
     variants["LIP"]["model_error_beyond_rms_n"] = lip_beyond
-    return {"lambdas": sorted(study.lambdas), "paper_lambda": study.paper_lambda,
+    return {"lambdas": sorted(study.lams), "paper_lambda": study.paper_lam,
             "hidden": study.hidden, "seeds": study.seeds, "inside": study.inside,
             "outside": list(study.outside),
             "theta_lip": lip.theta_, "lip_residual_rms_n": lip.residual_rms_,
