@@ -27,6 +27,7 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments import plots
+from experiments.studies import extrapolation_figures as figures
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.results import BeyondRange, ForceSplit
 from experiments.runner import preflight
@@ -163,8 +164,8 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
 def _figures(summary, config, lip, refs, models, runs, truth, parts, folder: Path) -> None:
     """The report's figures into ``folder``."""
     ts = config.ts
-    plots.save(plots.theta_figure(summary, models), folder / "theta_training.png")
-    plots.save(plots.cost_figure(summary, models), folder / "cost_terms.png")
+    plots.save(figures.theta_figure(summary, models), folder / "theta_training.png")
+    plots.save(figures.cost_figure(summary, models), folder / "cost_terms.png")
     inside = TrainingRange(**summary["ranges"][summary["inside"]])
     for ref in summary["outside"]:
         beyond = inside.beyond(config.features, refs[ref], ts)
@@ -172,14 +173,14 @@ def _figures(summary, config, lip, refs, models, runs, truth, parts, folder: Pat
                            lip_force=lip.predict(y=refs[ref], ts=ts), beyond=beyond,
                            parts={key: p[ref][0] for key, p in parts.items()},
                            truth=truth[ref])
-        plots.save(plots.split_figure(summary, split), folder / f"split_{ref}.png")
+        plots.save(figures.split_figure(summary, split), folder / f"split_{ref}.png")
     shown = ["feedback only", "LIP", "sequential", "lambda=0",
              f"lambda={summary['paper_lambda']:g}"]
-    colors = {_label(k): c for k, c in plots.variant_colors(summary).items()}
+    colors = {_label(k): c for k, c in figures.variant_colors(summary).items()}
     for ref in refs:
         replays = {_label(k): runs[k] for k in shown}
         plots.save(plots.tracking_figure(replays, ref, colors), folder / f"tracking_{ref}.png")
-    plots.save(plots.mae_vs_lambda_figure(summary), folder / "mae_vs_lambda.png")
+    plots.save(figures.mae_vs_lambda_figure(summary), folder / "mae_vs_lambda.png")
 
 
 def _label(key: str) -> str:
