@@ -64,7 +64,7 @@ _TODAY = textwrap.dedent("""
         rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=tuple(spawn)))
         c0 = time.process_time()
         m = PGNNFeedforward(**json.loads(sys.argv[4])).fit_data(data=data, theta_lip=lip, rng=rng)
-        f = m.fit_
+        f = m.fit_ if isinstance(m.fit_, dict) else m.fit_.to_json()  # a dict before 2026-11-26
         out.append({"cpu_s": time.process_time() - c0, "stop": f["stop"],
                     "iterations": f["iterations"], "cost": f["data_cost"] + f["reg_cost"]})
     print(json.dumps(out))
@@ -76,8 +76,8 @@ def product_fit(data, theta_lip, seq):
     model = PGNNFeedforward(**SETTINGS).fit_data(data=data, theta_lip=theta_lip,
                                                  rng=np.random.default_rng(seq))
     f = model.fit_
-    return {"cpu_s": time.process_time() - c0, "stop": f["stop"], "iterations": f["iterations"],
-            "cost": f["data_cost"] + f["reg_cost"]}
+    return {"cpu_s": time.process_time() - c0, "stop": f.stop, "iterations": f.iterations,
+            "cost": f.data_cost + f.reg_cost}
 
 
 class Today:
@@ -156,7 +156,7 @@ def torch_to(data, theta_lip, seq, target, budget, kind):
     net.set_linear(p0[:4], p0[4:k - 1], float(p0[k - 1]))
     phi = torch.from_numpy(data.phi)
     target_t = torch.from_numpy(data.target)
-    lam = torch.from_numpy(model.lambda_matrix_diag())
+    lam = torch.from_numpy(model.lam_matrix_diag())
     th_lip = torch.from_numpy(_as_theta(theta_lip))
     weights = [p for n, p in net.mlp.named_parameters() if n.endswith("weight")]
 

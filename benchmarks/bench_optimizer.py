@@ -35,8 +35,8 @@ def fit(data, theta_lip, seq, **settings):
     model = PGNNFeedforward(**settings).fit_data(data=data, theta_lip=theta_lip,
                                                  rng=np.random.default_rng(seq))
     f = model.fit_
-    return {"cpu_s": time.process_time() - c0, "stop": f["stop"], "iterations": f["iterations"],
-            "cost": f["data_cost"] + f["reg_cost"]}
+    return {"cpu_s": time.process_time() - c0, "stop": f.stop, "iterations": f.iterations,
+            "cost": f.data_cost + f.reg_cost}
 
 
 def main(argv=None):

@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 ROWS = {"sequential": {"training": "sequential", "weight_decay": 1e-5},
-        "lambda=0, paper's cost": {"lam": 0.0, "weight_decay": 0.0, "continuation_lambda": 0.0},
+        "lambda=0, paper's cost": {"lam": 0.0, "weight_decay": 0.0, "continuation_lam": 0.0},
         "lambda=0, decay + continuation": {"lam": 0.0, "weight_decay": 1e-5},
         "lambda=0.01, decay": {"lam": 0.01, "weight_decay": 1e-5}}
 
@@ -42,8 +42,11 @@ _FITS = textwrap.dedent("""
     for settings, (entropy, spawn) in jobs:
         rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=tuple(spawn)))
         c0 = time.process_time()
+        old = {"continuation_lam": "continuation_lambda", "lam_diag": "lambda_diag"}  # < 11-26
+        own = PGNNFeedforward.__dataclass_fields__
+        settings = {(k if k in own else old.get(k, k)): v for k, v in settings.items()}
         m = PGNNFeedforward(**settings).fit_data(data=data, theta_lip=lip, rng=rng)
-        f = m.fit_
+        f = m.fit_ if isinstance(m.fit_, dict) else m.fit_.to_json()  # a dict before 2026-11-26
         out.append({"cpu_s": time.process_time() - c0, "stop": f["stop"],
                     "iterations": f["iterations_total"], "theta": m.theta_,
                     "cost": f["data_cost"] + f["reg_cost"]})

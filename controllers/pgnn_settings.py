@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, fields
+from typing import ClassVar
 
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
@@ -107,12 +108,17 @@ class OrNone:
         return value is None or self.rule.accepts(value)
 
 
+# The one table of lambda's spellings: a config or a results file says "lambda", Python "lam".
+LAMBDA_KEYS = {"lambda": "lam", "lambda_diag": "lam_diag",
+               "continuation_lambda": "continuation_lam", "lambdas": "lams",
+               "paper_lambda": "paper_lam"}
+
 # setting -> (its key in a config file, what it may be)
 CONSTRAINTS = {
     "hidden": ("hidden", Widths()),
     "training": ("training", Options(TRAININGS)),
     "lam": ("lambda", Interval(float, 0)),
-    "lambda_diag": ("pgnn.lambda_diag", PerParameter()),
+    "lam_diag": ("pgnn.lambda_diag", PerParameter()),
     "pinn_weight": ("pgnn.pinn_weight", Interval(float, 0)),
     "orthogonal_weight": ("pgnn.orthogonal_weight", Interval(float, 0)),
     "weight_decay": ("pgnn.weight_decay", Interval(float, 0)),
@@ -122,7 +128,7 @@ CONSTRAINTS = {
     "max_iter": ("pgnn.max_iter", Interval(int, 1)),
     "ftol": ("pgnn.ftol", Interval(float, 0, 1, "both")),
     "restarts": ("pgnn.restarts", Interval(int, 1)),
-    "continuation_lambda": ("pgnn.continuation_lambda", Interval(float, 0)),
+    "continuation_lam": ("pgnn.continuation_lambda", Interval(float, 0)),
     "adam_lr": ("pgnn.adam_lr", Interval(float, 0, None, "low")),
     "validation_fraction": ("pgnn.validation_fraction", Interval(float, 0, 0.5, "high")),
     "decimation": ("pgnn.decimation", OrNone(Interval(int, 1))),
@@ -181,13 +187,13 @@ class PGNNSettings:
     earlier method) or adam; max_iter: LM iterations (Jacobian evaluations) or Adam steps;
     ftol: converged when the Gauss-Newton model predicts at most this relative cost decrease;
     restarts: draws of the hidden layers per fit, the lowest training cost kept;
-    continuation_lambda: a fit without any pull toward theta_LIP (simultaneous, lambda = 0, no
+    continuation_lam: a fit without any pull toward theta_LIP (simultaneous, lambda = 0, no
     projection penalty) also starts each draw from the solution regularized with this lambda
     (homotopy; varpro only; 0: off), and keeps the lower training cost; adam_lr: Adam
     step size; validation_fraction: last part of the data held out to pick the best iterate
     (0: none); pinn_weight: weight of the PINN term (training pinn only); orthogonal_weight:
     lambda_perp of the orthogonal-projection penalty (Kon et al. 2022; dimensionless);
-    weight_decay: L2 weight of the network weights (N**2 per unit weight**2); lambda_diag:
+    weight_decay: L2 weight of the network weights (N**2 per unit weight**2); lam_diag:
     per-parameter regularization weights (mass, viscous, coulomb, stiffness; physical units)
     overriding lambda; decimation: keep every n-th sample of the filtered training data (None:
     one sample per 8 ms whatever the record's rate, :func:`decimation_for`: 80 at 10 kHz, 8 at
@@ -204,15 +210,18 @@ class PGNNSettings:
     max_iter: int = 200
     ftol: float = 1e-4
     restarts: int = 1
-    continuation_lambda: float = 0.01
+    continuation_lam: float = 0.01
     adam_lr: float = 1e-3
     validation_fraction: float = 0.0
     pinn_weight: float = 1.0
     orthogonal_weight: float = 0.0
     weight_decay: float = 0.0
-    lambda_diag: dict[str, float] | None = None
+    lam_diag: dict[str, float] | None = None
     decimation: int | None = None
     theta_ftol: float = 0.01
+
+    aliases: ClassVar[dict[str, str]] = {k: LAMBDA_KEYS[k] for k in ("lambda_diag",
+                                                                      "continuation_lambda")}
 
     def __post_init__(self):
         check_settings({f.name: getattr(self, f.name) for f in fields(self)})

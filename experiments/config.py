@@ -13,8 +13,8 @@ from clm_sim.loop import Dither
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import (MAX_LAYERS, MAX_PARAMETERS, MAX_WIDTH, PGNNSettings,
-                                       check_settings, parameter_count)
+from controllers.pgnn_settings import (LAMBDA_KEYS, MAX_LAYERS, MAX_PARAMETERS, MAX_WIDTH,
+                                       PGNNSettings, check_settings, parameter_count)
 from controllers.pid import PIDDesign
 
 
@@ -153,7 +153,7 @@ class FeedforwardSpec:
     seeds: int = 1
     name: str | None = None
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases = {"lambda": "lam"}
+    aliases = {"lambda": LAMBDA_KEYS["lambda"]}
 
     def __post_init__(self):
         if self.kind == "pgnn":

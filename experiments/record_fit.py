@@ -25,6 +25,8 @@ from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
 from experiments import table
 from experiments.config import ExperimentConfig
+from experiments.paired import Paired, holm
+from experiments.results import SeedFit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,10 +182,7 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
             preds = [[r.phi @ np.array([m.theta_[k] for k in THETA_NAMES]) + m.network(r.phi)
                       for r in records] for m in models]
             thetas = [dict(m.theta_) for m in models]
-            fits = [{"seed": s, **{k: m.fit_[k] for k in (
-                "stop", "cost_stop", "iterations", "data_cost", "reg_cost", "first_order",
-                "theta_moved", "theta_path", "continuation_lambda", "start")}}
-                for s, m in enumerate(models)]
+            fits = [SeedFit(s, m.fit_) for s, m in enumerate(models)]
         per_seed = [{r.name: force_rms(p, r) for p, r in zip(pred, records)} for pred in preds]
         row = {"kind": spec.kind, "training": spec.training, "lambda": spec.lam,
                "hidden": spec.hidden, "n_seeds": len(per_seed), "label": spec.label(),
@@ -195,10 +194,11 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
         if spec.kind == "lip":
             row["offset_n"] = lip.offset_n
         if fits is not None:
-            row["fits"] = fits
-            row["converged"] = sum(f["stop"] == "converged" for f in fits)
-            row["regularizers"] = table.regularizers(spec, fits)
-            row["settings"] = table.row_settings(spec, fits)
+            kept = [f.record for f in fits]
+            row["fits"] = [f.to_json() for f in fits]
+            row["converged"] = sum(k.converged for k in kept)
+            row["regularizers"] = table.regularizers(spec, kept)
+            row["settings"] = table.row_settings(spec, kept)
         rows.append((row, models))
         progress(f"{spec.label()}: " + "; ".join(
             f"{r.name} inside {_fmt(row['force_rms'][r.name]['inside'])} N, outside "
@@ -241,17 +241,16 @@ def comparisons(rows: list[dict]) -> list[dict]:
                 db = [s[rec][side] for s in b["force_rms_per_seed"]]
                 if None in da or None in db:
                     continue
-                db = db * len(da) if len(db) == 1 else db
-                d = np.subtract(da, db)
-                mean, lo, hi = table.t_interval(d)
-                ci = [lo, hi] if len(da) > 1 else None
+                pair = Paired.of(da, db)
+                diff = pair.difference_json()
                 out.append({"a": a["label"], "b": b["label"], "metric": "force_rms",
                             "record": rec, "side": side, "varies": setting, "values": values,
-                            "n": len(da), "diff": mean, "median_diff": float(np.median(d)),
-                            "a_lower": int(np.sum(d < 0)), "ci95": ci,
-                            "excludes_zero": bool(ci and (lo > 0 or hi < 0)),
-                            **table.paired_tests(d), "log_ratio": table.log_ratio(da, db)})
-    for c, p in zip(out, table.holm([c["p_wilcoxon"] for c in out])):
+                            "n": pair.n, "diff": pair.diff, "median_diff": pair.median_diff,
+                            "a_lower": pair.a_lower, "ci95": diff["ci95"],
+                            "excludes_zero": pair.excludes_zero, "p_t": pair.p_t,
+                            "p_wilcoxon": pair.p_wilcoxon,
+                            "log_ratio": pair.log_ratio and pair.log_ratio.to_json()})
+    for c, p in zip(out, holm([c["p_wilcoxon"] for c in out])):
         c["p_holm"] = p
         c["starred"] = bool(p is not None and p < 0.05)
     return out

@@ -23,6 +23,7 @@ from clm_sim.outdir import atomic_folder
 from clm_sim.record import save_npz
 from experiments import table
 from experiments.config import ExperimentConfig, resolved
+from experiments.results import TableRow
 from experiments.testbed import Progress, Testbed
 
 
@@ -159,8 +160,7 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     rows, shown = [], {}
     for spec in config.feedforwards:
         result = tb.evaluate(spec, train, lip)
-        thetas = [dict(m.theta_) for m in result.models if m is not None]
-        rows.append(table.make_row(spec, result.metrics, thetas))
+        rows.append(TableRow.from_result(result).to_json())
         if out is not None:
             shown[spec.label()] = result.first_replays
             for name, run in result.first_replays.items():

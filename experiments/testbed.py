@@ -19,7 +19,7 @@ from __future__ import annotations
 import functools
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,8 @@ from clm_sim.record import Run
 from controllers.lip import LIPFeedforward
 from controllers.pid import PIDController, design_pid
 from experiments.config import ExperimentConfig, FeedforwardSpec, load_config, resolved
+from experiments.results import (BeyondRange, ReferenceMetrics, RowResult, SeedFit, SeedResult,
+                                 theta_drift)
 
 # Purposes of the child random streams; the numbers are part of the reproducibility contract.
 STREAM_TRAINING_DITHER = 0
@@ -58,17 +60,6 @@ class Progress:
 
 def _silent(message: str) -> None:
     pass
-
-
-@dataclass
-class RowResult:
-    """One table row computed: the fitted models (``[None]`` for feedback only), the per-seed
-    tracking metrics ``[{ref: {"mae", "rms", "max"}}]`` (m) and the replays of the first seed."""
-
-    spec: FeedforwardSpec
-    models: list
-    metrics: list[dict[str, dict[str, float]]]
-    first_replays: dict[str, Run]
 
 
 class Testbed:
@@ -198,7 +189,7 @@ class Testbed:
         def report(model):
             done.append(model)
             self.progress(f"  {spec.label()}: fit {len(done)}/{len(payloads)} done "
-                          f"({model.fit_['stop']}, {model.fit_['iterations']} it)")
+                          f"({model.fit_.stop}, {model.fit_.iterations} it)")
 
         return parallel.map_fits(payloads, on_done=report)
 
@@ -210,7 +201,7 @@ class Testbed:
             return [lip]
         self.progress(f"  training {spec.label()}: {spec.seeds} seeds")
         models = self._fit_seeds(spec, run, lip, list(range(spec.seeds)))
-        stops = [m.fit_["stop"] for m in models]
+        stops = [m.fit_.stop for m in models]
         if any(st != "converged" for st in stops):
             self.progress(f"  {spec.label()}: {sum(st != 'converged' for st in stops)} of "
                           f"{len(models)} fits not converged (" + ", ".join(
@@ -233,42 +224,37 @@ class Testbed:
         """Fit one row and replay every seed on ``references`` (default: the config's
         ``replay``). Only the first seed's replays are kept (the others' metrics are).
 
-        Per seed, ``metrics`` holds per reference the tracking metrics (m) and, for a PGNN, the
-        peak network force (N) over the reference and over its samples beyond the training
-        range; under ``"fit"`` the fit record (seed, stop, iterations, costs, gradient norm,
-        largest relative drift of theta_phy from theta_LIP)."""
+        Per seed, a :class:`SeedResult`: per reference the tracking metrics (m) and, for a
+        PGNN, the peak network force (N) over the reference and over its samples beyond the
+        training range; and the fit (its record and the largest relative drift of theta_phy
+        from theta_LIP)."""
         refs = self.config.replay if references is None else references
         models = self.fit_row(spec, run, lip)
         ts, features = self.ts, self.config.features
         inside = TrainingRange.of(features, self.reference(self.config.training.reference), ts)
-        metrics, first = [], {}
+        seeds, first = [], {}
         for s, model in enumerate(models):
             per_ref = {}
             for name in refs:
                 rep = self.replay(model, name, meta=self.meta(
                     run=f"replay {spec.label()} on {name}", seed=s))
-                per_ref[name] = rep.metrics()
+                peaks = {}
                 if spec.kind == "pgnn":
                     r = self.reference(name)
-                    _, net = model.predict_parts(y=r, ts=ts)
-                    beyond = inside.beyond(features, r, ts)
-                    per_ref[name]["network_peak_n"] = float(np.max(np.abs(net)))
-                    per_ref[name]["network_peak_beyond_n"] = (
-                        float(np.max(np.abs(net[beyond]))) if beyond.any() else None)
+                    b = BeyondRange.of(*model.predict_parts(y=r, ts=ts),
+                                       inside.beyond(features, r, ts))
+                    peaks = {"network_peak_n": b.network_peak_n,
+                             "network_peak_beyond_n": b.network_peak_beyond_n}
+                per_ref[name] = ReferenceMetrics(**rep.metrics(), **peaks)
                 if s == 0:
                     first[name] = rep
+            fit = None
             if spec.kind == "pgnn":
-                fit = {k: model.fit_[k] for k in (
-                    "stop", "cost_stop", "iterations", "iterations_total", "data_cost",
-                    "reg_cost", "grad_norm", "first_order", "theta_moved", "theta_path",
-                    "continuation_lambda", "start")}
-                drift = {k: abs(model.theta_[k] - lip.theta_[k]) / abs(lip.theta_[k])
-                         for k in model.theta_ if lip.theta_[k]}
-                per_ref["fit"] = {"seed": s, **fit, "theta_drift": max(drift.values())}
-            metrics.append(per_ref)
-        row = RowResult(spec, models, metrics, first)
+                fit = SeedFit(s, model.fit_, theta_drift(model.theta_, lip.theta_))
+            seeds.append(SeedResult(per_ref, fit))
+        row = RowResult(spec, models, seeds, first)
         self.progress(f"{spec.label()}: " + ", ".join(
-            f"MAE {name} {np.mean([m[name]['mae'] for m in metrics]) * 1e6:.3f} µm"
+            f"MAE {name} {np.mean([m.references[name].mae for m in seeds]) * 1e6:.3f} µm"
             for name in refs))
         return row
 
@@ -281,13 +267,6 @@ class Testbed:
     def with_config(self, **changes) -> "Testbed":
         """A testbed whose config differs in the given top-level fields."""
         return Testbed(replace(self.config, **changes), progress=self.progress)
-
-
-def settings_decimation(settings: dict, ts: float) -> int:
-    """The decimation a PGNN with ``settings`` uses on a record sampled every ``ts`` s."""
-    from controllers.pgnn_settings import decimation_for
-
-    return decimation_for(ts, settings.get("decimation"))
 
 
 CONFIGS = Path(__file__).resolve().parent / "configs"

@@ -133,8 +133,8 @@ def test_a_progress_line_per_pgnn_fit():
     models = tb.fit_row(spec, run, lip)
     done = [x for x in lines if "done" in x]
     assert len(models) == 1 and len(done) == 1
-    assert done[0].endswith(f"fit 1/1 done ({models[0].fit_['stop']}, "
-                            f"{models[0].fit_['iterations']} it)")
+    assert done[0].endswith(f"fit 1/1 done ({models[0].fit_.stop}, "
+                            f"{models[0].fit_.iterations} it)")
 
 
 def test_pgnn_settings_declared_once():
@@ -158,7 +158,7 @@ def test_pgnn_settings_declared_once():
     for bad, key in ((dict(max_iter=0), "pgnn.max_iter"), (dict(ftol=1.0), "pgnn.ftol"),
                      (dict(activation="elu"), "pgnn.activation"),
                      (dict(init="random"), "pgnn.init"),
-                     (dict(lambda_diag={"mas": 1.0}), "pgnn.lambda_diag")):
+                     (dict(lam_diag={"mas": 1.0}), "pgnn.lambda_diag")):
         with pytest.raises(UserError, match=key):
             PGNNSettings(**bad)
         with pytest.raises(UserError, match=key):

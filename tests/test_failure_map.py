@@ -14,8 +14,8 @@ from scipy import stats
 
 from clm_sim.errors import UserError
 from experiments.cli import main as cli
-from experiments.studies.failure_map import load_failure_map, paired_log_ratio, verdict
-from experiments.table import holm
+from experiments.paired import LogRatio, holm
+from experiments.studies.failure_map import load_failure_map, verdict
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "experiments" / "configs" / "failure_map.yaml"
@@ -29,14 +29,14 @@ def test_paired_log_ratio_matches_scipy_paired_t():
     rng = np.random.default_rng(3)
     b = rng.uniform(0.3, 0.8, 10)
     a = b * np.exp(rng.normal(0.2, 0.15, 10))
-    got = paired_log_ratio(a, b, 0.9)
+    got = LogRatio.of(a, b, 0.9)
     ref = stats.ttest_rel(np.log(a), np.log(b))
     ci = ref.confidence_interval(0.9)
     # Same t statistic computed two ways: agreement to rounding.
-    np.testing.assert_allclose([got["low"], got["high"]], np.exp([ci.low, ci.high]), rtol=1e-12)
-    np.testing.assert_allclose(got["p"], ref.pvalue, rtol=1e-9)
-    assert got["low"] < got["ratio"] < got["high"]
-    assert verdict(got) == ("holds" if got["low"] > 1 else "undecided")
+    np.testing.assert_allclose([got.low, got.high], np.exp([ci.low, ci.high]), rtol=1e-12)
+    np.testing.assert_allclose(got.p, ref.pvalue, rtol=1e-9)
+    assert got.low < got.ratio < got.high
+    assert verdict(got) == ("holds" if got.low > 1 else "undecided")
 
 
 def test_holm_by_hand():
@@ -120,7 +120,8 @@ def test_tiny_grid_runs_and_every_cell_is_paired(tiny):
         # The interval in the JSON is the paired t-interval of its own per-seed numbers.
         np.testing.assert_allclose([c["ratio"]["low"], c["ratio"]["high"]],
                                    np.exp([ci.low, ci.high]), rtol=1e-9)
-        assert c["verdict"] == verdict(c["ratio"])
+        ratio = LogRatio(**{k: v for k, v in c["ratio"].items() if k != "p_holm"})
+        assert c["verdict"] == verdict(ratio)
     for figure in ("ratio", "mechanism", "drift"):
         assert (out / "figures" / f"{figure}.png").stat().st_size > 10_000
 

@@ -55,21 +55,29 @@ def test_paper_cost_rows_reach_the_fit_without_weight_decay_or_continuation():
         assert model.init == "optimized"  # the lemma's least-squares start
         lip = dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
         model.fit_data(data=data, theta_lip=lip, rng=np.random.default_rng(0))
-        assert [s["start"] for s in model.fit_["starts"]] == ["draw"]
-        assert model.fit_["continuation_lambda"] == 0.0
+        assert [s.start for s in model.fit_.starts] == ["draw"]
+        assert model.fit_.continuation_lam == 0.0
         assert model.cost_["weight_decay"] == 0.0
-        assert (model.fit_["reg_cost"] == 0.0) == (spec.lam == 0)  # only the pull to theta_LIP
+        assert (model.fit_.reg_cost == 0.0) == (spec.lam == 0)  # only the pull to theta_LIP
     weight_decay_rows = [s for s in config.feedforwards if s.kind == "pgnn"
                          and s.pgnn.weight_decay > 0]
     assert all("weight decay" in s.label() for s in weight_decay_rows)
+
+
+def _record(start: str, continuation_lam: float):
+    """A converged fit's record that started from ``start``."""
+    from controllers.pgnn.fit_record import FitRecord
+
+    return FitRecord(stop="converged", cost_stop="converged", iterations=5, data_cost=0.09,
+                     reg_cost=0.0, grad_norm=0.0, first_order=0.0, ftol=1e-4, max_iter=200,
+                     continuation_lam=continuation_lam, start=start)
 
 
 def test_regularizers_name_every_term_and_start():
     from experiments import table
     config = load_config(PAPER)
     spec = next(s for s in config.feedforwards if s.name and "continuation" in s.name)
-    reg = table.regularizers(spec, [{"start": "continuation", "continuation_lambda": 0.01},
-                                    {"start": "draw", "continuation_lambda": 0.01}])
+    reg = table.regularizers(spec, [_record("continuation", 0.01), _record("draw", 0.01)])
     assert reg["weight_decay"] == 1e-5 and reg["continuation_lambda"] == 0.01
     assert reg["init"] == "lemma" and reg["starts_kept"] == {"continuation": 1, "draw": 1}
     assert {"lambda", "lambda_diag", "orthogonal_weight", "pinn_weight"} <= set(reg)
@@ -192,7 +200,7 @@ def test_emps_config_loads():
     assert kinds[:4] == [("lip", None, None), ("pgnn", "simultaneous", 0.0),
                          ("pgnn", "simultaneous", 0.01), ("pgnn", "sequential", None)]
     paper = config.feedforwards[1].pgnn
-    assert paper.weight_decay == 0 and paper.continuation_lambda == 0
+    assert paper.weight_decay == 0 and paper.continuation_lam == 0
     assert all(s.seeds >= 10 for s in config.feedforwards if s.kind == "pgnn")
 
 
@@ -254,7 +262,7 @@ def paper_cost_fit():
     run = tb.training_run(seed=1)
     lip = tb.fit_lip(run)
     model = tb.fit_pgnn(run, hidden=16, lam=0.0, seed=3, lip=lip, weight_decay=0.0,
-                        continuation_lambda=0.0)
+                        continuation_lam=0.0)
     return tb, run, lip, model
 
 
@@ -298,7 +306,7 @@ def test_paper_cost_lambda0_predicts_its_training_record_at_its_training_cost(pa
     assert len(pred) == len(data.target)
     cost = float(np.mean((data.target - pred) ** 2))
     # Same float64 arithmetic in another order: agreement to 1e-9 relative.
-    assert cost == pytest.approx(model.fit_["data_cost"], rel=1e-9)
+    assert cost == pytest.approx(model.fit_.data_cost, rel=1e-9)
 
 
 def test_table_compares_only_rows_that_differ_in_one_setting():
@@ -307,6 +315,7 @@ def test_table_compares_only_rows_that_differ_in_one_setting():
     per n_l and varies lambda; weight decay and the continuation start are compared alone; no
     pair mixes lambda with weight decay or continuation."""
     from experiments import table
+    from experiments.results import ReferenceMetrics, SeedFit, SeedResult, TableRow
 
     config = load_config(PAPER)
     rows = []
@@ -314,15 +323,13 @@ def test_table_compares_only_rows_that_differ_in_one_setting():
     for spec in config.feedforwards:
         if spec.kind != "pgnn":
             continue
-        cont = (spec.pgnn.continuation_lambda if spec.training == "simultaneous"
-                and not spec.lam and spec.pgnn.continuation_lambda else 0.0)
-        fits = [{"seed": s, "stop": "converged", "iterations": 5, "data_cost": 0.09,
-                 "reg_cost": 0.0, "grad_norm": 0.0, "first_order": 0.0,
-                 "theta_drift": float(rng.uniform(0, 1)), "continuation_lambda": cont,
-                 "start": "draw"} for s in range(spec.seeds)]
-        metrics = [{"r1": {"mae": float(rng.uniform(2e-7, 4e-7)), "rms": 1e-7, "max": 1e-6},
-                    "fit": f} for f in fits]
-        rows.append(table.make_row(spec, metrics, None))
+        cont = (spec.pgnn.continuation_lam if spec.training == "simultaneous"
+                and not spec.lam and spec.pgnn.continuation_lam else 0.0)
+        record = _record("draw", cont)
+        seeds = [SeedResult({"r1": ReferenceMetrics(float(rng.uniform(2e-7, 4e-7)), 1e-7, 1e-6)},
+                            SeedFit(s, record, float(rng.uniform(0, 1))))
+                 for s in range(spec.seeds)]
+        rows.append(TableRow(spec, tuple(seeds)).to_json())
     pairs = table.comparisons(rows)
     by_label = {r["label"]: r for r in rows}
     mae = [c for c in pairs if c["metric"] == "mae"]
@@ -379,7 +386,7 @@ def test_mechanism_config_loads_and_errors_name_the_key(tmp_path):
     from experiments.studies.mechanism import load_mechanism
 
     config, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism.yaml")
-    assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lambda == 0
+    assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lam == 0
     assert set(st.cases) == {"cable_cubic", "cable_linear"}
     bad = tmp_path / "bad.yaml"
     bad.write_text("mechanism: {records: 1}\n")
@@ -428,8 +435,7 @@ def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
         row = {"kind": spec.kind, "label": spec.label(), "n_seeds": n,
                "force_rms": {"training": {}}, "force_rms_per_seed": per_seed}
         if spec.kind == "pgnn":
-            fits = [{"start": "draw", "continuation_lambda":
-                     0.01 if "continuation" in spec.label() else 0.0}] * n
+            fits = [_record("draw", 0.01 if "continuation" in spec.label() else 0.0)] * n
             row["settings"] = table.row_settings(spec, fits)
         rows.append(row)
     rows[1]["force_rms_per_seed"][0]["training"]["outside"] = 2.1e5  # one exploded seed

@@ -101,7 +101,7 @@ def test_very_large_lambda_pins_theta_to_lip(data):
 @pytest.mark.parametrize("name", THETA_NAMES)
 def test_diagonal_lambda_pins_only_its_parameter(data, name):
     theta = lip_theta(data) * 1.05
-    model = PGNNFeedforward(hidden=8, lam=0.0, lambda_diag={name: 1e10}, max_iter=30)
+    model = PGNNFeedforward(hidden=8, lam=0.0, lam_diag={name: 1e10}, max_iter=30)
     model.fit_data(data=data, theta_lip=as_dict(theta), rng=np.random.default_rng(0))
     i = THETA_NAMES.index(name)
     assert model.theta_[name] == pytest.approx(theta[i], rel=1e-6)  # as the scalar case
@@ -242,25 +242,25 @@ def test_fit_converges_and_records_how(data, hidden, activation):
                             max_iter=300, restarts=4).fit_data(data=data, theta_lip=as_dict(theta),
                                                    rng=np.random.default_rng(0))
     f = model.fit_
-    assert f["stop"] == "converged", f
-    assert f["first_order"] <= model.ftol and f["iterations"] <= model.max_iter
-    assert f["data_cost"] == pytest.approx(model.cost_["data"])
-    assert f["reg_cost"] == pytest.approx(model.cost_["deviation"] + model.cost_["weight_decay"])
+    assert f.stop == "converged", f
+    assert f.first_order <= model.ftol and f.iterations <= model.max_iter
+    assert f.data_cost == pytest.approx(model.cost_["data"])
+    assert f.reg_cost == pytest.approx(model.cost_["deviation"] + model.cost_["weight_decay"])
     lip_cost = float(np.mean((data.target - data.phi @ theta) ** 2))
-    assert f["data_cost"] < 0.1 * lip_cost  # the 3 N sine is learned (noise floor 0.04 N**2)
+    assert f.data_cost < 0.1 * lip_cost  # the 3 N sine is learned (noise floor 0.04 N**2)
 
 
 def test_capped_fit_says_max_iter(data):
     model = PGNNFeedforward(hidden=16, max_iter=2).fit_data(
         data=data, theta_lip=as_dict(lip_theta(data)), rng=np.random.default_rng(0))
-    assert model.fit_["stop"] == "max_iter" and model.fit_["iterations"] == 2
+    assert model.fit_.stop == "max_iter" and model.fit_.iterations == 2
 
 
 def test_restarts_keep_the_lowest_training_cost(data):
     theta = as_dict(lip_theta(data))
-    model = PGNNFeedforward(hidden=3, max_iter=8, restarts=3, continuation_lambda=0.0).fit_data(
+    model = PGNNFeedforward(hidden=3, max_iter=8, restarts=3, continuation_lam=0.0).fit_data(
         data=data, theta_lip=theta, rng=np.random.default_rng(5))
-    costs = [s["cost"] for s in model.fit_["starts"]]
+    costs = [s.cost for s in model.fit_.starts]
     assert len(costs) == 3 and len(set(costs)) == 3  # three different draws
     assert sum(model.cost_.values()) == pytest.approx(min(costs), rel=1e-12)
 
@@ -276,8 +276,8 @@ def test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw(data):
                                                        rng=np.random.default_rng(seed))
         reg = PGNNFeedforward(lam=0.01, **kw).fit_data(data=data, theta_lip=theta,
                                                        rng=np.random.default_rng(seed))
-        assert [s["start"] for s in free.fit_["starts"]] == ["draw", "continuation"]
-        assert [s["start"] for s in reg.fit_["starts"]] == ["draw"]  # theta is pulled: no need
+        assert [s.start for s in free.fit_.starts] == ["draw", "continuation"]
+        assert [s.start for s in reg.fit_.starts] == ["draw"]  # theta is pulled: no need
         bound = reg.cost_["data"] + reg.cost_["weight_decay"]
         assert sum(free.cost_.values()) <= bound * (1 + 1e-9), (seed, free.fit_, reg.cost_)
 
@@ -410,7 +410,7 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
 
     root = Path(__file__).resolve().parents[1]
     _, study = load_study(root / "experiments/configs/extrapolation_study.yaml")
-    assert 0.0 in study.lambdas and study.paper_lambda in study.lambdas
+    assert 0.0 in study.lams and study.paper_lam in study.lams
     bad = tmp_path / "bad.yaml"
     bad.write_text("study:\n  lambdaz: [0]\n")
     with pytest.raises(UserError, match=r"bad.yaml: study.lambdaz: unknown key"):

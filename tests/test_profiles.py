@@ -39,18 +39,18 @@ def _profile(data: TrainingData, name: str, hidden: int, *, delta: float, span: 
              points: int = 4, max_iter: int = 30):
     """One parameter's profile by continuation from a fit, as the study runs it."""
     lip = dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
-    fit = PGNNFeedforward(hidden=hidden, max_iter=max_iter, continuation_lambda=0.0).fit_data(
+    fit = PGNNFeedforward(hidden=hidden, max_iter=max_iter, continuation_lam=0.0).fit_data(
         data=data, theta_lip=lip, rng=0)
     sc = ident.scales(data.phi, data.target)[name]
 
     def fit_at(value, beta0):
         m = PGNNFeedforward(hidden=hidden, max_iter=max_iter).fit_pinned(
             data=data, theta_lip=lip, beta0=beta0, pinned={name: value})
-        return ident.Point(value, m.fit_["data_cost"], m.fit_["stop"], m.fit_["iterations"],
+        return ident.Point(value, m.fit_.data_cost, m.fit_.stop, m.fit_.iterations,
                            m.network_.get_nonlinear())
 
-    start = ident.Point(fit.theta_[name], fit.fit_["data_cost"], fit.fit_["stop"],
-                        fit.fit_["iterations"], fit.network_.get_nonlinear())
+    start = ident.Point(fit.theta_[name], fit.fit_.data_cost, fit.fit_.stop,
+                        fit.fit_.iterations, fit.network_.get_nonlinear())
     bounds = ident.search_bounds(start.value, lip[name], sc, span)
     walks = [ident.walk(fit_at, start, d, first_step=0.05 * sc, bound=b,
                         level=start.data_cost + delta, points=points)
@@ -137,7 +137,7 @@ def test_gauss_newton_names_the_flat_theta_direction():
     far below every other theta direction's."""
     data = synthetic(constant_y=True)
     lip = dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
-    model = PGNNFeedforward(hidden=3, max_iter=20, continuation_lambda=0.0).fit_data(
+    model = PGNNFeedforward(hidden=3, max_iter=20, continuation_lam=0.0).fit_data(
         data=data, theta_lip=lip, rng=0)
     gn = ident.sloppy_directions(model, data.phi, data.target, count=2)
     flat = gn["theta"][0]
@@ -171,7 +171,7 @@ def test_shipped_config_loads():
 
     config, settings = load_profiles(CONFIG)
     assert settings.records >= 5 and settings.hidden == (16, 8)
-    assert settings.pgnn.weight_decay == 0 and settings.pgnn.continuation_lambda == 0
+    assert settings.pgnn.weight_decay == 0 and settings.pgnn.continuation_lam == 0
 
 
 @pytest.mark.parametrize("section,key", [

@@ -71,12 +71,15 @@ from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import TERMS, SeparableCost, Weights
+from controllers.pgnn.fit_record import FitRecord, Start, ThetaPoint
 from controllers.pgnn.network import PGNNNetwork
 from clm_sim.schema import build
-from controllers.pgnn_settings import (CONSTRAINTS, PGNNSettings, check_settings, checked_widths,
-                                       decimation_for, parameter_count)
+from controllers.pgnn_settings import (CONSTRAINTS, LAMBDA_KEYS, PGNNSettings, check_settings,
+                                       checked_widths, decimation_for, parameter_count)
 
 _DEFAULTS = PGNNSettings()  # the one declaration of the defaults
+# A model file's settings keys are the Python names but where it spells lambda out.
+_FILE_KEYS = {v: k for k, v in LAMBDA_KEYS.items() if k != "lambda"}
 
 
 @dataclass(frozen=True)
@@ -135,18 +138,18 @@ def lemma_condition(data: TrainingData, h: np.ndarray, theta_lip, lam_diag=None,
 @dataclass
 class PGNNFeedforward:
     """A PGNN feedforward; ``fit`` learns ``theta_`` (named, SI units), ``network_`` (the torch
-    module), ``fit_`` (how the fit stopped), ``history_`` and ``ts_`` (s, the sample time of its
-    data); ``predict``/``feedforward`` use them (at that sample time only); ``save``/``load``
-    keep them. Settings: see :class:`controllers.pgnn_settings.PGNNSettings`
-    (hidden: widths of the hidden layers, an int for one layer; training: simultaneous,
-    sequential or pinn; lam: weight of the distance to theta_LIP; features: the preprocessing
-    shared with the LIP).
+    module), ``fit_`` (how the fit stopped: a :class:`controllers.pgnn.fit_record.FitRecord`),
+    ``history_`` and ``ts_`` (s, the sample time of its data); ``predict``/``feedforward`` use
+    them (at that sample time only); ``save``/``load`` keep them. Settings: see
+    :class:`controllers.pgnn_settings.PGNNSettings` (hidden: widths of the hidden layers, an int
+    for one layer; training: simultaneous, sequential or pinn; lam: weight of the distance to
+    theta_LIP; features: the preprocessing shared with the LIP).
     """
 
     hidden: int | tuple[int, ...] = 16
     training: str = "simultaneous"
     lam: float = 0.0
-    lambda_diag: dict[str, float] | None = None
+    lam_diag: dict[str, float] | None = None
     pinn_weight: float = _DEFAULTS.pinn_weight
     orthogonal_weight: float = _DEFAULTS.orthogonal_weight
     weight_decay: float = _DEFAULTS.weight_decay
@@ -156,7 +159,7 @@ class PGNNFeedforward:
     max_iter: int = _DEFAULTS.max_iter
     ftol: float = _DEFAULTS.ftol
     restarts: int = _DEFAULTS.restarts
-    continuation_lambda: float = _DEFAULTS.continuation_lambda
+    continuation_lam: float = _DEFAULTS.continuation_lam
     adam_lr: float = _DEFAULTS.adam_lr
     validation_fraction: float = _DEFAULTS.validation_fraction
     decimation: int | None = _DEFAULTS.decimation
@@ -166,7 +169,8 @@ class PGNNFeedforward:
     SETTINGS = tuple(CONSTRAINTS)  # every field but features (tests/test_api.py checks)
 
     def _settings(self) -> dict:
-        out = {k: getattr(self, k) for k in self.SETTINGS}
+        """The settings as a model file names them (lambda spelled out where a file does)."""
+        out = {_FILE_KEYS.get(k, k): getattr(self, k) for k in self.SETTINGS}
         out["hidden"] = list(self.widths())
         return out
 
@@ -176,10 +180,10 @@ class PGNNFeedforward:
             return (int(self.hidden),)
         return tuple(int(h) for h in self.hidden)
 
-    def lambda_matrix_diag(self) -> np.ndarray:
+    def lam_matrix_diag(self) -> np.ndarray:
         """Diagonal of Lambda, in the order of ``THETA_NAMES``."""
         diag = {k: float(self.lam) for k in THETA_NAMES}
-        diag.update({k: float(v) for k, v in (self.lambda_diag or {}).items()})
+        diag.update({k: float(v) for k, v in (self.lam_diag or {}).items()})
         return np.array([diag[k] for k in THETA_NAMES])
 
     def _check(self) -> None:
@@ -190,7 +194,7 @@ class PGNNFeedforward:
     def _weights(self, lam_diag: np.ndarray | None = None) -> Weights:
         simultaneous = self.training != "sequential"
         if lam_diag is None:
-            lam_diag = self.lambda_matrix_diag() if simultaneous else np.zeros(4)
+            lam_diag = self.lam_matrix_diag() if simultaneous else np.zeros(4)
         return Weights(lam_diag=lam_diag,
                        pinn=self.pinn_weight if self.training == "pinn" else 0.0,
                        orthogonal=self.orthogonal_weight, weight_decay=self.weight_decay)
@@ -229,9 +233,9 @@ class PGNNFeedforward:
         theta_phy toward theta_LIP, so every regularized solution is feasible and the lambda = 0
         optimum costs no more than it; a descent from there finds such a point, which a descent
         from the draw alone need not (the cost is flat along the physics/network trade-off)."""
-        return (self.continuation_lambda > 0 and self.optimizer == "varpro"
+        return (self.continuation_lam > 0 and self.optimizer == "varpro"
                 and self.training == "simultaneous" and self.orthogonal_weight == 0
-                and not np.any(self.lambda_matrix_diag()))
+                and not np.any(self.lam_matrix_diag()))
 
     def initial_point(self, cost: SeparableCost, theta_lip, rng: np.random.Generator):
         """Starting parameters for ``self.optimizer``: ``beta`` (varpro) or ``(x, beta)``."""
@@ -270,15 +274,14 @@ class PGNNFeedforward:
                 beta0 = self.new_network(fit, rng).get_nonlinear()
                 tries = [("draw", self._one_start(fit, held_out, theta_lip_v, rng, beta0))]
                 if self._continues():
-                    lam_c = np.full(4, float(self.continuation_lambda))
+                    lam_c = np.full(4, float(self.continuation_lam))
                     pre = self._one_start(fit, held_out, theta_lip_v, rng, beta0,
                                           self._weights(lam_c))
                     tries.append(("continuation", self._one_start(
                         fit, held_out, theta_lip_v, rng, pre["net"].get_nonlinear())))
                 for start, got in tries:
-                    starts.append({"start": start, "cost": got["result"].cost,
-                                   "stop": got["result"].stop,
-                                   "iterations": got["result"].iterations})
+                    starts.append(Start(start, got["result"].cost, got["result"].stop,
+                                        got["result"].iterations))
                     if best is None or got["result"].cost < best["result"].cost:
                         best = dict(got, start=start)
         res = best["result"]
@@ -294,17 +297,15 @@ class PGNNFeedforward:
         self.cost_ = best["terms"]
         self.n_samples_ = len(fit.target)
         self.ts_ = data.ts
-        self.fit_ = {"stop": stop, "cost_stop": res.stop, "iterations": res.iterations,
-                     "iterations_total": int(sum(s["iterations"] for s in starts)),
-                     "theta_moved": moved, "theta_ftol": self.theta_ftol,
-                     "theta_path": theta_path(best["history"]),
-                     "continuation_lambda": (float(self.continuation_lambda)
-                                             if self._continues() else 0.0),
-                     "data_cost": self.cost_["data"],
-                     "reg_cost": float(sum(v for k, v in self.cost_.items() if k != "data")),
-                     "grad_norm": res.grad_norm, "first_order": res.first_order,
-                     "ftol": self.ftol, "max_iter": self.max_iter, "start": best["start"],
-                     "starts": starts}
+        self.fit_ = FitRecord(
+            stop=stop, cost_stop=res.stop, iterations=res.iterations,
+            iterations_total=int(sum(s.iterations for s in starts)), theta_moved=moved,
+            theta_ftol=self.theta_ftol, theta_path=theta_path(best["history"]),
+            continuation_lam=(float(self.continuation_lam) if self._continues() else 0.0),
+            data_cost=self.cost_["data"],
+            reg_cost=float(sum(v for k, v in self.cost_.items() if k != "data")),
+            grad_norm=res.grad_norm, first_order=res.first_order, ftol=self.ftol,
+            max_iter=self.max_iter, start=best["start"], starts=tuple(starts))
         return self
 
     def fit_pinned(self, *, data: TrainingData, theta_lip: dict[str, float],
@@ -343,11 +344,12 @@ class PGNNFeedforward:
         self.theta_lip_ = dict(zip(THETA_NAMES, map(float, theta_lip_v)))
         self.history_, self.best_iteration_, self.cost_ = history, res.iterations, terms
         self.n_samples_ = len(data.target)
-        self.fit_ = {"stop": res.stop, "cost_stop": res.stop, "iterations": res.iterations,
-                     "data_cost": terms["data"], "pinned": dict(pinned),
-                     "reg_cost": float(sum(v for k, v in terms.items() if k != "data")),
-                     "first_order": res.first_order, "grad_norm": res.grad_norm,
-                     "ftol": self.ftol, "max_iter": self.max_iter}
+        self.fit_ = FitRecord(
+            stop=res.stop, cost_stop=res.stop, iterations=res.iterations,
+            data_cost=terms["data"], pinned=dict(pinned),
+            reg_cost=float(sum(v for k, v in terms.items() if k != "data")),
+            first_order=res.first_order, grad_norm=res.grad_norm, ftol=self.ftol,
+            max_iter=self.max_iter)
         return self
 
     def _one_start(self, fit: TrainingData, held_out, theta_lip, rng, beta0: np.ndarray,
@@ -456,7 +458,7 @@ class PGNNFeedforward:
                     "regression_lowpass_hz", "position_lowpass_hz", "lowpass_order",
                     "edge_samples")},
                 "theta": self.theta_, "theta_lip": self.theta_lip_, "cost": self.cost_,
-                "fit": self.fit_, "best_iteration": self.best_iteration_,
+                "fit": self.fit_.to_json(), "best_iteration": self.best_iteration_,
                 "n_samples": self.n_samples_, "history": self.history_}
 
     def save(self, path) -> None:
@@ -474,14 +476,17 @@ class PGNNFeedforward:
         info = read_json(path.with_suffix(".json"), "PGNN model")
         pt = regular_file(path.with_suffix(".pt"), "PGNN weights file")
         try:
-            settings = {k: v for k, v in mapping(info.get("settings"), "settings").items()
-                        if k in cls.SETTINGS}
+            python = {v: k for k, v in _FILE_KEYS.items()}
+            settings = {python.get(k, k): v for k, v in
+                        mapping(info.get("settings"), "settings").items()
+                        if python.get(k, k) in cls.SETTINGS}
             settings["hidden"] = checked_widths(settings.get("hidden"), "settings.hidden")
             check_settings(settings)
             features = build(FeatureMap, mapping(info.get("features"), "features"), "features")
             theta = mapping(info.get("theta"), "theta")
             theta = {k: number(theta.get(k), f"theta.{k}") for k in THETA_NAMES}
             ts = sample_time(info.get("ts"))
+            fit = FitRecord.from_json(info.get("fit"))
             # The weights' size follows from the widths: a larger file is not this model's.
             weights = parameter_count(settings["hidden"]) + 8  # + the input scalings
             if pt.stat().st_size > 16 * weights + 2 ** 20:
@@ -511,7 +516,7 @@ class PGNNFeedforward:
         model.history_ = info.get("history")
         model.best_iteration_ = info.get("best_iteration")
         model.cost_ = info.get("cost")
-        model.fit_ = info.get("fit")
+        model.fit_ = fit
         model.n_samples_ = info.get("n_samples")
         model.ts_ = ts  # older files: unknown
         return model
@@ -535,13 +540,13 @@ def _generator(rng) -> np.random.Generator:
 CHECKPOINTS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
 
 
-def theta_path(history: list[dict]) -> list[dict]:
+def theta_path(history: list[dict]) -> tuple[ThetaPoint, ...]:
     """theta_phy (named) at the iterations ``CHECKPOINTS`` that the fit reached, and at its last
     accepted iteration: how theta moves as the optimizer goes on."""
     by_it = {e["iteration"]: e for e in history}
     its = [i for i in CHECKPOINTS if i in by_it] + [history[-1]["iteration"]]
-    return [{"iteration": i, "data_cost": by_it[i]["data"], **by_it[i]["theta"]}
-            for i in dict.fromkeys(its)]
+    return tuple(ThetaPoint(i, by_it[i]["data"], dict(by_it[i]["theta"]))
+                 for i in dict.fromkeys(its))
 
 
 def theta_movement(history: list[dict], data: TrainingData) -> float:

@@ -11,8 +11,10 @@ reference that leaves the training range (r2).
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
+from typing import ClassVar
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +25,11 @@ from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import PGNNSettings
+from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments import plots
+from experiments.studies import extrapolation_figures as figures
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
+from experiments.results import BeyondRange, ForceSplit
 from experiments.runner import preflight
 from experiments.studies.kinds import take_kind
 from experiments.table import THETA_UNITS, t_interval
@@ -34,26 +38,27 @@ from experiments.testbed import Progress, Testbed
 
 @dataclass(frozen=True)
 class StudySettings:
-    """lambdas: the sweep (>= 0, physical units; include 0); paper_lambda: the regularized value
-    the report compares with lambda = 0; hidden: neurons n_l; seeds: training seeds per lambda;
-    inside: the training reference; outside: references that leave its range (first: the
-    paper's r2);
-    pgnn: network and optimizer settings shared by every model."""
+    """lams: the sweep (>= 0, physical units; include 0); paper_lam: the regularized value
+    the report compares with lambda = 0 (config keys ``lambdas``, ``paper_lambda``); hidden:
+    neurons n_l; seeds: training seeds per lambda; inside: the training reference; outside:
+    references that leave its range (first: the paper's r2); pgnn: network and optimizer
+    settings shared by every model."""
 
-    lambdas: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
-    paper_lambda: float = 0.01
+    lams: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+    paper_lam: float = 0.01
     hidden: int = 16
     seeds: int = 3
     inside: str = "r1"
     outside: tuple[str, ...] = ("r2",)
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
+    aliases: ClassVar[dict[str, str]] = {k: LAMBDA_KEYS[k] for k in ("lambdas", "paper_lambda")}
 
     def __post_init__(self):
-        if not self.lambdas or any(lam < 0 for lam in self.lambdas):
+        if not self.lams or any(lam < 0 for lam in self.lams):
             raise UserError("lambdas: expected a non-empty list of numbers >= 0")
-        if 0.0 not in self.lambdas or self.paper_lambda not in self.lambdas:
+        if 0.0 not in self.lams or self.paper_lam not in self.lams:
             raise UserError(f"lambdas: must contain 0 and paper_lambda "
-                            f"({self.paper_lambda:g})")
+                            f"({self.paper_lam:g})")
         if not (isinstance(self.seeds, int) and self.seeds >= 1) or self.hidden < 1:
             raise UserError("seeds and hidden: expected integers >= 1")
 
@@ -106,7 +111,7 @@ def _variants(study: StudySettings):
     """(key, label, spec) of every trained PGNN variant, sequential first."""
     common = {"kind": "pgnn", "hidden": study.hidden, "seeds": study.seeds, "pgnn": study.pgnn}
     out = [("sequential", "sequential", FeedforwardSpec(training="sequential", **common))]
-    for lam in sorted(study.lambdas):
+    for lam in sorted(study.lams):
         out.append((f"lambda={lam:g}", f"λ = {lam:g}",
                     FeedforwardSpec(training="simultaneous", lam=lam, **common)))
     return out
@@ -145,30 +150,37 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
     for k, r in refs.items():  # the simulator's own plant: the oracle a real machine lacks
         y, v, a = config.features.motion(r, ts)
         truth[k] = tb.machine.inverse_force(y, v, a)
-    summary = _summarize(config, study, lip, refs, models, mae, runs, truth)
+    # Each model's two parts on each reference, predicted once: the summary and the figures
+    # read them (a figure never predicts).
+    parts = {key: {r: [m.predict_parts(y=ref, ts=ts) for m in ms] for r, ref in refs.items()}
+             for key, ms in models.items()}
+    summary = _summarize(config, study, lip, refs, models, mae, runs, truth, parts)
     (out / "study.json").write_text(json.dumps(summary, indent=1))
-    _figures(summary, config, lip, refs, models, runs, truth, out / "figures")
+    _figures(summary, config, lip, refs, models, runs, truth, parts, out / "figures")
     (out / "report.md").write_text(_report(summary, study))
     return summary
 
 
-def _figures(summary, config, lip, refs, models, runs, truth, folder: Path) -> None:
+def _figures(summary, config, lip, refs, models, runs, truth, parts, folder: Path) -> None:
     """The report's figures into ``folder``."""
     ts = config.ts
-    plots.save(plots.theta_figure(summary, models), folder / "theta_training.png")
-    plots.save(plots.cost_figure(summary, models), folder / "cost_terms.png")
+    plots.save(figures.theta_figure(summary, models), folder / "theta_training.png")
+    plots.save(figures.cost_figure(summary, models), folder / "cost_terms.png")
     inside = TrainingRange(**summary["ranges"][summary["inside"]])
     for ref in summary["outside"]:
         beyond = inside.beyond(config.features, refs[ref], ts)
-        plots.save(plots.split_figure(summary, models, lip, refs[ref], ts, ref, beyond,
-                                      truth[ref]), folder / f"split_{ref}.png")
+        split = ForceSplit(reference=ref, ts=ts, r=refs[ref],
+                           lip_force=lip.predict(y=refs[ref], ts=ts), beyond=beyond,
+                           parts={key: p[ref][0] for key, p in parts.items()},
+                           truth=truth[ref])
+        plots.save(figures.split_figure(summary, split), folder / f"split_{ref}.png")
     shown = ["feedback only", "LIP", "sequential", "lambda=0",
              f"lambda={summary['paper_lambda']:g}"]
-    colors = {_label(k): c for k, c in plots.variant_colors(summary).items()}
+    colors = {_label(k): c for k, c in figures.variant_colors(summary).items()}
     for ref in refs:
         replays = {_label(k): runs[k] for k in shown}
         plots.save(plots.tracking_figure(replays, ref, colors), folder / f"tracking_{ref}.png")
-    plots.save(plots.mae_vs_lambda_figure(summary), folder / "mae_vs_lambda.png")
+    plots.save(figures.mae_vs_lambda_figure(summary), folder / "mae_vs_lambda.png")
 
 
 def _label(key: str) -> str:
@@ -176,28 +188,31 @@ def _label(key: str) -> str:
     return {"sequential": "PGNN sequential"}.get(key, key.replace("lambda=", "PGNN λ = "))
 
 
-def _summarize(config, study, lip, refs, models, mae, runs, truth) -> dict:
+def _seed_mean(seeds: list[BeyondRange], name: str) -> float | None:
+    """The mean over seeds of one quantity (None where no sample leaves the range)."""
+    values = [getattr(b, name) for b in seeds]
+    return None if None in values else float(np.mean(values))
+
+
+def _summarize(config, study, lip, refs, models, mae, runs, truth, predicted) -> dict:
     ts = config.ts
     ranges = {r: TrainingRange.of(config.features, ref, ts) for r, ref in refs.items()}
     variants = {}
     for key, ms in models.items():
         parts = {}
         for r, ref in refs.items():
-            phys, net = zip(*(m.predict_parts(y=ref, ts=ts) for m in ms))
             beyond = ranges[study.inside].beyond(config.features, ref, ts)
-            net_abs = np.abs(np.array(net))
+            seeds = [BeyondRange.of(p, n, beyond, truth[r]) for p, n in predicted[key][r]]
+            mean = functools.partial(_seed_mean, seeds)
             parts[r] = {
-                "network_max_abs_n": float(np.mean(net_abs.max(axis=1))),
-                "network_rms_n": float(np.mean(np.sqrt(np.mean(np.array(net) ** 2, axis=1)))),
-                "network_max_abs_beyond_n": float(np.mean(net_abs[:, beyond].max(axis=1)))
-                if beyond.any() else None,
-                "network_max_abs_within_n": float(np.mean(net_abs[:, ~beyond].max(axis=1))),
+                "network_max_abs_n": mean("network_peak_n"),
+                "network_rms_n": mean("network_rms_n"),
+                "network_max_abs_beyond_n": mean("network_peak_beyond_n"),
+                "network_max_abs_within_n": mean("network_peak_within_n"),
                 "fraction_beyond": float(beyond.mean()),
                 # Model force minus the true plant force, rms over the samples beyond the
                 # training range (N), mean over seeds.
-                "model_error_beyond_rms_n": float(np.mean([np.sqrt(np.mean(
-                    (p + n - truth[r])[beyond] ** 2)) for p, n in zip(phys, net)]))
-                if beyond.any() else None,
+                "model_error_beyond_rms_n": mean("error_beyond_rms_n"),
             }
         variants[key] = {
             "mae": {r: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1))
@@ -218,7 +233,7 @@ def _summarize(config, study, lip, refs, models, mae, runs, truth) -> dict:
             lip_beyond[r] = float(np.sqrt(np.mean(
                 (lip.predict(y=ref, ts=ts) - truth[r])[beyond] ** 2)))
     variants["LIP"]["model_error_beyond_rms_n"] = lip_beyond
-    return {"lambdas": sorted(study.lambdas), "paper_lambda": study.paper_lambda,
+    return {"lambdas": sorted(study.lams), "paper_lambda": study.paper_lam,
             "hidden": study.hidden, "seeds": study.seeds, "inside": study.inside,
             "outside": list(study.outside),
             "theta_lip": lip.theta_, "lip_residual_rms_n": lip.residual_rms_,

@@ -33,7 +33,7 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import yaml
@@ -44,12 +44,17 @@ from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
-from controllers.pgnn_settings import PGNNSettings
+from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study
 from experiments.sweeps.store import code_version
-from experiments.table import THETA_UNITS, holm, t_interval
+from experiments.paired import LogRatio, Paired, holm
+from experiments.results import BeyondRange, error_beyond_rms
+from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
+
+if TYPE_CHECKING:  # the record type only; importing it would import torch
+    from controllers.pgnn.fit_record import FitRecord
 
 VERDICTS = ("holds", "reversed", "undecided")
 
@@ -86,7 +91,7 @@ class FailureMapSettings:
     seeds: int = 10
     confidence: float = 0.95
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases: ClassVar[dict[str, str]] = {"lambda": "lam"}  # config name -> field
+    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"]}  # config -> field
 
     def __post_init__(self):
         if not self.cases:
@@ -125,35 +130,63 @@ class Cell:
     seed: int
 
 
-def fit_record(model, max_iter: int) -> dict:
-    """How a fit stopped: the model's own record (``fit_``: ``stop`` is ``converged`` or
-    ``max_iter``) where it keeps one, else the iteration count against the cap (``max_iter`` at
-    the cap, ``unknown`` below it: an optimizer without a convergence test cannot say more)."""
-    info = getattr(model, "fit_", None)
-    if isinstance(info, dict) and "stop" in info:
-        keys = ("stop", "iterations", "data_cost", "reg_cost", "grad_norm")
-        out = {k: _plain(info.get(k)) for k in keys}
-        out["restarts"] = len(info.get("starts") or [None])
-        return out
-    history = getattr(model, "history_", None) or []
-    iterations = max(len(history) - 1, 0)
-    cost = getattr(model, "cost_", {}) or {}
-    return {"stop": "max_iter" if iterations >= max_iter else "unknown",
-            "iterations": iterations, "data_cost": _plain(cost.get("data")),
-            "reg_cost": _plain(cost.get("deviation")), "grad_norm": None}
+def fit_entry(record: FitRecord) -> dict:
+    """A fit as ``failure_map.json`` keeps it: why it stopped (``converged`` or not), its
+    iterations, costs (N**2), last gradient norm and how many starts it ran."""
+    return {"stop": record.stop, "iterations": record.iterations,
+            "data_cost": record.data_cost, "reg_cost": record.reg_cost,
+            "grad_norm": record.grad_norm, "restarts": record.restarts}
 
 
-def _plain(x):
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if hasattr(x, "item") and getattr(x, "ndim", 1) == 0:  # a torch scalar
-        return x.item()
-    return x
+@dataclass(frozen=True)
+class Fitted:
+    """One lambda's PGNN in a cell: its lambda, theta_phy (named, SI units), MAE per reference
+    (m), its force against the training range per reference and its fit record."""
+
+    lam: float
+    theta: dict[str, float]
+    mae: dict[str, float]
+    beyond: dict[str, BeyondRange]
+    fit: FitRecord
+
+    def to_json(self) -> dict:
+        return {"lambda": self.lam, "theta": self.theta, "mae": self.mae,
+                "parts": {k: {"network_peak_beyond_n": b.network_peak_beyond_n,
+                              "network_peak_within_n": b.network_peak_within_n,
+                              "error_beyond_rms_n": b.error_beyond_rms_n}
+                          for k, b in self.beyond.items()},
+                "fit": fit_entry(self.fit)}
+
+
+@dataclass(frozen=True)
+class CellResult:
+    """A computed cell: its case, n_l and seed, the training ranges, the LIP (theta, MAE per
+    reference, its error against the true force beyond the range) and the PGNN without
+    regularization (``unregularized``, lambda = 0) and with it (``regularized``), paired."""
+
+    case: str
+    hidden: int
+    seed: int
+    ranges: dict
+    lip_theta: dict[str, float]
+    lip_mae: dict[str, float]
+    lip_error_beyond_rms_n: dict[str, float | None]
+    unregularized: Fitted
+    regularized: Fitted
+
+    def to_json(self) -> dict:
+        return {"case": self.case, "hidden": self.hidden, "seed": self.seed,
+                "ranges": self.ranges,
+                "lip": {"theta": self.lip_theta, "mae": self.lip_mae,
+                        "error_beyond_rms_n": self.lip_error_beyond_rms_n},
+                "unregularized": self.unregularized.to_json(),
+                "regularized": self.regularized.to_json()}
 
 
 def run_cell(cell: Cell) -> dict:
-    """Compute one cell in a worker (single-threaded torch). Never raises for the cell's own
-    failure: ``{"status": "failed", "error"}`` is returned instead, so the others go on."""
+    """Compute one cell in a worker (single-threaded torch): ``{"status": "ok", "result":
+    CellResult, "elapsed_s"}``. Never raises for the cell's own failure: ``{"status": "failed",
+    "error"}`` is returned instead, so the others go on."""
     start = time.perf_counter()
     try:
         import torch
@@ -164,15 +197,15 @@ def run_cell(cell: Cell) -> dict:
             out = _cell(cell)
         finally:
             torch.set_num_threads(threads)
-        json.dumps(out, allow_nan=False)  # a NaN in the results is a failure
-        return {"status": "ok", **out, "elapsed_s": time.perf_counter() - start}
+        json.dumps(out.to_json(), allow_nan=False)  # a NaN in the results is a failure
+        return {"status": "ok", "result": out, "elapsed_s": time.perf_counter() - start}
     except Exception as exc:  # noqa: BLE001 (recorded, not raised: the other cells go on)
         text = " ".join(str(exc).split()) or type(exc).__name__
         return {"status": "failed", "case": cell.case, "hidden": cell.hidden, "seed": cell.seed,
                 "error": f"{type(exc).__name__}: {text}"}
 
 
-def _cell(cell: Cell) -> dict:
+def _cell(cell: Cell) -> CellResult:
     st = cell.settings
     config = replace(cell.config, plant=replace(cell.config.plant,
                                                 effects=st.cases[cell.case]))
@@ -189,73 +222,41 @@ def _cell(cell: Cell) -> dict:
         truth[k] = tb.machine.inverse_force(y, v, a)  # the simulator's oracle force
         beyond[k] = inside.beyond(config.features, r, ts)
 
-    def error_beyond(force, k):
-        return float(np.sqrt(np.mean((force - truth[k])[beyond[k]] ** 2))) \
-            if beyond[k].any() else None
-
-    out = {"case": cell.case, "hidden": cell.hidden, "seed": cell.seed,
-           "ranges": inside.as_dict(),
-           "lip": {"theta": lip.theta_, "mae": {k: tb.replay(lip, k).mae for k in names},
-                   "error_beyond_rms_n": {k: error_beyond(lip.predict(y=r, ts=ts), k)
-                                          for k, r in refs.items()}}}
     pgnn = dataclasses.asdict(st.pgnn)
-    for key, lam in (("lam0", 0.0), ("reg", st.lam)):
+
+    def fitted(lam: float) -> Fitted:
         # seed=0: the network's stream is (the run's seed, 0), so both lambdas start from the
         # same random hidden layer; the pairing rests on it.
         model = tb.fit_pgnn(run, hidden=cell.hidden, lam=lam, seed=0, lip=lip, **pgnn)
-        parts = {}
-        for k, r in refs.items():
-            phys, net = model.predict_parts(y=r, ts=ts)
-            phys, net = np.asarray(phys, dtype=float), np.asarray(net, dtype=float)
-            parts[k] = {"network_peak_beyond_n": float(np.max(np.abs(net[beyond[k]])))
-                        if beyond[k].any() else None,
-                        "network_peak_within_n": float(np.max(np.abs(net[~beyond[k]]))),
-                        "error_beyond_rms_n": error_beyond(phys + net, k)}
-        out[key] = {"lambda": lam, "theta": {k: float(v) for k, v in model.theta_.items()},
-                    "mae": {k: tb.replay(model, k).mae for k in names}, "parts": parts,
-                    "fit": fit_record(model, st.pgnn.max_iter)}
-    return out
+        return Fitted(lam=lam, theta={k: float(v) for k, v in model.theta_.items()},
+                      mae={k: tb.replay(model, k).mae for k in names},
+                      beyond={k: BeyondRange.of(*model.predict_parts(y=r, ts=ts), beyond[k],
+                                                truth[k]) for k, r in refs.items()},
+                      fit=model.fit_)
+
+    return CellResult(
+        case=cell.case, hidden=cell.hidden, seed=cell.seed, ranges=inside.as_dict(),
+        lip_theta=lip.theta_, lip_mae={k: tb.replay(lip, k).mae for k in names},
+        lip_error_beyond_rms_n={k: error_beyond_rms(lip.predict(y=r, ts=ts), truth[k], beyond[k])
+                                for k, r in refs.items()},
+        unregularized=fitted(0.0), regularized=fitted(st.lam))
 
 
 # ----------------------------------------------------------------------------- statistics
 
-def paired_log_ratio(a, b, confidence: float = 0.95) -> dict:
-    """The ratio ``a / b`` of paired positive samples: ``exp(mean(ln a - ln b))`` with its
-    t-interval at ``confidence`` and the two-sided p-value of ``mean(ln a - ln b) = 0``."""
-    from scipy import stats
-
-    d = np.log(np.asarray(a, dtype=float)) - np.log(np.asarray(b, dtype=float))
-    n = len(d)
-    if n < 2:
-        raise ValueError("a paired interval needs at least two pairs")
-    mean, sd = float(np.mean(d)), float(np.std(d, ddof=1))
-    se = sd / math.sqrt(n)
-    q = float(stats.t.ppf(0.5 + confidence / 2, n - 1))
-    p = float(2 * stats.t.sf(abs(mean) / se, n - 1)) if se > 0 else (0.0 if mean else 1.0)
-    return {"ratio": math.exp(mean), "low": math.exp(mean - q * se),
-            "high": math.exp(mean + q * se), "p": p, "n": n, "log_mean": mean, "log_sd": sd}
-
-
-def paired_difference(a, b, confidence: float = 0.95) -> dict:
-    """Mean of ``a - b`` over pairs with its t-interval (same units as the samples)."""
-    mean, low, high = t_interval(np.asarray(a, dtype=float) - np.asarray(b, dtype=float),
-                                 confidence)
-    return {"mean": mean, "low": low, "high": high}
-
-
-def verdict(stat: dict) -> str:
+def verdict(ratio: LogRatio) -> str:
     """``holds`` (interval above 1: lambda = 0 loses), ``reversed`` (below 1) or ``undecided``."""
-    return "holds" if stat["low"] > 1 else "reversed" if stat["high"] < 1 else "undecided"
+    return "holds" if ratio.low > 1 else "reversed" if ratio.high < 1 else "undecided"
 
 
 def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
     """The failure map from the cell results (any order): per case, direction and n_l the
     paired ratio with its interval and verdict, the mechanism numbers and every fit's stop."""
-    ok = [r for r in results if r["status"] == "ok"]
+    ok: list[CellResult] = [r["result"] for r in results if r["status"] == "ok"]
     failures = [{k: r.get(k) for k in ("case", "hidden", "seed", "error")}
                 for r in results if r["status"] != "ok"]
-    by = {(r["case"], r["hidden"]): sorted((x for x in ok if (x["case"], x["hidden"]) ==
-                                            (r["case"], r["hidden"])), key=lambda x: x["seed"])
+    by = {(r.case, r.hidden): sorted((x for x in ok if (x.case, x.hidden) == (r.case, r.hidden)),
+                                     key=lambda x: x.seed)
           for r in ok}
     directions = {**{d: ref for d, ref in settings.outside.items()},
                   "inside": settings.inside}
@@ -264,9 +265,9 @@ def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
         for hidden in settings.hidden:
             rows = by.get((case, hidden), [])
             for r in rows:
-                for key in ("lam0", "reg"):
-                    fits.append({"case": case, "hidden": hidden, "seed": r["seed"],
-                                 "lambda": r[key]["lambda"], **r[key]["fit"]})
+                for f in (r.unregularized, r.regularized):
+                    fits.append({"case": case, "hidden": hidden, "seed": r.seed,
+                                 "lambda": f.lam, **fit_entry(f.fit)})
             if len(rows) < 2:
                 continue
             drift[f"{case}/{hidden}"] = _drift(rows)
@@ -293,6 +294,10 @@ def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
     }
 
 
+# failure_map.json names the two fits of a cell by these keys (the file's format).
+_JSON_KEYS = {"lam0": "unregularized", "reg": "regularized"}
+
+
 def _label(c: dict) -> str:
     return f"{c['direction']} ({c['reference']}) / {c['case']} / n_l={c['hidden']}"
 
@@ -303,22 +308,25 @@ def _mean(values):
 
 
 def _cell_stats(settings, case, hidden, direction, ref, rows) -> dict:
-    a = [r["lam0"]["mae"][ref] for r in rows]
-    b = [r["reg"]["mae"][ref] for r in rows]
-    stat = paired_log_ratio(a, b, settings.confidence)
-    part = {k: {q: _mean([r[k]["parts"][ref][q] for r in rows])
-                for q in ("network_peak_beyond_n", "network_peak_within_n", "error_beyond_rms_n")}
-            for k in ("lam0", "reg")}
-    stops = [r[k]["fit"]["stop"] for r in rows for k in ("lam0", "reg")]
+    a = [r.unregularized.mae[ref] for r in rows]
+    b = [r.regularized.mae[ref] for r in rows]
+    pair = Paired.of(a, b, settings.confidence)
+    ratio = pair.log_ratio  # MAEs are positive and a cell has >= 2 seeds
+    part = {key: {q: _mean([getattr(getattr(r, which).beyond[ref], q) for r in rows])
+                  for q in ("network_peak_beyond_n", "network_peak_within_n",
+                            "error_beyond_rms_n")}
+            for key, which in _JSON_KEYS.items()}
+    stops = [f.fit.stop for r in rows for f in (r.unregularized, r.regularized)]
     return {"case": case, "hidden": hidden, "direction": direction, "reference": ref,
-            "n_seeds": len(rows), "seeds": [r["seed"] for r in rows],
+            "n_seeds": len(rows), "seeds": [r.seed for r in rows],
             "mae_lam0": {"mean": float(np.mean(a)), "per_seed": a},
             "mae_reg": {"mean": float(np.mean(b)), "per_seed": b},
-            "mae_lip": {"mean": float(np.mean([r["lip"]["mae"][ref] for r in rows]))},
-            "ratio": stat, "difference_m": paired_difference(a, b, settings.confidence),
-            "verdict": verdict(stat),
+            "mae_lip": {"mean": float(np.mean([r.lip_mae[ref] for r in rows]))},
+            "ratio": dataclasses.asdict(ratio),
+            "difference_m": {"mean": pair.diff, "low": pair.ci[0], "high": pair.ci[1]},
+            "verdict": verdict(ratio),
             "network": part, "lip_error_beyond_rms_n":
-                _mean([r["lip"]["error_beyond_rms_n"][ref] for r in rows]),
+                _mean([r.lip_error_beyond_rms_n[ref] for r in rows]),
             "capped_fits": stops.count("max_iter"),
             "unconverged_fits": sum(x != "converged" for x in stops)}
 
@@ -327,13 +335,13 @@ def _drift(rows) -> dict:
     """theta_phy - theta_LIP per parameter (SI units), mean and spread over seeds, and the force
     it moves at the edge of the training range (N): the parameter times the largest |feature|
     of the training reference (|a|, |v|, 1, |y|)."""
-    edge = rows[0]["ranges"]
+    edge = rows[0].ranges
     scale = {"mass": edge["acceleration_m_s2"], "viscous": edge["velocity_m_s"],
              "coulomb": 1.0, "stiffness": edge["position_m"]}
-    out = {"theta_lip": {k: float(np.mean([r["lip"]["theta"][k] for r in rows]))
+    out = {"theta_lip": {k: float(np.mean([r.lip_theta[k] for r in rows]))
                          for k in THETA_NAMES}}
-    for key in ("lam0", "reg"):
-        d = {k: [r[key]["theta"][k] - r["lip"]["theta"][k] for r in rows] for k in THETA_NAMES}
+    for key, which in _JSON_KEYS.items():
+        d = {k: [getattr(r, which).theta[k] - r.lip_theta[k] for r in rows] for k in THETA_NAMES}
         out[key] = {k: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1)),
                         "edge_force_n": float(np.mean(np.abs(v)) * scale[k])}
                     for k, v in d.items()}
@@ -571,8 +579,9 @@ def _region_sentence(s: dict, outside: list[dict]) -> str:
 # ----------------------------------------------------------------------------- figures
 
 def draw(summary: dict, folder: Path) -> None:
-    """The report's figures (``experiments.plots.failure_map_figures``) as PNG files."""
+    """The report's figures (:func:`failure_map_figures`) as PNG files."""
     from experiments import plots
+    from experiments.studies.failure_map_figures import failure_map_figures
 
-    for stem, fig in plots.failure_map_figures(summary).items():
+    for stem, fig in failure_map_figures(summary).items():
         plots.save(fig, Path(folder) / f"{stem}.png")

@@ -36,7 +36,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -49,7 +49,7 @@ from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.schema import to_plain
-from controllers.pgnn_settings import PGNNSettings
+from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study
 from experiments.table import holm
@@ -81,11 +81,11 @@ class MechanismSettings:
     inside: str = "r1"
     outside: str = "r2"
     pgnn: PGNNSettings = field(default_factory=lambda: PGNNSettings(
-        weight_decay=0.0, continuation_lambda=0.0))
+        weight_decay=0.0, continuation_lam=0.0))
     bootstrap: int = 4000
     confidence: float = 0.95
     grid_points: int = 69
-    aliases: ClassVar[dict[str, str]] = {"lambda": "lam"}  # config name -> field
+    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"]}  # config -> field
 
     def __post_init__(self):
         if not self.cases:
@@ -150,7 +150,7 @@ def _cell(cell: Cell) -> dict:
     ts = config.ts
     run = tb.training_run(seed=cell.record)
     lip = tb.fit_lip(run)
-    settings = to_plain(st.pgnn)
+    settings = asdict(st.pgnn)  # Python names (lam, continuation_lam), as fit_pgnn takes them
     data = training_data(config.features, y=run.y, u=run.u, ts=run.ts,
                          decimation=settings.get("decimation"))
     inside = TrainingRange.of(config.features, tb.reference(st.inside), ts)
@@ -180,8 +180,8 @@ def _cell(cell: Cell) -> dict:
             rest = net - lin
             total = phys + net
             out["fits"].append({
-                "draw": draw, "lambda": lam, "stop": model.fit_["stop"],
-                "iterations": model.fit_["iterations"], "data_cost": model.fit_["data_cost"],
+                "draw": draw, "lambda": lam, "stop": model.fit_.stop,
+                "iterations": model.fit_.iterations, "data_cost": model.fit_.data_cost,
                 "theta": dict(model.theta_),
                 "mae": {r: tb.replay(model, r).mae for r in (st.inside, st.outside)},
                 "error_beyond_rms_n": rms_beyond(total),

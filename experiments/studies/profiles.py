@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +62,7 @@ class ProfileSettings:
     records: int = 5
     draws: int = 1
     pgnn: PGNNSettings = field(default_factory=lambda: PGNNSettings(
-        weight_decay=0.0, continuation_lambda=0.0))
+        weight_decay=0.0, continuation_lam=0.0))
     polish: int = 400
     max_iter: int = 100
     points: int = 8
@@ -100,7 +100,7 @@ def load_profiles(path) -> tuple[ExperimentConfig, ProfileSettings]:
 
 
 def _fit_settings(settings: ProfileSettings, hidden: int, max_iter: int | None = None) -> dict:
-    out = {**to_plain(settings.pgnn), "hidden": hidden, "lam": 0.0,
+    out = {**asdict(settings.pgnn), "hidden": hidden, "lam": 0.0,
            "training": "simultaneous"}
     if max_iter is not None:
         out["max_iter"] = max_iter
@@ -137,16 +137,16 @@ def run_record(task: tuple) -> dict:
             model = PGNNFeedforward(**fs, features=config.features).fit_data(
                 data=data, theta_lip=lip.theta_,
                 rng=np.random.default_rng(stream(seed, STREAM_NETWORK, draw)))
-            first = {k: model.fit_[k] for k in ("data_cost", "stop", "iterations")}
-            if settings.polish and model.fit_["stop"] != "converged":
+            first = {k: getattr(model.fit_, k) for k in ("data_cost", "stop", "iterations")}
+            if settings.polish and model.fit_.stop != "converged":
                 # Continue the same descent (nothing pinned) before the fit is a profile's start
                 # or a record's best cost: a fit stopped at max_iter is still falling.
                 model = PGNNFeedforward(**{**fs, "max_iter": settings.polish},
                                         features=config.features).fit_pinned(
                     data=data, theta_lip=lip.theta_, beta0=model.network_.get_nonlinear(),
                     pinned={})
-            fits.append({"draw": draw, "lambda": 0.0, "data_cost": model.fit_["data_cost"],
-                         "stop": model.fit_["stop"], "iterations": model.fit_["iterations"],
+            fits.append({"draw": draw, "lambda": 0.0, "data_cost": model.fit_.data_cost,
+                         "stop": model.fit_.stop, "iterations": model.fit_.iterations,
                          "first": first, "tail_decrease": ident.tail_decrease(model.history_),
                          "theta": dict(model.theta_),
                          "sloppy": ident.sloppy_directions(model, data.phi, data.target,
@@ -175,8 +175,8 @@ def run_direction(task: tuple) -> dict:
     def fit_at(value: float, beta0: np.ndarray) -> ident.Point:
         model = PGNNFeedforward(**fs, features=config.features).fit_pinned(
             data=data, theta_lip=theta_lip, beta0=beta0, pinned={name: value})
-        return ident.Point(value=float(value), data_cost=model.fit_["data_cost"],
-                           stop=model.fit_["stop"], iterations=model.fit_["iterations"],
+        return ident.Point(value=float(value), data_cost=model.fit_.data_cost,
+                           stop=model.fit_.stop, iterations=model.fit_.iterations,
                            beta=model.network_.get_nonlinear(),
                            tail=ident.tail_decrease(model.history_))
 

@@ -1,0 +1,153 @@
+"""How a PGNN fit went: a frozen record, kept by the model as ``fit_``.
+
+:class:`FitRecord` is what :meth:`controllers.pgnn.PGNNFeedforward.fit` learned about its own
+optimization (why it stopped, iterations, the cost split into the data and the regularizers, the
+first-order measure, how theta_phy moved, every start it tried). The model file stores it under
+``"fit"`` through :meth:`FitRecord.to_json` (the keys are the file format's; the Python names say
+``lam``), and :meth:`FitRecord.from_json` reads it back. Every consumer (the testbed's table
+rows, the measured-record rows, the failure map, the studies) reads its fields: none restates
+its keys.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from clm_sim.errors import UserError
+from clm_sim.plant import THETA_NAMES
+
+
+@dataclass(frozen=True)
+class ThetaPoint:
+    """theta_phy (named, SI units) and the data cost (N**2) at one iteration of a fit."""
+
+    iteration: int
+    data_cost: float
+    theta: dict[str, float]
+
+    def to_json(self) -> dict:
+        return {"iteration": self.iteration, "data_cost": self.data_cost, **self.theta}
+
+    @classmethod
+    def from_json(cls, d: dict) -> ThetaPoint:
+        return cls(int(d["iteration"]), float(d["data_cost"]),
+                   {k: float(d[k]) for k in THETA_NAMES})
+
+
+@dataclass(frozen=True)
+class Start:
+    """One optimization of a fit: ``start`` (``draw``: from the random hidden layers;
+    ``continuation``: from the solution regularized with ``continuation_lam``), its final
+    training cost (N**2), why it stopped and its iterations."""
+
+    start: str
+    cost: float
+    stop: str
+    iterations: int
+
+    def to_json(self) -> dict:
+        return {"start": self.start, "cost": self.cost, "stop": self.stop,
+                "iterations": self.iterations}
+
+    @classmethod
+    def from_json(cls, d: dict) -> Start:
+        return cls(str(d["start"]), float(d["cost"]), str(d["stop"]), int(d["iterations"]))
+
+
+@dataclass(frozen=True)
+class FitRecord:
+    """How one PGNN fit stopped and what it cost.
+
+    stop: ``converged``, ``theta_moving`` (the cost test held while theta_phy still travelled),
+    ``max_iter`` or ``stalled``; cost_stop: the optimizer's own verdict before the theta test;
+    iterations: of the kept start; data_cost, reg_cost: the training cost's data term and the sum
+    of its other terms (N**2); grad_norm, first_order: the optimizer's last gradient norm and
+    first-order measure (:func:`controllers.optim.first_order_measure`); ftol, max_iter: the
+    settings they were tested against. A free fit (``fit``) also has: iterations_total (over
+    every start), theta_moved (how far theta_phy's force still moved over the last quarter of
+    the iterations, a fraction of the training force's rms) and theta_ftol, theta_path (theta_phy
+    at checkpoint iterations), continuation_lam (the lambda of the continuation start where one
+    ran, else 0), start (the kind of start kept) and starts. A pinned fit (``fit_pinned``) has
+    pinned (name -> value held fixed, SI units) instead.
+    """
+
+    stop: str
+    cost_stop: str
+    iterations: int
+    data_cost: float
+    reg_cost: float
+    grad_norm: float | None
+    first_order: float | None
+    ftol: float
+    max_iter: int
+    iterations_total: int | None = None
+    theta_moved: float | None = None
+    theta_ftol: float | None = None
+    theta_path: tuple[ThetaPoint, ...] = ()
+    continuation_lam: float | None = None
+    start: str | None = None
+    starts: tuple[Start, ...] = ()
+    pinned: dict[str, float] | None = None
+
+    @property
+    def converged(self) -> bool:
+        return self.stop == "converged"
+
+    @property
+    def restarts(self) -> int:
+        """How many optimizations the fit ran (1 for a pinned fit)."""
+        return len(self.starts) or 1
+
+    def __str__(self) -> str:
+        return f"{self.stop} after {self.iterations} iterations, data cost {self.data_cost:.5g} N²"
+
+    def to_json(self) -> dict:
+        """The model file's ``"fit"`` section (its keys are the file format)."""
+        if self.pinned is not None:
+            return {"stop": self.stop, "cost_stop": self.cost_stop,
+                    "iterations": self.iterations, "data_cost": self.data_cost,
+                    "pinned": dict(self.pinned), "reg_cost": self.reg_cost,
+                    "first_order": self.first_order, "grad_norm": self.grad_norm,
+                    "ftol": self.ftol, "max_iter": self.max_iter}
+        return {"stop": self.stop, "cost_stop": self.cost_stop, "iterations": self.iterations,
+                "iterations_total": self.iterations_total, "theta_moved": self.theta_moved,
+                "theta_ftol": self.theta_ftol,
+                "theta_path": [p.to_json() for p in self.theta_path],
+                "continuation_lambda": self.continuation_lam, "data_cost": self.data_cost,
+                "reg_cost": self.reg_cost, "grad_norm": self.grad_norm,
+                "first_order": self.first_order, "ftol": self.ftol, "max_iter": self.max_iter,
+                "start": self.start, "starts": [s.to_json() for s in self.starts]}
+
+    @classmethod
+    def from_json(cls, d, where: str = "fit") -> FitRecord | None:
+        """The record of a model file's ``"fit"`` section (None: the file has none);
+        ``UserError`` naming ``where`` when it is not one."""
+        if d is None:
+            return None
+        try:
+            pinned = d.get("pinned")
+            return cls(
+                stop=str(d["stop"]), cost_stop=str(d.get("cost_stop", d["stop"])),
+                iterations=int(d["iterations"]), data_cost=float(d["data_cost"]),
+                reg_cost=float(d["reg_cost"]), grad_norm=_number(d.get("grad_norm")),
+                first_order=_number(d.get("first_order")), ftol=float(d["ftol"]),
+                max_iter=int(d["max_iter"]),
+                iterations_total=_integer(d.get("iterations_total")),
+                theta_moved=_number(d.get("theta_moved")),
+                theta_ftol=_number(d.get("theta_ftol")),
+                theta_path=tuple(ThetaPoint.from_json(p) for p in d.get("theta_path") or ()),
+                continuation_lam=_number(d.get("continuation_lambda")),
+                start=d.get("start"),
+                starts=tuple(Start.from_json(s) for s in d.get("starts") or ()),
+                pinned=None if pinned is None else {str(k): float(v) for k, v in
+                                                    pinned.items()})
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise UserError(f"{where}: not a fit record ({type(exc).__name__}: {exc})") from None
+
+
+def _number(x) -> float | None:
+    return None if x is None else float(x)
+
+
+def _integer(x) -> int | None:
+    return None if x is None else int(x)

@@ -1,0 +1,112 @@
+"""Typed results: a PGNN's FitRecord, a seed's result and a table row keep the files' keys."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from clm_sim.errors import UserError
+from clm_sim.plant import THETA_NAMES
+from controllers.pgnn import FitRecord, PGNNFeedforward, TrainingData
+from experiments.config import FeedforwardSpec
+from experiments.results import ReferenceMetrics, SeedFit, SeedResult, TableRow, theta_drift
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(0)
+    phi = np.column_stack([rng.normal(0, 3, 400), rng.normal(0, 0.2, 400),
+                           np.sign(rng.normal(size=400)), rng.normal(0, 0.05, 400)])
+    target = phi @ np.array([2.0, 40.0, 5.0, 100.0]) + np.sin(30 * phi[:, 3])
+    return TrainingData(phi, target + 0.05 * rng.normal(size=400), 1e-4)
+
+
+def _lip(data):
+    return dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
+
+
+@pytest.fixture(scope="module")
+def fitted(data):
+    return PGNNFeedforward(hidden=3, max_iter=4).fit_data(data=data, theta_lip=_lip(data),
+                                                          rng=0)
+
+
+def test_fit_record_is_frozen_and_round_trips_through_its_json(fitted):
+    f = fitted.fit_
+    assert isinstance(f, FitRecord)
+    with pytest.raises(AttributeError):
+        f.stop = "converged"
+    text = json.dumps(f.to_json())
+    assert FitRecord.from_json(json.loads(text)) == f
+    # The file keys stay the file's: lambda spelled out, theta_path flat.
+    assert "continuation_lambda" in f.to_json() and "continuation_lam" not in f.to_json()
+    assert set(f.to_json()["theta_path"][0]) == {"iteration", "data_cost", *THETA_NAMES}
+    assert f.iterations_total == sum(s.iterations for s in f.starts)
+    assert f.restarts == len(f.starts) >= 1
+    assert f.data_cost == fitted.cost_["data"]
+
+
+def test_a_pinned_fit_records_what_it_held(data, fitted):
+    model = PGNNFeedforward(hidden=3, max_iter=3).fit_pinned(
+        data=data, theta_lip=_lip(data), beta0=fitted.network_.get_nonlinear(),
+        pinned={"mass": 2.0})
+    f = model.fit_
+    assert f.pinned == {"mass": 2.0} and f.starts == () and f.restarts == 1
+    assert FitRecord.from_json(json.loads(json.dumps(f.to_json()))) == f
+
+
+@pytest.mark.parametrize("bad", [[1], {"stop": "converged"}, {"stop": "x", "iterations": "a"}])
+def test_a_broken_fit_section_is_one_user_error(bad):
+    with pytest.raises(UserError, match=r"^fit: not a fit record"):
+        FitRecord.from_json(bad)
+    assert FitRecord.from_json(None) is None
+
+
+def test_a_saved_model_with_a_broken_fit_section_is_refused_naming_it(fitted, tmp_path):
+    fitted.save(tmp_path / "m")
+    doc = json.loads((tmp_path / "m.json").read_text())
+    (tmp_path / "m.json").write_text(json.dumps({**doc, "fit": [1]}))
+    with pytest.raises(UserError, match="cannot read PGNN model .fit: not a fit record"):
+        PGNNFeedforward.load(tmp_path / "m")
+
+
+def test_table_row_from_seed_results(fitted):
+    spec = FeedforwardSpec.pgnn_row(training="simultaneous", lam=0.01, hidden=3, settings={})
+    lip = {"mass": 2.0, "viscous": 40.0, "coulomb": 0.0, "stiffness": 50.0}
+    drift = theta_drift(fitted.theta_, lip)
+    # coulomb's LIP value is 0: left out of the relative drift.
+    assert drift == max(abs(fitted.theta_[k] - lip[k]) / abs(lip[k])
+                        for k in ("mass", "viscous", "stiffness"))
+    seeds = tuple(SeedResult({"r1": ReferenceMetrics(m, 2 * m, 3 * m, 1.0, b)},
+                             SeedFit(s, fitted.fit_, drift))
+                  for s, (m, b) in enumerate([(1e-6, 0.5), (3e-6, 1.5)]))
+    row = TableRow(spec, seeds, (fitted.theta_, fitted.theta_)).to_json()
+    assert row["mae"]["r1"] == {"mean": 2e-6, "std": pytest.approx(np.sqrt(2) * 1e-6)}
+    assert row["mae_per_seed"] == {"r1": [1e-6, 3e-6]}
+    assert row["network_peak_beyond_n"]["r1"]["mean"] == 1.0
+    assert [f["seed"] for f in row["fits"]] == [0, 1]
+    assert row["fits"][0]["theta_drift"] == drift
+    assert row["converged"] == 2 * fitted.fit_.converged
+    assert row["regularizers"]["lambda"] == 0.01
+    # Feedback only: no fits, no theta.
+    none = TableRow(FeedforwardSpec(kind="none"), (SeedResult({"r1": ReferenceMetrics(
+        1e-5, 2e-5, 3e-5)}),)).to_json()
+    assert "fits" not in none and none["theta_phy"] is None
+
+
+def test_figures_take_results_and_never_run_a_model():
+    """No figure module calls a model: whoever computed a result hands it to the figure."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    modules = [root / "experiments" / "plots.py",
+               *sorted((root / "experiments").rglob("*_figures.py"))]
+    assert len(modules) >= 2
+    for path in modules:
+        calls = {node.func.attr for node in ast.walk(ast.parse(path.read_text("utf-8")))
+                 if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)}
+        ran = calls & {"predict", "predict_parts", "feedforward", "network", "fit", "fit_data"}
+        assert not ran, f"{path.name} calls {sorted(ran)}"
