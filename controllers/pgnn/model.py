@@ -432,10 +432,21 @@ class PGNNFeedforward:
         instants of ``y`` (m), sampled at ``ts`` (s; default and only allowed rate: the fitted
         ``ts_``). Both parts see the filtered features, as in the fit: the replayed function is the
         fitted one (a drifted theta is cancelled by the network on exactly the columns it saw)."""
+        return self.parts(self.filtered_features(y=y, ts=ts))
+
+    def filtered_features(self, *, y: np.ndarray, ts: float | None = None) -> np.ndarray:
+        """The filtered feature columns ``phi_f`` (N, 4) = filt([a, v, sign v, y]) that both
+        parts see for positions ``y`` (m) sampled at ``ts`` (s; as :meth:`predict_parts`). They
+        depend on the features and the rate only, not on the fit: models that share them may
+        share this array (``parts(phi_f)``)."""
         self._check_fitted()
         ts = self._rate(ts)
         yf, v, a = self.features.motion(y, ts)
-        phi_f = self.features.regression_filter(lip_regressors(yf, v, a), ts)
+        return self.features.regression_filter(lip_regressors(yf, v, a), ts)
+
+    def parts(self, phi_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Physical part ``theta . phi_f`` and network part ``f(phi_f)`` (N) for filtered
+        feature columns ``phi_f`` (:meth:`filtered_features`)."""
         return phi_f @ _as_theta(self.theta_), self.network(phi_f)
 
     def predict(self, *, y: np.ndarray, ts: float | None = None) -> np.ndarray:
