@@ -36,6 +36,7 @@ from experiments.config import ExperimentConfig, FeedforwardSpec, load_config, r
 # Purposes of the child random streams; the numbers are part of the reproducibility contract.
 STREAM_TRAINING_DITHER = 0
 STREAM_NETWORK = 1
+RUNS_KEPT = 16  # optimizations kept per draw for later rows to reuse (Testbed._fit_seeds)
 
 
 def stream(seed: int, purpose: int, index: int = 0) -> np.random.SeedSequence:
@@ -85,6 +86,9 @@ class Testbed:
     def __init__(self, config: ExperimentConfig | None = None, *, progress=None):
         self.config = ExperimentConfig() if config is None else config
         self.progress = progress or _silent
+        # (run seed, network seed) -> the optimizations fits of that draw ran, by their key
+        # (controllers.pgnn.PGNNFeedforward.fit_data's ``reuse``)
+        self._runs: dict[tuple[int, int], dict] = {}
 
     def __repr__(self) -> str:
         c = self.config
@@ -191,8 +195,12 @@ class Testbed:
         settings = spec.pgnn_settings()
         data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
                              decimation=settings["decimation"])
+        # The optimizations earlier rows ran from the same draws (a continuation row's starts
+        # are the fits of its lambda = 0 and lambda = 0.01 rows): taken, not run again.
+        runs = self._runs
         payloads = [(settings, self.config.features, data, dict(lip.theta_),
-                     stream(run_seed, STREAM_NETWORK, s)) for s in indices]
+                     stream(run_seed, STREAM_NETWORK, s), runs.get((run_seed, s), {}))
+                    for s in indices]
         done = []
 
         def report(model):
@@ -200,7 +208,13 @@ class Testbed:
             self.progress(f"  {spec.label()}: fit {len(done)}/{len(payloads)} done "
                           f"({model.fit_['stop']}, {model.fit_['iterations']} it)")
 
-        return parallel.map_fits(payloads, on_done=report)
+        models = parallel.map_fits(payloads, on_done=report)
+        for s, model in zip(indices, models):
+            seen = runs.setdefault((run_seed, s), {})
+            seen.update(model.__dict__.pop("runs_", {}))
+            for key in list(seen)[:-RUNS_KEPT]:  # a long study: the latest only
+                del seen[key]
+        return models
 
     def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:
         """The fitted models of one table row: one per seed; ``[None]`` for feedback only."""

@@ -57,6 +57,8 @@ data.
 
 from __future__ import annotations
 
+import copy
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -258,23 +260,40 @@ class PGNNFeedforward:
         return self.fit_data(data=data, theta_lip=theta_lip, rng=rng)
 
     def fit_data(self, *, data: TrainingData, theta_lip: dict[str, float],
-                 rng: np.random.Generator | int | None = None) -> PGNNFeedforward:
-        """Identify from prepared :class:`TrainingData` (see :func:`training_data`)."""
+                 rng: np.random.Generator | int | None = None,
+                 reuse: dict | None = None) -> PGNNFeedforward:
+        """Identify from prepared :class:`TrainingData` (see :func:`training_data`).
+
+        ``reuse``: optimizations other fits ran already (their ``runs_``: a start's key ->
+        its outcome). A start of this fit with the same key (same data, draw, cost weights and
+        optimizer settings: :meth:`_start_key`) takes that outcome instead of running again,
+        bit for bit what it would compute (the optimizer is deterministic). A table's
+        continuation row starts from the draws of its lambda = 0 row and the solutions of its
+        lambda = 0.01 row. ``runs_`` holds this fit's own starts for the next fits."""
         self._check()
         rng = _generator(rng)
         theta_lip_v = _as_theta(theta_lip)
         fit, held_out = data.split(self.validation_fraction)
-        best, starts = None, []
+        best, starts, runs = None, [], {}
+
+        def optimize(beta0, weights=None):
+            key = self._start_key(fit, held_out, theta_lip_v, beta0, weights)
+            if key is not None and key in (reuse or {}):
+                runs[key] = got = copy.deepcopy(reuse[key])  # shares nothing with its source
+            else:
+                got = self._one_start(fit, held_out, theta_lip_v, rng, beta0, weights)
+                if key is not None:
+                    runs[key] = {k: v for k, v in got.items() if k != "cost"}
+            return got
+
         with single_threaded():
             for _ in range(self.restarts):
                 beta0 = self.new_network(fit, rng).get_nonlinear()
-                tries = [("draw", self._one_start(fit, held_out, theta_lip_v, rng, beta0))]
+                tries = [("draw", optimize(beta0))]
                 if self._continues():
                     lam_c = np.full(4, float(self.continuation_lambda))
-                    pre = self._one_start(fit, held_out, theta_lip_v, rng, beta0,
-                                          self._weights(lam_c))
-                    tries.append(("continuation", self._one_start(
-                        fit, held_out, theta_lip_v, rng, pre["net"].get_nonlinear())))
+                    pre = optimize(beta0, self._weights(lam_c))
+                    tries.append(("continuation", optimize(pre["net"].get_nonlinear())))
                 for start, got in tries:
                     starts.append({"start": start, "cost": got["result"].cost,
                                    "stop": got["result"].stop,
@@ -294,6 +313,7 @@ class PGNNFeedforward:
         self.cost_ = best["terms"]
         self.n_samples_ = len(fit.target)
         self.ts_ = data.ts
+        self.runs_ = runs
         self.fit_ = {"stop": stop, "cost_stop": res.stop, "iterations": res.iterations,
                      "iterations_total": int(sum(s["iterations"] for s in starts)),
                      "theta_moved": moved, "theta_ftol": self.theta_ftol,
@@ -333,7 +353,7 @@ class PGNNFeedforward:
                                 "theta": dict(zip(THETA_NAMES, map(float, theta)))})
 
             res = optim.levenberg_marquardt(cost, net.get_nonlinear(), max_iter=self.max_iter,
-                                            ftol=self.ftol, callback=record)
+                                            ftol=self.ftol, callback=record, normal=cost.normal)
             theta, w, b = cost.linear(res.p)
             net.set_nonlinear(res.p)
             net.set_linear(theta, w, b)
@@ -349,6 +369,24 @@ class PGNNFeedforward:
                      "first_order": res.first_order, "grad_norm": res.grad_norm,
                      "ftol": self.ftol, "max_iter": self.max_iter}
         return self
+
+    def _start_key(self, fit: TrainingData, held_out, theta_lip, beta0: np.ndarray,
+                   weights: Weights | None = None) -> str | None:
+        """What decides the outcome of one optimization (:meth:`_one_start`), as a digest: the
+        data, theta_LIP, the start, the cost's weights and the settings the optimizer reads.
+        None where the outcome also depends on the random stream (a random initialization)."""
+        if self.optimizer != "varpro":
+            return None
+        w = weights or self._weights()
+        h = hashlib.sha256()
+        for part in (fit.phi, fit.target, held_out.phi if held_out else np.zeros(0),
+                     held_out.target if held_out else np.zeros(0), theta_lip, beta0,
+                     w.lam_diag):
+            h.update(np.ascontiguousarray(part, dtype=np.float64).tobytes())
+            h.update(b"|")
+        h.update(repr((w.pinn, w.orthogonal, w.weight_decay, self.training, self.widths(),
+                       self.activation, self.max_iter, self.ftol, self.init)).encode())
+        return h.hexdigest()
 
     def _one_start(self, fit: TrainingData, held_out, theta_lip, rng, beta0: np.ndarray,
                    weights: Weights | None = None) -> dict:
@@ -396,7 +434,8 @@ class PGNNFeedforward:
                                 callback=record)
         else:
             result = optim.levenberg_marquardt(fun, p0, max_iter=self.max_iter, ftol=self.ftol,
-                                               callback=record)
+                                               callback=record,
+                                               normal=cost.normal if varpro else None)
         beta, (theta, w, b) = unpack(best["p"])
         net.set_nonlinear(beta)
         net.set_linear(theta, w, b)
