@@ -49,20 +49,15 @@ def first_order_measure(r: np.ndarray, J: np.ndarray, normal: np.ndarray | None 
     count as flat and are left out. ``normal`` (``J'J``) and ``g`` (``J'r``): these products when
     the caller has them already."""
     d = np.sqrt(np.einsum("ij,ij->j", J, J))
-    if normal is None:
-        normal = J.T @ J
-    if g is None:
-        g = J.T @ r
-    return _first_order(r, normal, g, d)
-
-
-def _first_order(r: np.ndarray, normal: np.ndarray, g: np.ndarray, d: np.ndarray) -> float:
-    """:func:`first_order_measure` from ``J'J``, ``J'r`` and the column norms ``d`` of ``J``."""
     # A column below 1e-12 of the largest is flat too; left in, its denormal-sized entries can
     # make LAPACK's eigensolver fail to converge (seen with saturated neurons).
     live = d > 1e-12 * d.max() if d.max() > 0 else np.zeros(d.shape, bool)
     if not live.any():
         return 0.0
+    if normal is None:
+        normal = J.T @ J
+    if g is None:
+        g = J.T @ r
     if not live.all():
         normal, g, d = normal[np.ix_(live, live)], g[live], d[live]
     w, V = _symmetric_eigen(normal / np.outer(d, d))
@@ -84,25 +79,16 @@ def _symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float = 1e-3,
                         rtol: float = 0.0, ftol: float | None = None,
-                        callback=None, normal=None) -> OptimResult:
+                        callback=None) -> OptimResult:
     """Minimize ``||r(p)||**2``; ``max_iter`` bounds the Jacobian evaluations.
 
     Converged when :func:`first_order_measure` is at most ``ftol`` (the Gauss-Newton model
     predicts less than that relative decrease: a stationary point to that accuracy); ``rtol``
     (off by default) also stops when an accepted step decreases the cost by less than that
-    relative amount, the rule of the earlier fits. ``normal(p)``: ``(r, J'J, J'r)`` for a
-    caller that forms the normal matrix without ``J`` (the PGNN's projected Jacobian:
-    :meth:`controllers.pgnn.cost.SeparableCost.normal`); ``fun(p, True)`` is then not called.
+    relative amount, the rule of the earlier fits.
     """
-    def products(p):
-        if normal is not None:
-            r, A, g = normal(p)
-            return r, A, g, np.sqrt(np.maximum(np.diag(A), 0.0))
-        r, J = fun(p, True)
-        return r, J.T @ J, J.T @ r, np.sqrt(np.einsum("ij,ij->j", J, J))
-
     p = np.array(p0, dtype=np.float64)
-    r, A, g, cols = products(p)
+    r, J = fun(p, True)
     cost = float(r @ r)
     if callback is not None:
         callback(0, p, cost)
@@ -110,7 +96,9 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     stop = "max_iter"
     d = np.zeros(len(p))
     while True:
-        if ftol is not None and _first_order(r, A, g, cols) <= ftol:
+        A = J.T @ J
+        g = J.T @ r
+        if ftol is not None and first_order_measure(r, J, A, g) <= ftol:
             stop = "converged"
             break
         if it >= max_iter:
@@ -148,7 +136,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         decrease = (cost - cost_new) / max(cost, 1e-300)
         mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
         nu = 2.0
-        r, A, g, cols = products(p)
+        r, J = fun(p, True)
         evals += 1
         cost = float(r @ r)
         if callback is not None:
@@ -156,8 +144,9 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         if decrease < rtol:
             stop = "small_decrease"
             break
+    A, g = J.T @ J, J.T @ r
     return OptimResult(p=p, cost=cost, iterations=it, evaluations=evals, stop=stop,
-                       first_order=_first_order(r, A, g, cols),
+                       first_order=first_order_measure(r, J, A, g),
                        grad_norm=float(np.linalg.norm(2.0 * g)))
 
 

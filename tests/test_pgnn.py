@@ -443,38 +443,3 @@ def test_paper_table_page_is_what_a_fresh_run_prints(tmp_path):
     assert len(published) == len(fresh["rows"])
     mismatches = agreement.compare(published, fresh)
     assert not mismatches, "\n".join(map(str, mismatches))
-
-
-@pytest.mark.parametrize("extra", [dict(lam=0.01, weight_decay=1e-3), dict(lam=0.0),
-                                   dict(training="sequential", weight_decay=1e-3)])
-def test_normal_matrix_is_that_of_the_projected_jacobian(data, extra):
-    """The LM's normal matrix G'G - C'C and gradient equal J'J and J'r of Kaufman's projected
-    Jacobian formed explicitly (the cancellation of G'G - C'C costs a few digits, not more)."""
-    small = TrainingData(data.phi[:800], data.target[:800])
-    model = PGNNFeedforward(hidden=5, **extra)
-    net = model.new_network(small, np.random.default_rng(3))
-    cost = model.training_cost(small, lip_theta(small), net)
-    beta = net.get_nonlinear()
-    beta = beta + 0.1 * np.random.default_rng(4).standard_normal(beta.size)  # off a solution
-    r, J = cost(beta, True)
-    A_want, g_want = J.T @ J, J.T @ r
-    r2, A, g = cost.normal(beta)
-    np.testing.assert_array_equal(r, r2)
-    np.testing.assert_allclose(A, A_want, rtol=0, atol=1e-10 * np.abs(A_want).max())
-    np.testing.assert_allclose(np.diag(A), np.diag(A_want), rtol=1e-8)
-    np.testing.assert_allclose(g, g_want, rtol=0, atol=1e-10 * np.abs(g_want).max())
-
-
-def test_cholesky_qr_is_the_svd_solution_and_declines_ill_conditioned_systems():
-    from controllers.pgnn.cost import CHOLESKY_QR_COND, _orthonormal_range
-
-    rng = np.random.default_rng(0)
-    A, c = rng.standard_normal((500, 7)), rng.standard_normal(500)
-    U, x = _orthonormal_range(A, c)
-    np.testing.assert_allclose(U.T @ U, np.eye(7), atol=1e-14)  # orthonormal to round-off
-    np.testing.assert_allclose(U @ (U.T @ A), A, atol=1e-13)  # spans the range of A
-    np.testing.assert_allclose(x, np.linalg.lstsq(A, c, rcond=None)[0], rtol=1e-12)
-    # Columns dependent to 1e-8 (condition ~1e8 > CHOLESKY_QR_COND): left to the SVD.
-    A[:, 6] = A[:, 0] + 1e-8 * rng.standard_normal(500)
-    assert np.linalg.cond(A) > CHOLESKY_QR_COND
-    assert _orthonormal_range(A, c) == (None, None)

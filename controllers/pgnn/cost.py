@@ -26,7 +26,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import torch
 
 from controllers.pgnn.network import PGNNNetwork
@@ -162,15 +161,11 @@ class SeparableCost:
         # columns are (nearly) dependent, e.g. a network that mimics a physical regressor.
         scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
-        As = np.divide(A, scale, out=self._As)
-        U, x = _orthonormal_range(As, c)
-        if U is None:
-            U, s, Vt = np.linalg.svd(As, full_matrices=False)
-            keep = s > s[0] * 1e-12
-            if not keep.all():
-                U, s, Vt = U[:, keep], s[keep], Vt[keep]
-            x = Vt.T @ ((U.T @ c) / s)
-        x = x / scale
+        U, s, Vt = np.linalg.svd(np.divide(A, scale, out=self._As), full_matrices=False)
+        keep = s > s[0] * 1e-12
+        if not keep.all():
+            U, s, Vt = U[:, keep], s[keep], Vt[keep]
+        x = (Vt.T @ ((U.T @ c) / s)) / scale
         r_lin = A @ x - c
         out = {"h": h, "layers": layers, "x": x, "U": U, "r_lin": r_lin}
         self._cache = (key, out)
@@ -216,28 +211,6 @@ class SeparableCost:
         J -= np.matmul(U, U.T @ J, out=self._proj)
         return r, self._J
 
-    def normal(self, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(r, J'J, J'r)`` at ``beta`` with ``J`` the Jacobian of ``self(beta, True)``, formed
-        without ``J``: with ``G = d(A x)/d beta`` and ``C = U'G`` (``U``: an orthonormal basis of
-        the range of ``A``), Kaufman's projected ``(I - U U') G`` has the normal matrix
-        ``G'G - C'C``. That saves the product ``U C`` and a pass over ``J`` per iteration; the
-        hidden-weight decay rows (not projected) add ``weight_decay`` to the diagonal."""
-        sol = self._solve(beta)
-        r = (np.concatenate([sol["r_lin"], self._decay_rows(beta)]) if self.w.weight_decay > 0
-             else sol["r_lin"].copy())
-        w_out = sol["x"][self.n_theta:self.n_theta + self.n_hidden]
-        G = self._beta_rows(beta, w_out, sol["layers"], out=self._J[:len(self._c)])
-        U = sol["U"]
-        C = U.T @ G
-        A = G.T @ G
-        A -= C.T @ C
-        g = G.T @ sol["r_lin"] - C.T @ (U.T @ sol["r_lin"])
-        if self.w.weight_decay > 0:
-            idx = np.flatnonzero(self.decayed)
-            A[idx, idx] += self.w.weight_decay
-            g[idx] += self.w.weight_decay * beta[idx]
-        return r, A, g
-
     def _beta_rows(self, beta, w_out, layers=None, out=None) -> np.ndarray:
         """``d (A(beta) x) / d beta`` for the linear-system rows, at output weights ``w_out``."""
         jf = self.net.network_jacobian(beta, w_out, self.zs, layers, out=self._jf)
@@ -278,31 +251,3 @@ class SeparableCost:
             return r
         J = np.hstack([A, self._beta_rows(beta, x[self.n_theta:-1], layers)])
         return r, self._with_decay(J, beta)
-
-
-# Largest condition number of the column-scaled linear system solved by Cholesky QR: below it
-# no singular value is near the SVD's rank cut (1e-12 of the largest), and Cholesky QR applied
-# twice is as accurate as Householder QR (Yamamoto et al. 2015, for cond < 1/sqrt(eps) ~ 7e7).
-CHOLESKY_QR_COND = 1e6
-
-
-def _orthonormal_range(As: np.ndarray, c: np.ndarray):
-    """``(U, x)``: an orthonormal basis ``U`` of the range of ``As`` (m, k) and the least-squares
-    solution ``x`` of ``As x = c``, by Cholesky QR applied twice (two k x k Gram matrices and two
-    triangular products: about a third of the thin SVD's time at m = 6,600, k = 21, whose
-    bidiagonalization is not blocked); ``(None, None)`` when ``As`` is too ill-conditioned for
-    it (then the caller's SVD decides the rank)."""
-    G = As.T @ As
-    w = np.linalg.eigvalsh(G)
-    if not w[0] > w[-1] / CHOLESKY_QR_COND ** 2:
-        return None, None
-    try:
-        R1 = np.linalg.cholesky(G).T
-        Q1 = As @ scipy.linalg.solve_triangular(R1, np.eye(len(R1)), check_finite=False)
-        R2 = np.linalg.cholesky(Q1.T @ Q1).T
-        Q = Q1 @ scipy.linalg.solve_triangular(R2, np.eye(len(R2)), check_finite=False)
-    except np.linalg.LinAlgError:
-        return None, None
-    x = scipy.linalg.solve_triangular(R2 @ R1, Q.T @ c, check_finite=False)
-    return Q, x
-

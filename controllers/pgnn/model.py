@@ -353,7 +353,7 @@ class PGNNFeedforward:
                                 "theta": dict(zip(THETA_NAMES, map(float, theta)))})
 
             res = optim.levenberg_marquardt(cost, net.get_nonlinear(), max_iter=self.max_iter,
-                                            ftol=self.ftol, callback=record, normal=cost.normal)
+                                            ftol=self.ftol, callback=record)
             theta, w, b = cost.linear(res.p)
             net.set_nonlinear(res.p)
             net.set_linear(theta, w, b)
@@ -434,8 +434,7 @@ class PGNNFeedforward:
                                 callback=record)
         else:
             result = optim.levenberg_marquardt(fun, p0, max_iter=self.max_iter, ftol=self.ftol,
-                                               callback=record,
-                                               normal=cost.normal if varpro else None)
+                                               callback=record)
         beta, (theta, w, b) = unpack(best["p"])
         net.set_nonlinear(beta)
         net.set_linear(theta, w, b)
