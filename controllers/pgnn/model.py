@@ -282,8 +282,8 @@ class PGNNFeedforward:
                 runs[key] = got = copy.deepcopy(reuse[key])  # shares nothing with its source
             else:
                 got = self._one_start(fit, held_out, theta_lip_v, rng, beta0, weights)
-                if key is not None:
-                    runs[key] = {k: v for k, v in got.items() if k != "cost"}
+                if key is not None:  # a copy: the fitted network may become this model's
+                    runs[key] = copy.deepcopy({k: v for k, v in got.items() if k != "cost"})
             return got
 
         with single_threaded():
@@ -379,9 +379,9 @@ class PGNNFeedforward:
             return None
         w = weights or self._weights()
         h = hashlib.sha256()
-        for part in (fit.phi, fit.target, held_out.phi if held_out else np.zeros(0),
-                     held_out.target if held_out else np.zeros(0), theta_lip, beta0,
-                     w.lam_diag):
+        none = held_out is None
+        for part in (fit.phi, fit.target, np.zeros(0) if none else held_out.phi,
+                     np.zeros(0) if none else held_out.target, theta_lip, beta0, w.lam_diag):
             h.update(np.ascontiguousarray(part, dtype=np.float64).tobytes())
             h.update(b"|")
         h.update(repr((w.pinn, w.orthogonal, w.weight_decay, self.training, self.widths(),
