@@ -185,4 +185,21 @@ def _limit(user_api: str):
         import threadpoolctl
     except ImportError:  # a declared dependency; without it only torch is pinned
         return None
-    return threadpoolctl.threadpool_limits(limits=1, user_api=user_api).__enter__()
+    return _controller(threadpoolctl).limit(limits=1, user_api=user_api).__enter__()
+
+
+_controllers: dict = {}
+_scan_lock = threading.Lock()
+
+
+def _controller(threadpoolctl):
+    """threadpoolctl's view of the loaded libraries, scanned again only after an import: a scan
+    (every shared object of the process) cost 5 ms, twice per block, and a table replays every
+    fitted network inside a block (docs/performance.md)."""
+    key = len(sys.modules)  # a library loaded since the last scan came with a new module
+    with _scan_lock:
+        ctl = _controllers.get(key)
+        if ctl is None:
+            _controllers.clear()
+            ctl = _controllers[key] = threadpoolctl.ThreadpoolController()
+    return ctl

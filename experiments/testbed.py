@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from clm_sim.errors import UserError
-from clm_sim.features import TrainingRange
+from clm_sim.features import TrainingRange, held_force
 from clm_sim.loop import simulate
 from clm_sim.plant import Plant
 from clm_sim.record import Run
@@ -38,6 +38,7 @@ from experiments.results import (BeyondRange, ReferenceMetrics, RowResult, SeedF
 # Purposes of the child random streams; the numbers are part of the reproducibility contract.
 STREAM_TRAINING_DITHER = 0
 STREAM_NETWORK = 1
+RUNS_KEPT = 16  # optimizations kept per draw for later rows to reuse (Testbed._fit_seeds)
 
 
 def stream(seed: int, purpose: int, index: int = 0) -> np.random.SeedSequence:
@@ -76,6 +77,9 @@ class Testbed:
     def __init__(self, config: ExperimentConfig | None = None, *, progress=None):
         self.config = ExperimentConfig() if config is None else config
         self.progress = progress or _silent
+        # (run seed, network seed) -> the optimizations fits of that draw ran, by their key
+        # (controllers.pgnn.PGNNFeedforward.fit_data's ``reuse``)
+        self._runs: dict[tuple[int, int], dict] = {}
 
     def __repr__(self) -> str:
         c = self.config
@@ -182,8 +186,12 @@ class Testbed:
         settings = spec.pgnn_settings()
         data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
                              decimation=settings["decimation"])
+        # The optimizations earlier rows ran from the same draws (a continuation row's starts
+        # are the fits of its lambda = 0 and lambda = 0.01 rows): taken, not run again.
+        runs = self._runs
         payloads = [(settings, self.config.features, data, dict(lip.theta_),
-                     stream(run_seed, STREAM_NETWORK, s)) for s in indices]
+                     stream(run_seed, STREAM_NETWORK, s), runs.get((run_seed, s), {}))
+                    for s in indices]
         done = []
 
         def report(model):
@@ -191,7 +199,13 @@ class Testbed:
             self.progress(f"  {spec.label()}: fit {len(done)}/{len(payloads)} done "
                           f"({model.fit_.stop}, {model.fit_.iterations} it)")
 
-        return parallel.map_fits(payloads, on_done=report)
+        models = parallel.map_fits(payloads, on_done=report)
+        for s, model in zip(indices, models):
+            seen = runs.setdefault((run_seed, s), {})
+            seen.update(model.__dict__.pop("runs_", {}))
+            for key in list(seen)[:-RUNS_KEPT]:  # a long study: the latest only
+                del seen[key]
+        return models
 
     def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:
         """The fitted models of one table row: one per seed; ``[None]`` for feedback only."""
@@ -232,20 +246,31 @@ class Testbed:
         models = self.fit_row(spec, run, lip)
         ts, features = self.ts, self.config.features
         inside = TrainingRange.of(features, self.reference(self.config.training.reference), ts)
+        # What does not depend on the fit, once per reference for all seeds: the reference,
+        # the samples beyond the training range and (PGNN) the filtered features.
+        seen = {name: self.reference(name) for name in refs}
+        beyond_of = ({name: inside.beyond(features, r, ts) for name, r in seen.items()}
+                     if spec.kind == "pgnn" else {})
+        phi_f = {}
         seeds, first = [], {}
         for s, model in enumerate(models):
             per_ref = {}
             for name in refs:
-                rep = self.replay(model, name, meta=self.meta(
-                    run=f"replay {spec.label()} on {name}", seed=s))
-                peaks = {}
-                if spec.kind == "pgnn":
-                    r = self.reference(name)
-                    b = BeyondRange.of(*model.predict_parts(y=r, ts=ts),
-                                       inside.beyond(features, r, ts))
-                    peaks = {"network_peak_n": b.network_peak_n,
-                             "network_peak_beyond_n": b.network_peak_beyond_n}
-                per_ref[name] = ReferenceMetrics(**rep.metrics(), **peaks)
+                meta = self.meta(run=f"replay {spec.label()} on {name}", seed=s)
+                if spec.kind != "pgnn":
+                    rep = self.replay(model, name, meta=meta)
+                    per_ref[name] = ReferenceMetrics(**rep.metrics())
+                else:
+                    # The network's force once: it is the feedforward's part and the peak.
+                    if name not in phi_f:
+                        phi_f[name] = model.filtered_features(y=seen[name], ts=ts)
+                    physical, net = model.parts(phi_f[name])
+                    rep = simulate(self.machine, self.pid, seen[name], ts,
+                                   u_ff=held_force(physical + net), meta=meta)
+                    b = BeyondRange.of(physical, net, beyond_of[name])
+                    per_ref[name] = ReferenceMetrics(
+                        **rep.metrics(), network_peak_n=b.network_peak_n,
+                        network_peak_beyond_n=b.network_peak_beyond_n)
                 if s == 0:
                     first[name] = rep
             fit = None

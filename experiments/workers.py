@@ -237,14 +237,16 @@ def stop_fits() -> None:
 
 
 def fit_pgnn(payload: tuple):
-    """One PGNN fit: ``(settings, features, data, theta_lip, seed_sequence)`` -> fitted model."""
+    """One PGNN fit: ``(settings, features, data, theta_lip, seed_sequence[, reuse])`` -> fitted
+    model (``reuse``: see :meth:`controllers.pgnn.PGNNFeedforward.fit_data`)."""
     import numpy as np
 
     from controllers.pgnn import PGNNFeedforward
 
-    settings, features, data, theta_lip, seq = payload
+    settings, features, data, theta_lip, seq, *reuse = payload
     model = PGNNFeedforward(**settings, features=features)
-    return model.fit_data(data=data, theta_lip=theta_lip, rng=np.random.default_rng(seq))
+    return model.fit_data(data=data, theta_lip=theta_lip, rng=np.random.default_rng(seq),
+                          reuse=reuse[0] if reuse else None)
 
 
 def fit_pinned(payload: tuple):

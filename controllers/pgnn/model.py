@@ -57,6 +57,8 @@ data.
 
 from __future__ import annotations
 
+import copy
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -262,23 +264,40 @@ class PGNNFeedforward:
         return self.fit_data(data=data, theta_lip=theta_lip, rng=rng)
 
     def fit_data(self, *, data: TrainingData, theta_lip: dict[str, float],
-                 rng: np.random.Generator | int | None = None) -> PGNNFeedforward:
-        """Identify from prepared :class:`TrainingData` (see :func:`training_data`)."""
+                 rng: np.random.Generator | int | None = None,
+                 reuse: dict | None = None) -> PGNNFeedforward:
+        """Identify from prepared :class:`TrainingData` (see :func:`training_data`).
+
+        ``reuse``: optimizations other fits ran already (their ``runs_``: a start's key ->
+        its outcome). A start of this fit with the same key (same data, draw, cost weights and
+        optimizer settings: :meth:`_start_key`) takes that outcome instead of running again,
+        bit for bit what it would compute (the optimizer is deterministic). A table's
+        continuation row starts from the draws of its lambda = 0 row and the solutions of its
+        lambda = 0.01 row. ``runs_`` holds this fit's own starts for the next fits."""
         self._check()
         rng = _generator(rng)
         theta_lip_v = _as_theta(theta_lip)
         fit, held_out = data.split(self.validation_fraction)
-        best, starts = None, []
+        best, starts, runs = None, [], {}
+
+        def optimize(beta0, weights=None):
+            key = self._start_key(fit, held_out, theta_lip_v, beta0, weights)
+            if key is not None and key in (reuse or {}):
+                runs[key] = got = copy.deepcopy(reuse[key])  # shares nothing with its source
+            else:
+                got = self._one_start(fit, held_out, theta_lip_v, rng, beta0, weights)
+                if key is not None:  # a copy: the fitted network may become this model's
+                    runs[key] = copy.deepcopy({k: v for k, v in got.items() if k != "cost"})
+            return got
+
         with single_threaded():
             for _ in range(self.restarts):
                 beta0 = self.new_network(fit, rng).get_nonlinear()
-                tries = [("draw", self._one_start(fit, held_out, theta_lip_v, rng, beta0))]
+                tries = [("draw", optimize(beta0))]
                 if self._continues():
                     lam_c = np.full(4, float(self.continuation_lam))
-                    pre = self._one_start(fit, held_out, theta_lip_v, rng, beta0,
-                                          self._weights(lam_c))
-                    tries.append(("continuation", self._one_start(
-                        fit, held_out, theta_lip_v, rng, pre["net"].get_nonlinear())))
+                    pre = optimize(beta0, self._weights(lam_c))
+                    tries.append(("continuation", optimize(pre["net"].get_nonlinear())))
                 for start, got in tries:
                     starts.append(Start(start, got["result"].cost, got["result"].stop,
                                         got["result"].iterations))
@@ -297,6 +316,7 @@ class PGNNFeedforward:
         self.cost_ = best["terms"]
         self.n_samples_ = len(fit.target)
         self.ts_ = data.ts
+        self.runs_ = runs
         self.fit_ = FitRecord(
             stop=stop, cost_stop=res.stop, iterations=res.iterations,
             iterations_total=int(sum(s.iterations for s in starts)), theta_moved=moved,
@@ -351,6 +371,24 @@ class PGNNFeedforward:
             first_order=res.first_order, grad_norm=res.grad_norm, ftol=self.ftol,
             max_iter=self.max_iter)
         return self
+
+    def _start_key(self, fit: TrainingData, held_out, theta_lip, beta0: np.ndarray,
+                   weights: Weights | None = None) -> str | None:
+        """What decides the outcome of one optimization (:meth:`_one_start`), as a digest: the
+        data, theta_LIP, the start, the cost's weights and the settings the optimizer reads.
+        None where the outcome also depends on the random stream (a random initialization)."""
+        if self.optimizer != "varpro":
+            return None
+        w = weights or self._weights()
+        h = hashlib.sha256()
+        none = held_out is None
+        for part in (fit.phi, fit.target, np.zeros(0) if none else held_out.phi,
+                     np.zeros(0) if none else held_out.target, theta_lip, beta0, w.lam_diag):
+            h.update(np.ascontiguousarray(part, dtype=np.float64).tobytes())
+            h.update(b"|")
+        h.update(repr((w.pinn, w.orthogonal, w.weight_decay, self.training, self.widths(),
+                       self.activation, self.max_iter, self.ftol, self.init)).encode())
+        return h.hexdigest()
 
     def _one_start(self, fit: TrainingData, held_out, theta_lip, rng, beta0: np.ndarray,
                    weights: Weights | None = None) -> dict:
@@ -434,10 +472,21 @@ class PGNNFeedforward:
         instants of ``y`` (m), sampled at ``ts`` (s; default and only allowed rate: the fitted
         ``ts_``). Both parts see the filtered features, as in the fit: the replayed function is the
         fitted one (a drifted theta is cancelled by the network on exactly the columns it saw)."""
+        return self.parts(self.filtered_features(y=y, ts=ts))
+
+    def filtered_features(self, *, y: np.ndarray, ts: float | None = None) -> np.ndarray:
+        """The filtered feature columns ``phi_f`` (N, 4) = filt([a, v, sign v, y]) that both
+        parts see for positions ``y`` (m) sampled at ``ts`` (s; as :meth:`predict_parts`). They
+        depend on the features and the rate only, not on the fit: models that share them may
+        share this array (``parts(phi_f)``)."""
         self._check_fitted()
         ts = self._rate(ts)
         yf, v, a = self.features.motion(y, ts)
-        phi_f = self.features.regression_filter(lip_regressors(yf, v, a), ts)
+        return self.features.regression_filter(lip_regressors(yf, v, a), ts)
+
+    def parts(self, phi_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Physical part ``theta . phi_f`` and network part ``f(phi_f)`` (N) for filtered
+        feature columns ``phi_f`` (:meth:`filtered_features`)."""
         return phi_f @ _as_theta(self.theta_), self.network(phi_f)
 
     def predict(self, *, y: np.ndarray, ts: float | None = None) -> np.ndarray:
