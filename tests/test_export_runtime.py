@@ -1,4 +1,4 @@
-"""The static C runtime of the export lives in ``controllers/export/runtime/*.c`` and ships as
+"""The static C runtime of the export lives in ``controllers/export/runtime/`` and ships as
 package data: an installed wheel must hold every fragment the emitters read."""
 
 from __future__ import annotations
@@ -12,14 +12,16 @@ import controllers
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPORT = Path(controllers.__file__).parent / "export"
+READERS = ("runtime", "template")  # controllers.export.c_runtime
 
 
 def _read_fragments() -> set[str]:
-    """Names passed to ``runtime(...)`` anywhere in ``controllers/export``."""
+    """Names passed to ``runtime(...)``/``template(...)`` anywhere in ``controllers/export``."""
     names = set()
     for path in EXPORT.glob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "runtime":
+            if (isinstance(node, ast.Call) and getattr(node.func, "id", None) in READERS
+                    and isinstance(node.args[0], ast.Constant)):
                 names.add(node.args[0].value)
     return names
 

@@ -158,7 +158,7 @@ def test_presliding_named_first_with_its_stiffness(foreign, cell):
     # instead (measured 0.0374 N, gain 59 %).
     g = d.gain
     if cell == "pp1":
-        floor = foreign("none", cell)[1].gain["residual_rms_before"]
+        floor = foreign("none", cell)[1].gain.residual_rms_before
         assert g.residual_rms_after <= 1.05 * floor
         assert 1 - floor / g.residual_rms_before < 0.70  # the bar is out of any model's reach
         # The predicted floor (white quantization error through the model and the band).
