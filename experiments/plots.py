@@ -374,7 +374,7 @@ def plot_residual_spectrum(before, after, ax=None):
 
 def diagnosis_figures(d) -> dict[str, tuple[Figure, str]]:
     """The figures of a diagnosis report: ``{file name: (figure, caption)}``."""
-    before, after = d.signals["val_before"], d.signals["val_after"]
+    before, after = d.signals.val_before, d.signals.val_after
     out = {}
     fig = _figure(12, 3.8)
     axes = fig.subplots(1, 3, sharey=True)
@@ -394,18 +394,18 @@ def diagnosis_figures(d) -> dict[str, tuple[Figure, str]]:
     out["spectrum.png"] = (fig, "Residual spectrum on the validation record (Welch, "
                                 "unfiltered): model against extended model")
     s = d.signals
-    if "e_measured" in s:
+    if s.e_measured is not None:
         # Measured and re-simulated errors nearly coincide: drawn together they hide each other,
         # so the measured error has its own panel and each model its difference from it.
         fig, axes = _panels(3, [1.0, 1.0, 1.0])
         axes[2].sharey(axes[1])
-        axes[0].plot(s["t"], s["e_measured"] * UM, lw=0.6, color=PALETTE[0])
+        axes[0].plot(s.t, s.e_measured * UM, lw=0.6, color=PALETTE[0])
         axes[0].set_title("measured tracking error", loc="left", fontsize=9, color=PALETTE[0])
         axes[0].set_ylabel("e [µm]")
-        for ax, key, label, c in ((axes[1], "e_before", "model", PALETTE[7]),
-                                  (axes[2], "e_after", "extended model", PALETTE[4])):
-            diff = (s[key] - s["e_measured"]) * UM
-            ax.plot(s["t"], diff, lw=0.6, color=c)
+        for ax, e, label, c in ((axes[1], s.e_before, "model", PALETTE[7]),
+                                (axes[2], s.e_after, "extended model", PALETTE[4])):
+            diff = (e - s.e_measured) * UM
+            ax.plot(s.t, diff, lw=0.6, color=c)
             ax.set_title(f"re-simulated with the {label} − measured: RMS "
                          f"{float(np.sqrt(np.mean(diff ** 2))):.3g} µm", loc="left", fontsize=9,
                          color=c)
@@ -414,9 +414,9 @@ def diagnosis_figures(d) -> dict[str, tuple[Figure, str]]:
             ax.grid(alpha=0.3)
         axes[2].set_xlabel("time t [s]")
         out["tracking.png"] = (fig, "Loop re-simulated on the measured reference (validation)")
-    if "origin_scan" in s:
+    if s.origin_scan is not None:
         fig = _figure(7, 3.5)
-        plot_origin_scan(*s["origin_scan"], ax=fig.subplots())
+        plot_origin_scan(*s.origin_scan, ax=fig.subplots())
         out["origin.png"] = (fig, "Encoder origin of the validation record: residual RMS of the "
                                   "extended model on the registration part against the origin "
                                   "shift, over one period of its strongest periodic effect")

@@ -102,7 +102,7 @@ def test_hidden_effect_is_named_first_with_its_parameters(diagnosed, kind):
         assert p["mass"] == pytest.approx(truth.mass, rel=0.02)
         assert p["viscous"] == pytest.approx(truth.viscous, rel=0.05)
         assert p["coulomb"] == pytest.approx(truth.coulomb, rel=0.05)
-        v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.05, 100)
+        v = np.linspace(d.info.record.speed_floor_m_s, 0.05, 100)
         found = p["viscous"] * v + p["coulomb"]
         true = truth.viscous * v + truth.coulomb
         assert np.max(np.abs(found / true - 1)) < 0.04
@@ -117,7 +117,7 @@ def test_hidden_effect_is_named_first_with_its_parameters(diagnosed, kind):
         # velocities, and peak and velocity trade off there: the friction curve above the
         # floor is held to 15 % of the peak, the velocity to 25 %.
         found = Stribeck(peak=p["peak"], velocity=p["velocity"])
-        v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.05, 200)
+        v = np.linspace(d.info.record.speed_floor_m_s, 0.05, 200)
         assert np.max(np.abs(found.force(0, v, 0) - true.force(0, v, 0))) < 0.15 * true.peak
         assert p["velocity"] == pytest.approx(true.velocity, rel=0.25)
     elif kind == "friction_asymmetry":
@@ -133,20 +133,20 @@ def test_extension_gains_out_of_sample(diagnosed, kind):
     g = d.gain
     # Held-out final quarter of the record: the extended model must remove at least half of
     # the force residual (the hidden effects are 2-50x the noise floor of about 0.1 N).
-    assert g["residual_rms_after"] < 0.5 * g["residual_rms_before"]
+    assert g.residual_rms_after < 0.5 * g.residual_rms_before
     if d.effects:  # a LIP re-identifies parameters itself; it gains from effects only
-        assert g["lip_residual_rms_after"] < g["lip_residual_rms_before"]
+        assert g.lip_residual_rms_after < g.lip_residual_rms_before
     # The re-simulated loop must not drift further from the measured one. Where the PID's
     # integrator already rejects the hidden effect (a constant force), both mismatches sit at
     # a tenth of an encoder count (~1e-8 m), where quantization decides their order: allow
     # 5 % of a count (5e-9 m) on top.
-    assert g["resim_mismatch_rms_after"] <= g["resim_mismatch_rms_before"] + 0.05 * 1e-7
+    assert g.resim_mismatch_rms_after <= g.resim_mismatch_rms_before + 0.05 * 1e-7
 
 
 def test_no_hidden_effect_no_finding(diagnosed):
     _, _, d = diagnosed("none")
     assert d.findings == ()
-    assert d.gain["residual_rms_after"] == d.gain["residual_rms_before"]
+    assert d.gain.residual_rms_after == d.gain.residual_rms_before
 
 
 def test_two_hidden_effects_are_both_found(diagnosed):

@@ -137,7 +137,7 @@ def _cells(hidden: str, *, identifiable_only: bool = False):
 def test_right_model_no_finding(foreign, cell):
     _, d = foreign("none", cell)
     assert d.findings == ()
-    assert d.gain["residual_rms_after"] == d.gain["residual_rms_before"]
+    assert d.gain.residual_rms_after == d.gain.residual_rms_before
 
 
 @pytest.mark.parametrize("cell", _cells("lugre", identifiable_only=True))
@@ -158,13 +158,13 @@ def test_presliding_named_first_with_its_stiffness(foreign, cell):
     # instead (measured 0.0374 N, gain 59 %).
     g = d.gain
     if cell == "pp1":
-        floor = foreign("none", cell)[1].gain["residual_rms_before"]
-        assert g["residual_rms_after"] <= 1.05 * floor
-        assert 1 - floor / g["residual_rms_before"] < 0.70  # the bar is out of any model's reach
+        floor = foreign("none", cell)[1].gain.residual_rms_before
+        assert g.residual_rms_after <= 1.05 * floor
+        assert 1 - floor / g.residual_rms_before < 0.70  # the bar is out of any model's reach
         # The predicted floor (white quantization error through the model and the band).
-        assert g["quantization_floor_n"] == pytest.approx(floor, rel=0.15)
+        assert g.quantization_floor_n == pytest.approx(floor, rel=0.15)
     else:
-        assert g["residual_rms_reduction"] >= 0.70
+        assert g.residual_rms_reduction >= 0.70
 
 
 @pytest.mark.parametrize("cell", sorted(c for h, c in NOT_IDENTIFIABLE if h == "lugre"))
@@ -191,7 +191,7 @@ def test_cable_force_named_cable_slab_never_periodic(foreign, cell):
     true = stage.cable * np.tanh((y - stage.cable_center) / stage.cable_width)
     err = found.force(y, 0.0, 0.0) - true
     assert np.max(np.abs(err - err.mean())) < 0.05 * 2 * stage.cable
-    assert d.gain["residual_rms_reduction"] >= 0.70
+    assert d.gain.residual_rms_reduction >= 0.70
 
 
 @pytest.mark.parametrize("hidden", ["cogging", "offset"])
@@ -211,7 +211,7 @@ def test_earlier_hidden_effects_on_foreign_records(foreign, hidden, cell):
         # 5 %: a linear term (the truncating encoder's half count is not a force).
         assert first.values()["force"] == pytest.approx(stage.offset, rel=0.05)
     assert not {f.effect for f in d.findings} & {"presliding", "cable_slab"}
-    assert d.gain["residual_rms_reduction"] >= 0.70
+    assert d.gain.residual_rms_reduction >= 0.70
 
 
 @pytest.mark.parametrize("homed_at", [0.0, 0.0013], ids=["same-origin", "homed-1.3mm"])
@@ -228,18 +228,18 @@ def test_validation_record_homed_elsewhere_is_registered(foreign, homed_at):
     val, model = _record(ref.Stage(**moved), **dict(CELLS["pp1"], seed=7))
     d = diagnose(run, model, validation=val)
     assert d.findings[0].effect == "cogging"
-    o = d.gain["origin"]
+    o = d.gain.origin
     period = stage.cogging_period
-    wrapped = (o["shift_m"] - homed_at + period / 2) % period - period / 2
+    wrapped = (o.shift_m - homed_at + period / 2) % period - period / 2
     # 0.2 % of the period (0.013 rad, 10 um): the phase of a 3 N force over 1.5 s of motion
     # against a 0.04 N residual floor; measured 0.1 um either way.
     assert abs(wrapped) < 0.002 * period
-    assert o["residual_rms_reduction"] >= 0.70  # the bar for a hidden effect
+    assert o.residual_rms_reduction >= 0.70  # the bar for a hidden effect
     if homed_at:
         # At a quarter period off, the fixed-origin extension makes the residual worse.
-        assert o["residual_rms_after_fixed_origin"] > o["residual_rms_before"]
+        assert o.residual_rms_after_fixed_origin > o.residual_rms_before
     else:
-        assert o["residual_rms_after"] == pytest.approx(o["residual_rms_after_fixed_origin"],
+        assert o.residual_rms_after == pytest.approx(o.residual_rms_after_fixed_origin,
                                                         rel=0.02)
 
 
@@ -259,14 +259,14 @@ def test_low_speed_friction_curve_named_with_its_sign(foreign, hidden, cell):
     p = d.findings[0].values()
     found = Stribeck(peak=p["peak"], velocity=p["velocity"])
     true = Stribeck(peak=stage.stribeck_peak, velocity=stage.stribeck_velocity)
-    v = np.linspace(d.info["record"]["speed_floor_m_s"], 0.1, 400)
+    v = np.linspace(d.info.record.speed_floor_m_s, 0.1, 400)
     # The friction curve above the speed floor within 5 % of |peak| (measured <= 2 %, in the
     # 1 um encoder's cell; <= 0.9 % elsewhere).
     assert np.max(np.abs(found.force(0.0, v, 0.0) - true.force(0.0, v, 0.0))) \
         < 0.05 * abs(stage.stribeck_peak)
     # 70 %, the bar for a hidden effect; with the 1 um encoder the quantization floor
     # (0.37 N) bounds it: measured 61 %.
-    assert d.gain["residual_rms_reduction"] >= (0.50 if cell == "coarse1" else 0.70)
+    assert d.gain.residual_rms_reduction >= (0.50 if cell == "coarse1" else 0.70)
 
 
 @pytest.mark.parametrize("cell", ["pp1", "long1", "emps1"])
@@ -283,7 +283,7 @@ def test_offset_beside_cogging_is_an_offset_not_a_cable(foreign, cell):
     assert named["force_offset"]["force"] == pytest.approx(stage.offset, rel=0.05)
     assert named["cogging"]["period"] == pytest.approx(stage.cogging_period, rel=0.02)
     assert named["cogging"]["amplitude"] == pytest.approx(stage.cogging, rel=0.10)
-    assert d.gain["residual_rms_reduction"] >= 0.70  # the bar for a hidden effect
+    assert d.gain.residual_rms_reduction >= 0.70  # the bar for a hidden effect
 
 
 @pytest.mark.parametrize("cell", ["pp1", "long1", "emps1", "coarse1"])
@@ -303,4 +303,4 @@ def test_damped_lugre_is_presliding_or_unexplained_never_stribeck(foreign, cell)
         assert d.unexplained and d.unexplained[0].fraction > 0.02
         assert "unexplained" in d.summary()
     # The extended model never makes the held-out residual worse (1 % for its noise).
-    assert d.gain["residual_rms_after"] <= 1.01 * d.gain["residual_rms_before"]
+    assert d.gain.residual_rms_after <= 1.01 * d.gain.residual_rms_before

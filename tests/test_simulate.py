@@ -209,7 +209,7 @@ def test_the_diagnosis_measures_its_gain_in_the_simulation_too():
     g = result.gain
     # 3 N unmodelled walks the simulation away by centimetres (measured 33 mm); with the fitted
     # offset (a few hundredths of a newton off: a drift of micrometres) it stays within 10 um.
-    assert g["simulation_rmse_before"] > 1e-2 and g["simulation_rmse_after"] < 1e-5
+    assert g.simulation_rmse_before > 1e-2 and g.simulation_rmse_after < 1e-5
     assert "open-loop simulation" in result.summary()
 
 

@@ -30,6 +30,7 @@ from controllers.export import selftest
 from controllers.export.c_law import activation_c, effect_c, rigid_body_c
 from controllers.export.c_literals import c_array, c_matrix, c_real
 from controllers.export.c_names import prefixed
+from controllers.export.c_runtime import runtime, template
 from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
 from controllers.export.options import ExportOptions, safe_text
 from controllers.export.window import DEFAULT_TOL, WindowFeedforward
@@ -57,77 +58,7 @@ def _comment_lines(text: str, width: int = 90) -> str:
     return "\n".join(f" *   {w}" for w in wrapped)
 
 
-_PRELUDE = """\
-/* The maths functions: each overridable by a macro defined before this point (-D or a wrapper
- * that includes this file), e.g. -DCLM_FF_EXP=TcExp or CMSIS-DSP's versions. */
-#ifdef CLM_FF_FLOAT
-#define R(x) ((float)(x))
-#define MATHF(d, f) f
-/* The float build reads counts: the differences are exact in integers (|counts| <=
- * CLM_FF_COUNT_MAX), then rounded once to float and scaled; no double is computed. */
-#define D2(q) (((q)[1] - (q)[0]) - ((q)[0] - (q)[-1]))
-#define POS_UNIT CLM_FF_COUNT_M
-#define VEL(q) ((clm_ff_real)D1(q) * (clm_ff_real)(CLM_FF_COUNT_M / (2.0 * CLM_FF_TS)))
-#define ACC(q) ((clm_ff_real)D2(q) * (clm_ff_real)(CLM_FF_COUNT_M / (CLM_FF_TS * CLM_FF_TS)))
-#define POS(q) ((clm_ff_real)(q) * (clm_ff_real)CLM_FF_COUNT_M)
-#define RHUGE HUGE_VALF
-#define TINY 1e-30f
-#else
-#define R(x) (x)
-#define MATHF(d, f) d
-/* metres, differenced in the product's order (its roundings are the product's own) */
-#define D2(q) (((q)[1] - 2.0 * (q)[0]) + (q)[-1])
-#define POS_UNIT 1.0
-#define VEL(q) (D1(q) / (2.0 * CLM_FF_TS))
-#define ACC(q) (D2(q) / (CLM_FF_TS * CLM_FF_TS))
-#define POS(q) (q)
-#define RHUGE HUGE_VAL
-#define TINY 1e-200
-#endif
-#define D1(q) ((q)[1] - (q)[-1])
-#ifndef SIN
-#define SIN MATHF(sin, sinf)
-#endif
-#ifndef EXP
-#define EXP MATHF(exp, expf)
-#endif
-#ifndef POW
-#define POW MATHF(pow, powf)
-#endif
-#ifndef FABS
-#define FABS MATHF(fabs, fabsf)
-#endif
-#ifndef LOG1P
-#define LOG1P MATHF(log1p, log1pf)
-#endif
-#ifndef ERF
-#define ERF MATHF(erf, erff)
-#endif
-#ifndef SQRT
-#define SQRT MATHF(sqrt, sqrtf)
-#endif
-#define SGN(x) ((clm_ff_real)(((x) > R(0.0)) - ((x) < R(0.0))))
-#ifndef CLM_FF_INLINE
-#define CLM_FF_INLINE inline /* C99; -DCLM_FF_INLINE= for a compiler without it */
-#endif
-
-/* Finite, by the exponent bits where the real type is IEEE 754 (a test that -ffast-math cannot
- * assume away), else by comparisons. */
-static int is_finite_bits(clm_ff_real x)
-{
-#if defined(CLM_FF_FLOAT) && FLT_MANT_DIG == 24 && FLT_MAX_EXP == 128
-    uint32_t b;
-    memcpy(&b, &x, sizeof b);
-    return (b & 0x7f800000UL) != 0x7f800000UL;
-#elif !defined(CLM_FF_FLOAT) && DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
-    unsigned long long b;
-    memcpy(&b, &x, sizeof b);
-    return (b & 0x7ff0000000000000ULL) != 0x7ff0000000000000ULL;
-#else
-    return x == x && x - x == R(0.0);
-#endif
-}
-"""
+_PRELUDE = runtime("prelude.c")
 
 def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str:
     """``clm_ff.h``: the contract (window, units, model, status) and the declarations (names
@@ -143,151 +74,10 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
                   f"({wf.filter.get('tol'):.0e}; the FIR cut and the recursion's tail differ)")
     if wf.network is None or not wf.filter.get("cutoff_hz"):
         exact = "it computes clm_ff on its window"
-    return f"""\
-/* clm_ff.h -- feedforward exported by clm-sim export-ff (do not edit; re-export instead).
- *
- * Contract. Call clm_ff(&r[k]) once per sample k of the reference r (m), sampled every
- * CLM_FF_TS s. It reads r[k-CLM_FF_LAG] .. r[k+CLM_FF_LEAD] (CLM_FF_LAG + 1 + CLM_FF_LEAD
- * samples, so the reference must be known CLM_FF_LEAD samples ahead) and returns the force (N)
- * to hold over sample k, [k*ts, (k+1)*ts): the value clm-sim's replay adds to the feedback at
- * sample k. Everything the product does is inside: the central differences, the physical
- * layer, the effects, the regression filter and the network, and the held average
- * (p[k] + p[k+1])/2 of the forces at the sample instants. Before the first and after the last
- * sample of a motion, pass the reference held at its ends (the machine at rest).
- *
- * No state, no dynamic memory, no mutable globals: reentrant, and safe in any task. Units: r in
- * m, CLM_FF_TS in s, the result in N. The streaming form (clm_ff_stream_*) keeps the window in
- * a ring buffer the caller owns: push the newest sample r[k+CLM_FF_LEAD], get u_ff[k]. For a
- * PGNN it also keeps the forward half of the feature filter as a recursion and the force at
- * k+1 for the next call, about half the work of clm_ff. Once the window has been filled
- * (clm_ff_stream_init at rest, clm_ff_stream_start from a window),
- * {exact}.
- *
- * Bad input. clm_ff returns NaN (both builds) for a window holding a NaN or an infinity;
- * clm_ff_eval returns CLM_FF_REJECTED and 0 N instead. The stream rejects a sample that is not
- * finite or beyond +-CLM_FF_R_MAX m: it holds the last good sample in its place and reports
- * CLM_FF_REJECTED, then CLM_FF_DEGRADED until the held sample has left the window
- * (CLM_FF_WINDOW pushes); after that its force is the exact one again (to the export's
- * tolerance: the filter's recursion forgets the held sample as its impulse response decays).
- *
- * Limits. clm_ff_eval and the stream clamp the force to +-CLM_FF_MAX_FORCE (N); the stream
- * also limits its rate of change to CLM_FF_MAX_SLEW (N/s); both from the export, changeable
- * per stream at run time (clm_ff_stream_limits). Every status word is 0 (CLM_FF_OK) or an OR
- * of the CLM_FF_* bits below.
- *
- * Model:
-{model}
- * Export:
-{trace}
- *
- * Compile: C99, link -lm. With GCC or Clang on x86-64 a PGNN's clm_ff.c also holds an AVX2 and
- * FMA path (intrinsics, target attributes), taken per call where the CPU has both: no flag
- * needed, and the same results to rounding; -DCLM_FF_PORTABLE leaves it out. -DCLM_FF_FLOAT
- * is for an FPU without double: the reference as int64 counts of CLM_FF_COUNT_M m, all
- * arithmetic in float (against the double build on the same counts, measured 1e-7 of the peak
- * force for a LIP, 6e-7 for clm_ff and 3e-6 for the stream of an n_l = 16 PGNN; docs/export.md
- * also gives what the rounding to counts costs). The maths
- * functions are macros (CLM_FF_EXP, CLM_FF_SIN, CLM_FF_POW, CLM_FF_FABS, CLM_FF_LOG1P,
- * CLM_FF_ERF, CLM_FF_SQRT) a -D can replace (TcMath, CMSIS).
- */
-#ifndef CLM_FF_H
-#define CLM_FF_H
-
-#define CLM_FF_TS {_c_double(wf.ts)} /* s: sample time */
-#define CLM_FF_LAG {wf.lag} /* samples before k read */
-#define CLM_FF_LEAD {wf.lead} /* samples after k read */
-#define CLM_FF_WINDOW (CLM_FF_LAG + 1 + CLM_FF_LEAD)
-#define CLM_FF_HALF {wf.half} /* half-length of the network's feature filter (0: none) */
-#define CLM_FF_NSEC {nsec} /* second-order sections of that filter (state of the stream) */
-#ifndef CLM_FF_MAX_FORCE
-#define CLM_FF_MAX_FORCE {_limit(opt.max_force)} /* N: |force| limit (export default) */
-#endif
-#ifndef CLM_FF_MAX_SLEW
-#define CLM_FF_MAX_SLEW {_limit(opt.max_slew)} /* N/s: the stream's rate limit (export default) */
-#endif
-#ifndef CLM_FF_R_MAX
-#define CLM_FF_R_MAX 1e6 /* m: a stream sample beyond +-this is rejected as not finite is */
-#endif
-
-/* The build's types. Default: the reference in m (double), forces in N (double). With
- * -DCLM_FF_FLOAT (an FPU without double precision): the reference as a fixed-point position,
- * integer counts of CLM_FF_COUNT_M m (int64_t: differences exact, no cancellation), forces and
- * all arithmetic in float; no double is computed anywhere (docs/export.md states the error). */
-#define CLM_FF_COUNT_M {_c_double(opt.count_m)} /* m per count of the float build (export --count-m) */
-#define CLM_FF_COUNT_MAX 2305843009213693951LL /* |counts| accepted: 2^61 - 1, no difference overflows */
-#ifdef CLM_FF_FLOAT
-#include <stdint.h>
-typedef int64_t clm_ff_pos; /* reference sample: a fixed-point position, counts of CLM_FF_COUNT_M m */
-typedef float clm_ff_real;  /* force (N) and arithmetic */
-#else
-typedef double clm_ff_pos;  /* reference sample, m */
-typedef double clm_ff_real; /* force (N) and arithmetic */
-#endif
-
-/* Status bits (0: CLM_FF_OK, the exact force of the product). */
-#define CLM_FF_OK 0u
-#define CLM_FF_REJECTED 1u /* this input was not finite (or out of range): not used */
-#define CLM_FF_DEGRADED 2u /* the window holds a held sample in place of a rejected one */
-#define CLM_FF_CLAMPED 4u  /* the force was limited to +-max_force */
-#define CLM_FF_SLEWED 8u   /* the force's change was limited to max_slew */
-
-#ifdef __cplusplus
-extern "C" {{
-#endif
-
-/* Force (N) to hold over sample k; r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid.
- * NaN where the window holds a NaN or an infinity. */
-clm_ff_real clm_ff(const clm_ff_pos *r);
-
-/* clm_ff with a status: *u_ff the force clamped to +-CLM_FF_MAX_FORCE (N), 0 if rejected. */
-unsigned clm_ff_eval(const clm_ff_pos *r, clm_ff_real *u_ff);
-
-/* Streaming form: state of the caller (one per axis); no allocation. */
-typedef struct {{
-    clm_ff_pos buf[2 * CLM_FF_WINDOW]; /* each sample twice: the window is always contiguous */
-    int next;                      /* where the next sample goes, 0 .. CLM_FF_WINDOW-1 */
-    /* PGNN: the forward half of the feature filter run recursively (exact), its last
-     * CLM_FF_HALF + 1 outputs (twice, contiguous), and the force at the next instant. */
-    clm_ff_real zf[4][CLM_FF_NSEC][2];
-    clm_ff_real fwd[4][2 * (CLM_FF_HALF + 1)];
-    int fnext;
-    clm_ff_real p_next;
-    clm_ff_pos last_good;   /* the newest sample accepted */
-    int degraded;           /* pushes until a held sample has left the window */
-    clm_ff_real max_force;  /* N */
-    clm_ff_real max_step;   /* N per sample: max_slew * CLM_FF_TS */
-    clm_ff_real u_last;     /* N: the force returned last */
-    unsigned status;    /* of the last call */
-}} clm_ff_stream;
-
-/* Fill the window with the rest position r0 (m): the machine at rest before the motion; the
- * limits from the export. CLM_FF_REJECTED (and the stream at 0 m) if r0 is not finite. */
-unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0);
-
-/* Start on a moving reference: r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid; the
- * next push takes r[k+1+CLM_FF_LEAD] and returns u_ff[k+1]. *u_ff: u_ff[k] (N, unlimited; the
- * slew limit starts from it). CLM_FF_REJECTED (stream unchanged) if the window is not finite. */
-unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real *u_ff);
-
-/* Set the limits (N, N/s; HUGE_VAL: none). CLM_FF_REJECTED (unchanged) unless both > 0. */
-unsigned clm_ff_stream_limits(clm_ff_stream *s, clm_ff_real max_force, clm_ff_real max_slew);
-
-/* Push the newest reference sample r[k + CLM_FF_LEAD] (m); *u_ff = u_ff[k] (N); the status. */
-unsigned clm_ff_stream_step(clm_ff_stream *s, clm_ff_pos r_newest, clm_ff_real *u_ff);
-
-/* clm_ff_stream_step returning the force (the status stays in s->status). */
-clm_ff_real clm_ff_stream_push(clm_ff_stream *s, clm_ff_pos r_newest);
-
-/* Known-answer self-test (clm_ff_selftest.c, vectors in clm_ff_kat.csv): 0 if the compiled code
- * gives the product's forces on the vectors' motion, else 1 + the first failing sample. scratch:
- * a stream the test overwrites (re-init yours afterwards). */
-int clm_ff_selftest(clm_ff_stream *scratch);
-
-#ifdef __cplusplus
-}}
-#endif
-#endif /* CLM_FF_H */
-"""
+    return template("header.h").substitute(
+        exact=exact, model=model, trace=trace, ts=_c_double(wf.ts), lag=wf.lag, lead=wf.lead,
+        half=wf.half, nsec=nsec, max_force=_limit(opt.max_force), max_slew=_limit(opt.max_slew),
+        count_m=_c_double(opt.count_m))
 
 
 def source(wf: WindowFeedforward) -> str:
@@ -345,139 +135,20 @@ clm_ff_real clm_ff(const clm_ff_pos *r)
     return "".join(out)
 
 
-_RAW_FEATURES = """
-/* Raw features [a, v, sign v, y] at the instant of r[0], differenced as the product does. */
-static void raw_features(const clm_ff_pos *r, clm_ff_real f[4])
-{
-    const clm_ff_real v = (clm_ff_real)VEL(r);
-    f[0] = (clm_ff_real)ACC(r);
-    f[1] = v;
-    f[2] = v > R(0.0) ? R(1.0) : (v < R(0.0) ? R(-1.0) : R(0.0));
-    f[3] = (clm_ff_real)POS(r[0]);
-}
-
-clm_ff_real clm_ff(const clm_ff_pos *r)
-{
-    clm_ff_real f0[4], f1[4];
-    raw_features(r, f0);
-    raw_features(r + 1, f1);
-    if (!features_finite(f0, f1))
-        return (clm_ff_real)NAN;
-    return R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1)));
-}
-"""
+_RAW_FEATURES = runtime("raw_features.c")
 
 
 # The filtered features of a PGNN at the instants k and k+1 from the window. Each instant
 # r[k-HALF+i] of the window (i = 0 .. 2 HALF + 1) gives the product's differences once; its
 # weight is KERNEL[i+1] at k and KERNEL[i] at k+1. The factors 1/ts^2 and 1/(2 ts) multiply the
 # sums, not every term (a rounding apart from the product, far below the 1e-12 it is held to).
-_FILTERED_FEATURES = """
-/* Filtered features [a, v, sign v, y] at the instants k (f0) and k+1 (f1); portable C. */
-static void filtered_features(const clm_ff_pos *r, clm_ff_real f0[4], clm_ff_real f1[4])
-{
-    clm_ff_real a0 = R(0.0), a1 = R(0.0), v0 = R(0.0), v1 = R(0.0);
-    clm_ff_real s0 = R(0.0), s1 = R(0.0), y0 = R(0.0), y1 = R(0.0);
-    int i;
-    for (i = 0; i < 2 * HALF + 2; ++i) {
-        const clm_ff_pos *q = r + i - HALF;
-        const clm_ff_pos dv = D1(q);                                  /* 2 ts v */
-        const clm_ff_real da = (clm_ff_real)D2(q);                    /* ts^2 a */
-        const clm_ff_real dvr = (clm_ff_real)dv;
-        const clm_ff_real s = dv > 0 ? R(1.0) : (dv < 0 ? R(-1.0) : R(0.0));
-        const clm_ff_real y = (clm_ff_real)POS(q[0]);
-        const clm_ff_real w0 = KERNEL[i + 1], w1 = KERNEL[i];
-        a0 += w0 * da; a1 += w1 * da; v0 += w0 * dvr; v1 += w1 * dvr;
-        s0 += w0 * s; s1 += w1 * s; y0 += w0 * y; y1 += w1 * y;
-    }
-    f0[0] = a0 * INV_TS2; f0[1] = v0 * INV_2TS; f0[2] = s0; f0[3] = y0;
-    f1[0] = a1 * INV_TS2; f1[1] = v1 * INV_2TS; f1[2] = s1; f1[3] = y1;
-}
-"""
+_FILTERED_FEATURES = runtime("filtered_features.c")
 
-_AVX2_DETECT = """
-/* A second path with AVX2 and FMA, four values at a time: the filter sums and the network
- * (clm_ff about 4 times faster, the stream 2). clm_ff and the streaming form take it where the
- * CPU has both (checked at every call: a load and a test). It needs GCC or Clang on x86-64;
- * -DCLM_FF_PORTABLE (or -DCLM_FF_FLOAT) keeps the portable C only. The two paths agree to
- * rounding (~1e-15 of the peak force). */
-#if !defined(CLM_FF_FLOAT) && !defined(CLM_FF_PORTABLE) && \\
-    (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
-#define CLM_FF_AVX2 1
-#include <immintrin.h>
-#define CLM_FF_HAS_AVX2() (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))
-#endif
-"""
+_AVX2_DETECT = runtime("avx2_detect.c")
 
-_FILTERED_FEATURES_AVX2 = """
-#ifdef CLM_FF_AVX2
-/* filtered_features with AVX2 and FMA: four instants at a time. */
-__attribute__((target("avx2,fma")))
-static void filtered_features_avx2(const double *r, double f0[4], double f1[4])
-{
-    const __m256d sign_bit = _mm256_set1_pd(-0.0), one = _mm256_set1_pd(1.0);
-    const __m256d zero = _mm256_setzero_pd();
-    __m256d a0 = zero, a1 = zero, v0 = zero, v1 = zero, s0 = zero, s1 = zero, y0 = zero;
-    __m256d y1 = zero;
-    double lane[8][4], sum[8];
-    int i, j;
-    for (i = 0; i + 4 <= 2 * HALF + 2; i += 4) {
-        const double *q = r + i - HALF;
-        const __m256d y = _mm256_loadu_pd(q);
-        const __m256d up = _mm256_loadu_pd(q + 1), down = _mm256_loadu_pd(q - 1);
-        const __m256d dv = _mm256_sub_pd(up, down);
-        const __m256d da = _mm256_add_pd(_mm256_sub_pd(up, _mm256_add_pd(y, y)), down);
-        /* sign of dv: 1 with dv's sign bit, then 0 where dv == 0 */
-        const __m256d s = _mm256_and_pd(_mm256_or_pd(_mm256_and_pd(dv, sign_bit), one),
-                                        _mm256_cmp_pd(dv, zero, _CMP_NEQ_OQ));
-        const __m256d w0 = _mm256_loadu_pd(KERNEL + i + 1), w1 = _mm256_loadu_pd(KERNEL + i);
-        a0 = _mm256_fmadd_pd(w0, da, a0); a1 = _mm256_fmadd_pd(w1, da, a1);
-        v0 = _mm256_fmadd_pd(w0, dv, v0); v1 = _mm256_fmadd_pd(w1, dv, v1);
-        s0 = _mm256_fmadd_pd(w0, s, s0); s1 = _mm256_fmadd_pd(w1, s, s1);
-        y0 = _mm256_fmadd_pd(w0, y, y0); y1 = _mm256_fmadd_pd(w1, y, y1);
-    }
-    _mm256_storeu_pd(lane[0], a0); _mm256_storeu_pd(lane[1], a1);
-    _mm256_storeu_pd(lane[2], v0); _mm256_storeu_pd(lane[3], v1);
-    _mm256_storeu_pd(lane[4], s0); _mm256_storeu_pd(lane[5], s1);
-    _mm256_storeu_pd(lane[6], y0); _mm256_storeu_pd(lane[7], y1);
-    for (j = 0; j < 8; ++j)
-        sum[j] = (lane[j][0] + lane[j][1]) + (lane[j][2] + lane[j][3]);
-    /* the last instants when 2 HALF + 2 is not a multiple of 4 (a constant start: with an open
-     * one, gcc -ffast-math warned of a loop it had misread) */
-    for (i = 4 * ((2 * HALF + 2) / 4); i < 2 * HALF + 2; ++i) {
-        const double *q = r + i - HALF;
-        const double dv = q[1] - q[-1], da = (q[1] - 2.0 * q[0]) + q[-1];
-        const double s = dv > 0.0 ? 1.0 : (dv < 0.0 ? -1.0 : 0.0);
-        const double w0 = KERNEL[i + 1], w1 = KERNEL[i];
-        sum[0] += w0 * da; sum[1] += w1 * da; sum[2] += w0 * dv; sum[3] += w1 * dv;
-        sum[4] += w0 * s; sum[5] += w1 * s; sum[6] += w0 * q[0]; sum[7] += w1 * q[0];
-    }
-    f0[0] = sum[0] * INV_TS2; f0[1] = sum[2] * INV_2TS; f0[2] = sum[4]; f0[3] = sum[6];
-    f1[0] = sum[1] * INV_TS2; f1[1] = sum[3] * INV_2TS; f1[2] = sum[5]; f1[3] = sum[7];
-}
-#endif
-"""
+_FILTERED_FEATURES_AVX2 = runtime("filtered_features_avx2.c")
 
-_FILTERED_CLM_FF = """
-clm_ff_real clm_ff(const clm_ff_pos *r)
-{
-    clm_ff_real f0[4], f1[4];
-#ifdef CLM_FF_AVX2
-    if (CLM_FF_HAS_AVX2()) {
-        double net[2];
-        filtered_features_avx2(r, f0, f1);
-        if (!features_finite(f0, f1))
-            return (double)NAN;
-        NETWORK2_AVX2(f0, f1, net);
-        return 0.5 * ((physical(f0) + net[0]) + (physical(f1) + net[1]));
-    }
-#endif
-    filtered_features(r, f0, f1);
-    if (!features_finite(f0, f1))
-        return (clm_ff_real)NAN;
-    return R(0.5) * ((physical(f0) + network(f0)) + (physical(f1) + network(f1)));
-}
-"""
+_FILTERED_CLM_FF = runtime("filtered_clm_ff.c")
 
 
 # The activations with AVX2 (x: __m256d), through exp_avx2 where they need e^x; an activation
@@ -490,55 +161,14 @@ _ACT_AVX2 = {
     "relu": "_mm256_max_pd({x}, zero)",
 }
 
-_EXP_AVX2 = """
-/* e^x, four at a time, to about 2 ulp: x = n ln2 + t, |t| <= ln2/2 (ln2 in two parts, fdlibm's),
- * e^t by its Taylor series to t^13 (truncation below 1e-17), times 2^n built in the exponent
- * bits. x is clamped to +-708 (a tanh or a sigmoid is already at its limit there); NaN stays
- * NaN (as libm's exp). */
-__attribute__((target("avx2,fma")))
-static __m256d exp_avx2(__m256d x)
-{
-    static const double c[14] = {
-        1.0, 1.0, 1.0 / 2, 1.0 / 6, 1.0 / 24, 1.0 / 120, 1.0 / 720, 1.0 / 5040, 1.0 / 40320,
-        1.0 / 362880, 1.0 / 3628800, 1.0 / 39916800, 1.0 / 479001600, 1.0 / 6227020800.0};
-    __m256d n, t, p;
-    __m256i e;
-    int i;
-    /* max and min return their second operand where one is NaN: x second, so NaN stays NaN */
-    x = _mm256_min_pd(_mm256_set1_pd(708.0), _mm256_max_pd(_mm256_set1_pd(-708.0), x));
-    n = _mm256_round_pd(_mm256_mul_pd(x, _mm256_set1_pd(1.4426950408889634)),
-                        _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    t = _mm256_fnmadd_pd(n, _mm256_set1_pd(6.93147180369123816490e-01), x);
-    t = _mm256_fnmadd_pd(n, _mm256_set1_pd(1.90821492927058770002e-10), t);
-    p = _mm256_set1_pd(c[13]);
-    for (i = 12; i >= 0; --i)
-        p = _mm256_fmadd_pd(p, t, _mm256_set1_pd(c[i]));
-    e = _mm256_slli_epi64(_mm256_add_epi64(_mm256_cvtepi32_epi64(_mm256_cvtpd_epi32(n)),
-                                           _mm256_set1_epi64x(1023)), 52);
-    return _mm256_mul_pd(p, _mm256_castsi256_pd(e));
-}
-"""
+_EXP_AVX2 = runtime("exp_avx2.c")
 
 
 # How clm_ff and the stream call the network on the AVX2 path: the vector network where the
 # activation has a vector form, else the portable one.
-_NETWORK_AVX2_CALLS = """
-static double network1_avx2(const double f[4])
-{
-    double out[1];
-    network_avx2(f, out);
-    return out[0];
-}
-#define NETWORK_AVX2(f) network1_avx2(f)
-#define NETWORK2_AVX2(f0, f1, out) network2_avx2(f0, f1, out)
-"""
+_NETWORK_AVX2_CALLS = runtime("network_avx2_calls.c")
 
-_NETWORK_PORTABLE_CALLS = """
-#ifdef CLM_FF_AVX2
-#define NETWORK_AVX2(f) network(f)
-#define NETWORK2_AVX2(f0, f1, out) ((out)[0] = network(f0), (out)[1] = network(f1))
-#endif
-"""
+_NETWORK_PORTABLE_CALLS = runtime("network_portable_calls.c")
 
 
 def _pad4(n: int) -> int:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from experiments.diagnosis.extend import extended_plant, gains, joint_fit
 from experiments.diagnosis.finding import Finding, Unexplained
 from experiments.diagnosis.model import SimulationModel
+from experiments.diagnosis.outcome import (DiagnosisInfo, Gain, GainSignals, RecordInfo,
+                                           SignificanceRule)
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
 from experiments.diagnosis.search import forward_select
 from clm_sim.effects import Effect
@@ -22,14 +24,14 @@ class Diagnosis:
     the residuals the report draws. :meth:`summary` is the one rendering every front end prints."""
 
     findings: tuple[Finding, ...]
-    gain: dict
+    gain: Gain
     model: SimulationModel
     extended: Plant
     effects: tuple[Effect, ...]
     correction: dict
     estimation: Residual
-    signals: dict = field(default_factory=dict)
-    info: dict = field(default_factory=dict)
+    signals: GainSignals
+    info: DiagnosisInfo
     unexplained: tuple[Unexplained, ...] = ()
 
     def __repr__(self) -> str:
@@ -45,23 +47,23 @@ class Diagnosis:
             lines.append("no cause named")
         lines += [str(u) for u in self.unexplained]
         g = self.gain
-        if "simulation_rmse_before" in g:
+        if g.simulation_rmse_before is not None:
             lines.append(f"open-loop simulation of the validation data from its input (initial "
-                         f"state from its first {g['simulation_init_samples']} positions): "
-                         f"position RMSE {g['simulation_rmse_before'] * 1e3:.4g} mm -> "
-                         f"{g['simulation_rmse_after'] * 1e3:.4g} mm")
-        lines.append(f"out-of-sample force residual RMS {g['residual_rms_before']:.4g} N -> "
-                     f"{g['residual_rms_after']:.4g} N "
-                     f"({-100 * g['residual_rms_reduction']:+.1f} %; the encoder's "
-                     f"quantization floor is {g['quantization_floor_n']:.2g} N)")
-        if "origin" in g:
-            o = g["origin"]
+                         f"state from its first {g.simulation_init_samples} positions): "
+                         f"position RMSE {g.simulation_rmse_before * 1e3:.4g} mm -> "
+                         f"{g.simulation_rmse_after * 1e3:.4g} mm")
+        lines.append(f"out-of-sample force residual RMS {g.residual_rms_before:.4g} N -> "
+                     f"{g.residual_rms_after:.4g} N "
+                     f"({-100 * g.residual_rms_reduction:+.1f} %; the encoder's "
+                     f"quantization floor is {g.quantization_floor_n:.2g} N)")
+        if g.origin is not None:
+            o = g.origin
             lines.append(f"with the validation record's encoder origin registered on the "
-                         f"{o['registered_on']}: shift {o['shift_m'] * 1e3:+.4g} mm modulo "
-                         f"{o['period_m'] * 1e3:.4g} mm; {o['residual_rms_before']:.4g} N -> "
-                         f"{o['residual_rms_after']:.4g} N on the rest "
-                         f"({-100 * o['residual_rms_reduction']:+.1f} %; fixed origin "
-                         f"{o['residual_rms_after_fixed_origin']:.4g} N)")
+                         f"{o.registered_on}: shift {o.shift_m * 1e3:+.4g} mm modulo "
+                         f"{o.period_m * 1e3:.4g} mm; {o.residual_rms_before:.4g} N -> "
+                         f"{o.residual_rms_after:.4g} N on the rest "
+                         f"({-100 * o.residual_rms_reduction:+.1f} %; fixed origin "
+                         f"{o.residual_rms_after_fixed_origin:.4g} N)")
         return "\n".join(lines)
 
     def to_json(self) -> dict:
@@ -69,14 +71,14 @@ class Diagnosis:
         return {
             "findings": [f.to_json() for f in self.findings],
             "unexplained": [u.to_json() for u in self.unexplained],
-            "gain": self.gain,
+            "gain": self.gain.to_json(),
             "model": {"name": self.model.name, **{k: float(getattr(self.model.plant, k)) for k in
                                                   ("mass", "viscous", "coulomb", "stiffness")},
                       "effects": [e.as_config() for e in self.model.plant.effects]},
             "extended_model": {**{k: float(getattr(plant, k)) for k in
                                   ("mass", "viscous", "coulomb", "stiffness")},
                                "effects": [e.as_config() for e in plant.effects]},
-            **self.info,
+            **self.info.to_json(),
         }
 
 
@@ -113,19 +115,15 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
     extended = extended_plant(model.plant, correction, effects)
     gain, signals = gains(est, val, settings, model.plant, extended, effects, model.controller,
                           val_offset=offset, full=record)
-    info = {"record": {"source": source_of(record), "samples": len(record),
-                       "sample_time_s": record.ts, "encoder_quantum_m": res.quantum,
-                       "speed_floor_m_s": res.v_floor, "regression_lowpass_hz": res.cutoff,
-                       "quantization_floor_n": res.quantization_floor(),
-                       "fitted_samples": int(len(res.idx)), "effective_samples": res.n_eff,
-                       "residual_rms_n": res.rms()},
-            "validation": source_of(validation) if validation is not None else
-            f"held-out final {100 * settings.holdout_fraction:.0f} % of the record",
-            "significance_rule": {
-                "cv": f"blocked {settings.folds}-fold cross-validation, contiguous blocks",
-                "min_gain": settings.min_gain, "min_explained": settings.min_explained,
-                "min_folds": settings.min_folds,
-                "min_force_fraction": settings.min_force_fraction,
-                "p_value": settings.p_value, "max_findings": settings.max_findings}}
+    info = DiagnosisInfo(
+        record=RecordInfo(source=source_of(record), samples=len(record), sample_time_s=record.ts,
+                          encoder_quantum_m=res.quantum, speed_floor_m_s=res.v_floor,
+                          regression_lowpass_hz=res.cutoff,
+                          quantization_floor_n=res.quantization_floor(),
+                          fitted_samples=int(len(res.idx)), effective_samples=res.n_eff,
+                          residual_rms_n=res.rms()),
+        validation=source_of(validation) if validation is not None else
+        f"held-out final {100 * settings.holdout_fraction:.0f} % of the record",
+        significance_rule=SignificanceRule.of(settings))
     return Diagnosis(tuple(findings), gain, model, extended, effects, correction, res, signals,
                      info, selection.unexplained)

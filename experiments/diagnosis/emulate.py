@@ -3,6 +3,7 @@ the PID designed on the ``model`` plant (what the engineer believes) and dither 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from experiments.config import ExperimentConfig, Training
 from experiments.diagnosis.diagnose import diagnose
 from experiments.diagnosis.extend import fit_lip
 from experiments.diagnosis.model import Controller, SimulationModel
+from experiments.diagnosis.outcome import FeedforwardGain
 from experiments.diagnosis.report import write
 from experiments.testbed import Testbed
 
@@ -59,10 +61,11 @@ def diagnose_emulated(tb: Testbed, *, record: Run, out, progress=print) -> dict:
     for when, lip in lips.items():
         for ref in tb.config.replay:
             mae.setdefault(ref, {})[when] = tb.replay(lip, ref).mae
-    gain = {"lip_mae_m": mae, "lip_effects": [e.as_config() for e in effects],
-            "residual_rms_before": result.gain["residual_rms_before"],
-            "residual_rms_after": result.gain["residual_rms_after"]}
-    result.info["feedforward_gain"] = gain
+    ff = FeedforwardGain(lip_mae_m=mae, lip_effects=tuple(e.as_config() for e in effects),
+                         residual_rms_before=result.gain.residual_rms_before,
+                         residual_rms_after=result.gain.residual_rms_after)
+    result.info = dataclasses.replace(result.info, feedforward_gain=ff)
+    gain = ff.to_json()
     write(result, Path(out))
     (Path(out) / "feedforward_gain.json").write_text(json.dumps(gain, indent=1))
     progress("diagnosis: LIP feedforward MAE " + ", ".join(

@@ -13,6 +13,7 @@ import numpy as np
 
 from experiments.diagnosis.model import Controller
 from experiments.diagnosis.origin import registered_gain
+from experiments.diagnosis.outcome import Gain, GainSignals
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.families import REGISTRY
 from experiments.diagnosis.finding import Finding
@@ -131,7 +132,7 @@ def simulation_rmse(plant: Plant, run: Run, init_samples: int = INIT_SAMPLES) ->
 
 def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after: Plant,
           effects: tuple[Effect, ...], controller: Controller | None, *,
-          val_offset: int | None = None, full: Run | None = None) -> tuple[dict, dict]:
+          val_offset: int | None = None, full: Run | None = None) -> tuple[Gain, GainSignals]:
     """Out-of-sample gain numbers and the signals the report draws.
 
     ``val_offset``: where ``val`` starts inside ``full`` when it is the held-out tail of one
@@ -144,7 +145,7 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
         max(gain["residual_rms_before"], 1e-300)
     gain["quantization_floor_n"] = res_b.quantization_floor()
     try:
-        gain["lip_effects"] = [e.type for e in lip_effects(effects)]
+        gain["lip_effects"] = tuple(e.type for e in lip_effects(effects))
         lip = (lip_residual_rms(est, res_b, val, (), res_b.cutoff),
                lip_residual_rms(est, res_b, val, effects, res_b.cutoff))
         gain["lip_residual_rms_before"], gain["lip_residual_rms_after"] = lip
@@ -180,4 +181,4 @@ def gains(est: Run, val: Run, settings: DiagnosisSettings, before: Plant, after:
             gain["resim_mismatch_rms_before"] = float(np.sqrt(np.mean((e_b - e_m) ** 2)))
             gain["resim_mismatch_rms_after"] = float(np.sqrt(np.mean((e_a - e_m) ** 2)))
             signals.update(t=run.t[cut:], e_measured=e_m, e_before=e_b, e_after=e_a)
-    return gain, signals
+    return Gain(**gain), GainSignals(**signals)

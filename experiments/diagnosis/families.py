@@ -11,21 +11,9 @@ its force is tied to the encoder origin (``periodic``), and how a fitted term be
 (:mod:`experiments.diagnosis.extend`) and the origin registration
 (:mod:`experiments.diagnosis.origin`) read only this registry.
 
-Nonlinear parameters are searched, never assumed:
-
-* periods (``cogging``, ``force_ripple``): the current residual is binned on a uniform position
-  grid (cogging: bin mean; ripple: per-bin least-squares gain on the motor force), its spatial
-  spectrum (zero-padded FFT of 4096 bins) gives the three strongest peaks between the shortest
-  period the filter passes at the typical speed (``v90 / (cutoff / 2)``, at least 16 bins) and a
-  third of the stroke, and the best peak is refined by bounded least squares on the period;
-* the Stribeck velocity: a logarithmic grid from 1.5 times the speed floor to half the typical
-  speed, then bounded least squares on ``log(velocity)`` around the best grid point (exponent
-  fixed at 2);
-* the pre-sliding length (``presliding``, Dahl): a logarithmic grid from half an encoder count to
-  1/50 of the stroke, refined the same way; the column is the Dahl state of the measured path
-  minus ``sign(v)`` (this much of the model's Coulomb friction is pre-sliding);
-* the ``cable_slab`` order: Legendre polynomials ``P_0..P_n`` of the position, ``n`` = 2..9: the
-  lowest order whose held-out fit is not clearly worse than the best order's (parsimony).
+The columns of a candidate are a :class:`~experiments.diagnosis.terms.Term`, its nonlinear
+parameters are searched in :mod:`experiments.diagnosis.parameter_search`, and it is proposed and
+checked in a :class:`~experiments.diagnosis.context.Context`.
 
 Identifiability: during motion an asymmetric Coulomb friction is a symmetric one plus a constant
 force ``(c_pos - c_neg)/2``, and the diagnosis leaves standstill out (the direction of motion is
@@ -37,337 +25,23 @@ Coulomb part reported as 0.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-import scipy.optimize
 
 from clm_sim.effects import (CableSlab, Cogging, Effect, ForceOffset, ForceRipple,
                              FrictionAsymmetry, Presliding, Stribeck)
 from clm_sim.plant import THETA_NAMES
+from experiments.diagnosis.context import Candidate, Context, Rejection
 from experiments.diagnosis.finding import Estimate, Finding
-from experiments.diagnosis.fitting import (Fit, Projector, clearly_better, coefficient_cov,
-                                           coefficient_std, cv_of, disagrees, fit_cv,
-                                           grid_then_refine, reportable, significance, solve)
+from experiments.diagnosis.fitting import (coefficient_cov, coefficient_std, disagrees, fit_cv,
+                                           reportable, significance, solve)
+from experiments.diagnosis.parameter_search import (approx_periodic, best_smooth_cv,
+                                                    search_period, search_presliding,
+                                                    search_smooth, search_stribeck)
 from experiments.diagnosis.residual import Residual
-
-MAX_SMOOTH_ORDER = 9
-
-
-# ---------------------------------------------------------------- terms: columns of a candidate
-@dataclass(frozen=True)
-class Term:
-    """One candidate cause: finding name, effect template (None: parameter mismatch), the
-    regressor keys it uses from the template.
-
-    ``replaces_coulomb``: the columns are the template's minus ``sign(v)``, i.e. the candidate
-    says that this much of the model's Coulomb friction is really the template's effect (the
-    coefficient moves from ``coulomb`` to the effect; pre-sliding friction)."""
-
-    effect: str
-    template: Effect | None
-    keys: tuple[str, ...]
-    replaces_coulomb: bool = False
-
-    def regressors(self, y, v, a, u) -> dict[str, np.ndarray]:
-        """Full-rate regressor columns (N per unit coefficient)."""
-        if self.template is None:
-            cols = {"mass": a, "viscous": v, "coulomb": np.sign(v), "stiffness": y}
-        else:
-            cols = self.template.regressors(y, v, u)
-        if self.replaces_coulomb:
-            cols = {k: c - np.sign(v) for k, c in cols.items()}
-        return {k: cols[k] for k in self.keys}
-
-    def columns(self, res: Residual) -> np.ndarray:
-        return res.columns(self.regressors(res.y, res.v, res.a, res.u))
-
-    def effect_from(self, coef: dict[str, float]) -> Effect | None:
-        return None if self.template is None else self.template.from_coefficients(coef)
-
-
-def periodic_term(kind: str, period: float) -> Term:
-    if kind == "cogging":
-        return Term(kind, Cogging(amplitude=0.0, period=period), ("cogging_sin", "cogging_cos"))
-    return Term(kind, ForceRipple(amplitude=0.0, period=period), ("ripple_sin", "ripple_cos"))
-
-
-def stribeck_term(velocity: float) -> Term:
-    return Term("stribeck", Stribeck(peak=0.0, velocity=velocity, exponent=2.0), ("stribeck",))
-
-
-@dataclass(frozen=True)
-class SupportTerm(Term):
-    """``not_supported``: a free scale ``c`` on the force of an effect the *model* holds. The
-    data supports ``1 + c`` of it; the finding is named when ``1 + c < 0.5`` (the model's effect
-    is mostly not there)."""
-
-    def regressors(self, y, v, a, u):
-        return {"support": self.template.force(y, v, u)}
-
-    def effect_from(self, coef):
-        return None
-
-
-def presliding_term(length: float) -> Term:
-    """Dahl friction of pre-sliding length ``length`` (m) in place of Coulomb friction."""
-    return Term("presliding", Presliding.with_length(0.0, length), ("presliding",),
-                replaces_coulomb=True)
-
-
-@dataclass(frozen=True)
-class SmoothTerm(Term):
-    """``cable_slab``: a smooth force in position, Legendre polynomials ``P_0..P_order`` of
-    ``(y - center)/half`` (m); returned as a :class:`CableSlab` power series about ``center``.
-    To carry the name it must explain more than its constant and linear part (an offset and a
-    stiffness), by the significance rule (:func:`forward_select`)."""
-
-    center: float = 0.0
-    half: float = 1.0
-    order: int = 2
-
-    def regressors(self, y, v, a, u):
-        xi = (np.asarray(y, dtype=float) - self.center) / self.half
-        eye = np.eye(self.order + 1)
-        return {k: np.polynomial.legendre.legval(xi, eye[i]) for i, k in enumerate(self.keys)}
-
-    def effect_from(self, coef):
-        leg = np.array([coef[k] for k in self.keys])
-        power = np.polynomial.legendre.leg2poly(leg)
-        scaled = [float(c) / self.half**i for i, c in enumerate(power)]
-        return CableSlab(coefficients=tuple(scaled), center=self.center)
-
-
-def smooth_term(res: Residual, order: int) -> SmoothTerm:
-    y = res.y[res.idx]
-    lo, hi = float(np.min(y)), float(np.max(y))
-    return SmoothTerm("cable_slab", None, tuple(f"cable_P{i}" for i in range(order + 1)),
-                      center=0.5 * (lo + hi), half=max(0.5 * (hi - lo), 1e-12), order=order)
-
-
-
-# ---------------------------------------------------------------- nonlinear parameter searches
-def spatial_peaks(y: np.ndarray, e: np.ndarray, w: np.ndarray | None, p_min: float,
-                  p_max: float, count: int = 3, bins: int = 4096) -> list[float]:
-    """Periods (m) of the strongest peaks of the residual's spectrum over position.
-
-    ``e`` is binned on a uniform grid of ``y`` (mean per bin, or the least-squares gain on ``w``
-    per bin when ``w`` is given: a modulation of ``w``), empty bins count as 0, and the
-    zero-padded FFT's power is searched between the periods ``p_min`` and ``p_max``.
-    """
-    lo, hi = float(np.min(y)), float(np.max(y))
-    width = (hi - lo) / bins
-    k = np.clip(((y - lo) / width).astype(int), 0, bins - 1)
-    if w is None:
-        num, den = np.bincount(k, e, bins), np.bincount(k, None, bins).astype(float)
-    else:
-        num, den = np.bincount(k, e * w, bins), np.bincount(k, w * w, bins)
-    have = den > 0
-    g = np.zeros(bins)
-    g[have] = num[have] / den[have]
-    g[have] -= g[have].mean()
-    pad = 8 * bins
-    power = np.abs(np.fft.rfft(g, pad)) ** 2
-    freq = np.fft.rfftfreq(pad, d=width)  # cycles per m
-    band = (freq >= 1.0 / p_max) & (freq <= 1.0 / p_min)
-    idx = np.flatnonzero(band)
-    if idx.size < 3:
-        return []
-    p = power[idx]
-    local = np.flatnonzero((p[1:-1] >= p[:-2]) & (p[1:-1] >= p[2:])) + 1
-    best = local[np.argsort(p[local])[::-1][:count]]
-    return [float(1.0 / freq[idx[j]]) for j in best]
-
-
-def _approx_periodic(res: Residual, kind: str, k: float) -> np.ndarray:
-    """Cheap columns for the period search: the position is smooth, so sin(k y) needs no filter;
-    the ripple multiplies the filtered force (a slow modulation commutes with the low-pass)."""
-    y = res.y[res.idx]
-    s, c = np.sin(k * y), np.cos(k * y)
-    w = res.coverage[res.idx] if kind == "cogging" else -res.u_filtered[res.idx]
-    return np.column_stack([w * s, w * c])
-
-
-def search_period(res: Residual, kind: str, base: np.ndarray, e: np.ndarray,
-                  avoid: list[float]) -> float | None:
-    """Period (m) of a ``cogging``/``force_ripple`` candidate on the current residual ``e``."""
-    y = res.y[res.idx]
-    span = float(np.ptp(y))
-    v_typ = float(np.quantile(np.abs(res.v_filtered[res.idx]), 0.9))
-    p_min = max(16 * span / 4096, v_typ / (0.5 * res.cutoff))
-    p_max = span / 3.0
-    if p_min >= p_max:
-        return None
-    w = None if kind == "cogging" else -res.u_filtered[res.idx]
-    proj = Projector(base, res.z)
-    best, best_sse = None, np.inf
-    for period in spatial_peaks(y, e, w, p_min, p_max):
-        if any(abs(period / a - 1) < 0.05 for a in avoid):
-            continue
-        k0, dk = 2 * math.pi / period, 2 * math.pi / span
-
-        def cost(k):
-            return proj.sse(_approx_periodic(res, kind, k))
-
-        r = scipy.optimize.minimize_scalar(cost, bounds=(max(k0 - dk, 0.5 * k0), k0 + dk),
-                                           method="bounded", options={"xatol": 1e-4 * k0})
-        if r.fun < best_sse:
-            best, best_sse = 2 * math.pi / float(r.x), float(r.fun)
-    return best
-
-
-def search_stribeck(res: Residual, base: np.ndarray, exact: bool) -> float:
-    """Stribeck velocity (m/s): log grid, then bounded least squares on log(velocity)."""
-    vf = res.v_filtered[res.idx]
-    v_typ = float(np.quantile(np.abs(vf), 0.9))
-    # A Stribeck velocity is identifiable only with data on both sides of it: start at 1.5 times the
-    # speed floor (below it the fitted column lives on a few samples at the mask's edge).
-    lo, hi = math.log(1.5 * res.v_floor), math.log(max(v_typ / 2, 4 * res.v_floor))
-
-    cache = res.cache.setdefault("stribeck", {})  # filtered columns do not depend on base
-
-    def col(logv):
-        if exact:
-            if logv not in cache:
-                cache[logv] = stribeck_term(math.exp(logv)).columns(res)
-            return cache[logv]
-        shape = np.sign(vf) * np.exp(-((np.abs(vf) / math.exp(logv)) ** 2))
-        return (res.coverage[res.idx] * shape)[:, None]
-
-    proj = Projector(base, res.z)
-
-    def cost(logv):
-        return proj.sse(col(logv))
-
-    return math.exp(grid_then_refine(cost, np.linspace(lo, hi, 16), xatol=2e-3, maxiter=25))
-
-
-def search_presliding(res: Residual, base: np.ndarray, avoid: list[float] = ()) -> float | None:
-    """Pre-sliding length (m): log grid from half an encoder count to 1/50 of the stroke (at most
-    2 mm), then bounded least squares on ``log(length)``; exact (filtered) columns. Lengths
-    within a factor of 2 of an accepted element (``avoid``) are not searched (a second element
-    makes a generalized Maxwell-slip model of two bristle scales)."""
-    q = max(res.quantum, 1e-9)
-    span = float(np.ptp(res.y[res.idx]))
-    lo, hi = math.log(0.5 * q), math.log(max(min(span / 50, 2e-3), 4 * q))
-    proj = Projector(base, res.z)
-    cache = res.cache.setdefault("presliding", {})  # filtered columns do not depend on base
-
-    def cost(loglen):
-        if loglen not in cache:
-            cache[loglen] = presliding_term(math.exp(loglen)).columns(res)
-        return proj.sse(cache[loglen])
-
-    grid = np.linspace(lo, hi, 12)
-    grid = [g for g in grid if all(abs(g - math.log(a)) > math.log(2.0) for a in avoid)]
-    if not grid:
-        return None
-    # 1 % in length is far below what the data tells (the test bar is a factor of 2).
-    return math.exp(grid_then_refine(cost, grid, xatol=1e-2, maxiter=12))
-
-
-def search_smooth(res: Residual, base: np.ndarray, max_order: int = MAX_SMOOTH_ORDER
-                  ) -> tuple[SmoothTerm, np.ndarray, float]:
-    """The ``cable_slab`` polynomial on held-out data: blocked CV of ``base`` plus
-    ``P_0..P_order`` for order 2..``max_order``; the lowest order that the best order does not
-    fit clearly better (:func:`~experiments.diagnosis.fitting.clearly_better`: a higher order must
-    earn its columns as a new term would). Returns the term, its columns and its CV MSE."""
-    st = res.settings
-    cache = res.cache.setdefault("smooth", {})
-    if max_order not in cache:
-        cache[max_order] = smooth_term(res, max_order).columns(res)
-    cols = cache[max_order]
-    fits = {order: fit_cv(np.column_stack([base, cols[:, :order + 1]]), res.z, res.fold,
-                          st.folds) for order in range(2, max_order + 1)}
-    best = min(fits, key=lambda o: fits[o].cv_mse)
-    reference = cv_of(res).cv_mse  # the model's own residual, held out
-    order = next(o for o in sorted(fits)
-                 if o == best or not clearly_better(res, fits[o], fits[best], reference))
-    return smooth_term(res, order), cols[:, :order + 1], fits[order].cv_mse
-
-
-# ---------------------------------------------------------------- the selection's state
-@dataclass
-class Step:
-    """One accepted term and the statistics that accepted it."""
-
-    term: Term
-    cols: np.ndarray
-    gain: float
-    folds_improved: int
-    p_value: float
-
-    @property
-    def family(self) -> Family:
-        return REGISTRY[self.term.effect]
-
-
-@dataclass
-class Context:
-    """The state a family proposes and checks candidates in: the residual, the accepted steps,
-    the ``nuisance`` columns (what the data holds but no family explains, :class:`Rejection`),
-    the columns ``x_s`` of both (steps first) and their fit, the current residual ``e`` on the
-    fitted samples, and ``base``, the held-out MSE of the model's own residual."""
-
-    res: Residual
-    steps: list[Step]
-    nuisance: np.ndarray
-    x_s: np.ndarray
-    fit_s: Fit
-    e: np.ndarray
-    base: float
-
-    @classmethod
-    def of(cls, res: Residual, steps: list[Step], base: float,
-           nuisance: np.ndarray | None = None) -> Context:
-        if nuisance is None:
-            nuisance = np.zeros((len(res.z), 0))
-        x_s = np.column_stack([np.zeros((len(res.z), 0))] + [s.cols for s in steps]
-                              + [nuisance])
-        fit_s = fit_cv(x_s, res.z, res.fold, res.settings.folds)
-        return cls(res, list(steps), nuisance, x_s, fit_s, res.z - x_s @ fit_s.coef, base)
-
-    def used(self, name: str) -> list[Term]:
-        return [s.term for s in self.steps if s.term.effect == name]
-
-    def columns_of(self, name: str) -> np.ndarray:
-        """Mask over the columns of ``x_s``: those of the accepted terms of family ``name``."""
-        return np.concatenate([np.zeros(0, bool)]
-                              + [np.full(s.cols.shape[1], s.term.effect == name)
-                                 for s in self.steps]
-                              + [np.zeros(self.nuisance.shape[1], bool)])
-
-    def coef_with(self, cols: np.ndarray) -> np.ndarray:
-        """In-sample least-squares coefficients of the accepted columns plus ``cols``."""
-        x = np.column_stack([self.x_s, cols])
-        return solve(x.T @ x, x.T @ self.res.z)
-
-
-@dataclass(frozen=True)
-class Rejection:
-    """Why a significant candidate may not carry its family's name. ``nuisance``: columns that
-    describe what the data holds there (the candidate's, or its law's split columns) when that
-    part of the residual stays unexplained; None when the rejection only says there is nothing
-    worth naming or another family names it. The selection holds the nuisance columns in every
-    later test, not in the extended model: a part of the residual that is there but unexplained
-    must not pass for another effect that happens to correlate with it."""
-
-    reason: str
-    nuisance: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """A proposed term with cheap columns for ranking (``approx``) and, where already computed,
-    its exact (filtered) columns."""
-
-    term: Term
-    approx: np.ndarray
-    exact: np.ndarray | None = None
-
-    def columns(self, res: Residual) -> np.ndarray:
-        return self.exact if self.exact is not None else self.term.columns(res)
+from experiments.diagnosis.terms import (SupportTerm, Term, periodic_term, presliding_term,
+                                         smooth_term, stribeck_term)
 
 
 # ---------------------------------------------------------------- families
@@ -537,7 +211,7 @@ class PeriodicFamily(Family):
         if period is None:
             return []
         return [Candidate(periodic_term(self.name, period),
-                          _approx_periodic(ctx.res, self.name, 2 * math.pi / period))]
+                          approx_periodic(ctx.res, self.name, 2 * math.pi / period))]
 
     def splits(self, res):
         return position_law(res)
@@ -772,19 +446,11 @@ def beats_smooth(ctx: Context, cols: np.ndarray) -> bool:
     x_rest = np.column_stack([np.zeros((len(res.z), 0))] + rest)
     have = [s.term.order for s in ctx.steps if s.term.effect == "cable_slab"]
     if not have:
-        return fit_p.cv_mse < _best_smooth_cv(res, x_rest)
+        return fit_p.cv_mse < best_smooth_cv(res, x_rest)
     smooth = smooth_term(res, max(have) + 2).columns(res)
     return fit_p.sse < fit_cv(np.column_stack([x_rest, smooth]), res.z, res.fold, st.folds).sse
 
 
-def _best_smooth_cv(res: Residual, base: np.ndarray) -> float:
-    """The lowest held-out MSE of ``base`` plus a polynomial of order 2..MAX_SMOOTH_ORDER."""
-    cache = res.cache.setdefault("smooth", {})
-    if MAX_SMOOTH_ORDER not in cache:
-        cache[MAX_SMOOTH_ORDER] = smooth_term(res, MAX_SMOOTH_ORDER).columns(res)
-    cols = cache[MAX_SMOOTH_ORDER]
-    return min(fit_cv(np.column_stack([base, cols[:, :o + 1]]), res.z, res.fold,
-                      res.settings.folds).cv_mse for o in range(2, MAX_SMOOTH_ORDER + 1))
 
 
 def dip_beats_presliding(ctx: Context, cols: np.ndarray, peak: float) -> bool:

@@ -19,6 +19,7 @@ from clm_sim.features import edge_force
 from clm_sim.plant import Plant
 from clm_sim.record import Run
 from experiments.diagnosis.families import periodic_effect_types
+from experiments.diagnosis.outcome import OriginGain
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 
 
@@ -56,7 +57,7 @@ def origin_scan(run: Run, plant: Plant, settings: DiagnosisSettings,
 
 
 def registered_gain(val: Run, before: Plant, after: Plant, settings: DiagnosisSettings,
-                    resimulate=None) -> tuple[dict, tuple] | None:
+                    resimulate=None) -> tuple[OriginGain, tuple] | None:
     """The out-of-sample gain on a separate validation record with its origin registered:
     ``delta`` from the first ``settings.registration_fraction`` of ``val`` (the extended model
     ``after``), the residuals of both models on the rest. None when ``after`` has no periodic
@@ -87,4 +88,4 @@ def registered_gain(val: Run, before: Plant, after: Plant, settings: DiagnosisSe
                                 ("after_fixed_origin", after, val)):
             e = resimulate(plant, run)[cut:]
             out[f"resim_mismatch_rms_{key}"] = float(np.sqrt(np.mean((e - e_m) ** 2)))
-    return out, scan
+    return OriginGain(**out), scan

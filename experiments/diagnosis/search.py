@@ -46,12 +46,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.diagnosis.families import (REGISTRY, Candidate, Context, Rejection, Step,
-                                            Term)
+from experiments.diagnosis.context import Candidate, Context, Rejection, Step
+from experiments.diagnosis.families import REGISTRY
 from experiments.diagnosis.finding import Unexplained
 from experiments.diagnosis.fitting import (Significance, clearly_better, cv_of, fit_cv,
                                            significance)
 from experiments.diagnosis.residual import Residual
+from experiments.diagnosis.terms import Term
 
 
 @dataclass(frozen=True)

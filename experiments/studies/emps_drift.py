@@ -24,8 +24,8 @@ import numpy as np
 
 from clm_sim.plant import THETA_NAMES, Plant
 from clm_sim.record import Run
+from experiments.diagnosis.context import Step
 from experiments.diagnosis.extend import extended_plant, joint_fit
-from experiments.diagnosis.families import Step
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.search import forward_select
 from experiments.hac import newey_west
