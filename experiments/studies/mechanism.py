@@ -159,7 +159,7 @@ def _cell(cell: Cell) -> dict:
     within = np.abs(y) <= inside.position_m
     beyond = ~within
     zeros = np.zeros_like(y)
-    truth = tb.machine.inverse_force(y, zeros, zeros)
+    truth = tb.machine.motor_command(y, zeros, zeros)  # exact where an effect scales u
     lip_static = lip.theta_["stiffness"] * y
 
     def rms_beyond(f):
