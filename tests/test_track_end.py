@@ -121,5 +121,16 @@ def test_mechanism_study_runs_on_the_track_end_variant(tmp_path):
     assert g < 0.7
     assert summary["cases"]["track_end"]["truth_dwell_force_n"] == pytest.approx(0.2 / g,
                                                                                   rel=1e-9)
+    lip = summary["cases"]["track_end"]["lip"]
+    assert lip["need_along_rms_n"] > 0 and np.isfinite(lip["error_along_rms_n"])
     text = (tmp_path / "out" / "report.md").read_text()
-    assert "| track_end | λ = 0 |" in text
+    assert "| track_end | λ = 0 |" in text and "The force along r2 beyond the range" in text
+
+
+def test_a_lip_given_the_plant_only_effect_refuses_in_one_line():
+    from controllers.lip import LIPFeedforward
+
+    t = np.arange(20000) * 1e-4
+    y, u = 0.05 * np.sin(2 * np.pi * t), 30 * np.cos(2 * np.pi * t)
+    with pytest.raises(UserError, match="^track_end is plant-only"):
+        LIPFeedforward(effects=(TrackEnd(),)).fit(y=y, u=u, ts=1e-4)
