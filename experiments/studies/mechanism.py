@@ -25,6 +25,10 @@ data; the rest is its remainder. ``cubic`` coefficients are least-squares fits o
 c2 y^2 + c3 y^3`` over the static curve inside the training range: the remainder's ``c3`` is
 what the drift builds, the truth's is what there is to build (the default plant's cable carrier,
 2000 N/m^3). A case whose effects have no such term (a linear cable) is the control.
+The true force is the plant's motor command (``Plant.motor_command``: exact where an effect
+scales the motor force, as a track end does). A static curve holds v = a = 0; the study also
+prints, per model, the rms force error along the outside reference where it is beyond the
+range, against the command that reference's exact motion needs (accelerations included).
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``mechanism:`` section;
 ``mechanism.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/force_beyond.png``
