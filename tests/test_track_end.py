@@ -71,6 +71,21 @@ def test_force_is_the_exact_inverse_and_the_motor_command_holds_the_rest():
     assert np.array_equal(linear.motor_command(y, z, z), linear.inverse_force(y, z, z))
 
 
+def test_the_motor_command_inverts_the_ripple_exactly():
+    """Force ripple alone: the command holds u (1 + rho) = rest (1e-12 N), where inverse_force
+    (u fed with the rest) is off by rho^2 rest."""
+    from clm_sim.effects import ForceRipple
+
+    y = np.linspace(-0.1, 0.1, 41)
+    z = np.zeros_like(y)
+    a = np.full_like(y, 3.0)
+    plant = Plant(effects=(ForceRipple(amplitude=0.01, period=0.024),))
+    rest = Plant(effects=()).inverse_force(y, z, a)
+    rho = 0.01 * np.sin(2 * np.pi * y / 0.024)
+    np.testing.assert_allclose(plant.motor_command(y, z, a) * (1 + rho), rest, rtol=0, atol=1e-12)
+    assert np.max(np.abs(plant.inverse_force(y, z, a) * (1 + rho) - rest)) > 1e-4
+
+
 @pytest.mark.parametrize("key, value", [("start", 0.0), ("coil_length", -0.1),
                                         ("fringe", float("nan")), ("fringe", 0.07)])
 def test_bad_parameters_are_refused_naming_the_key(key, value):
