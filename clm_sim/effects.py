@@ -12,8 +12,9 @@ Each effect is a small frozen dataclass with named SI parameters. It knows three
   nonlinear parameters (periods, velocities) are held fixed, and ``from_coefficients`` to rebuild the
   effect from the least-squares coefficients of those columns;
 * ``lower(terms)``: how it appears in the compiled simulator, as primitive terms of
-  :class:`KernelTerms` (position harmonics, motor-force ripple, a position polynomial, Stribeck
-  friction, direction-dependent friction, a constant force, Dahl pre-sliding friction). The
+  :class:`KernelTerms` (position harmonics, motor-force ripple and the track end's motor-force
+  factor, a position polynomial, Stribeck friction, direction-dependent friction, a constant
+  force, Dahl pre-sliding friction). The
   simulator keeps this lowering of its own: it integrates the *forward* plant, where friction at
   rest is stiction up to the breakaway level (not the law's value at ``v = 0``) and the ripple
   multiplies the motor force, in a numba kernel compiled once for these fixed term arrays (a law
@@ -49,6 +50,8 @@ class KernelTerms:
     ``stribeck_*``: ``sign(v)*peak*exp(-(|v|/velocity)**exponent)`` (N, m/s, -).
     ``asym``: extra friction per direction ``[coulomb_pos, coulomb_neg, viscous_pos, viscous_neg]``.
     ``offset``: a constant force (N).
+    ``track_*``: motor-force factors ``g(y)`` of :class:`TrackEnd` (start, coil length, fringe,
+    m); the motor force is ``u*(1 + ripple)*prod g``.
     """
 
     harmonic_amp: list = field(default_factory=list)
@@ -66,6 +69,9 @@ class KernelTerms:
     offset: float = 0.0
     dahl_sliding: list = field(default_factory=list)
     dahl_length: list = field(default_factory=list)
+    track_start: list = field(default_factory=list)
+    track_length: list = field(default_factory=list)
+    track_fringe: list = field(default_factory=list)
 
     def arrays(self) -> tuple:
         """The terms as contiguous float64 arrays, in the order the kernel takes them."""
@@ -77,6 +83,8 @@ class KernelTerms:
             float(self.offset),
             f(self.stribeck_peak), f(self.stribeck_velocity), f(self.stribeck_exponent),
             f(self.asym),
+            np.ascontiguousarray(np.column_stack([self.track_start, self.track_length,
+                                                  self.track_fringe]).reshape(-1, 3)),
             f(self.dahl_sliding), f(self.dahl_length),
             np.zeros(len(self.dahl_sliding)),  # the bristle states (relaxed at the start)
         )
@@ -109,6 +117,8 @@ class Effect:
     # True where the force is a function of the whole position path (a state), not of the
     # instant's (y, v, u): no law, no window form, not exportable
     path_dependent: ClassVar[bool] = False
+    # True where no linear-in-parameters model has a column for it (the simulated plant only)
+    plant_only: ClassVar[bool] = False
 
     def law(self, y, v, u, xp):
         """The force (N) at position ``y`` (m), velocity ``v`` (m/s) and the rest of the force
@@ -214,6 +224,63 @@ class ForceRipple(Effect):
         terms.ripple_amp.append(self.amplitude)
         terms.ripple_k.append(2.0 * math.pi / self.period)
         terms.ripple_phase.append(self.phase)
+
+
+def _softplus(x, xp):
+    """``log(1 + e^x)`` without overflow: ``relu(x) + log1p(exp(-|x|))``."""
+    return xp.relu(x) + xp.log1p(xp.exp(-xp.abs(x)))
+
+
+@dataclass(frozen=True)
+class TrackEnd(Effect):
+    """The coil leaving the magnet track: the motor delivers ``u*g(y)``, with ``g`` the fraction of
+    the coil that still overlaps the magnets (1 over the track, 0 off it).
+
+    A coreless coil of length ``coil_length`` (m) centred at ``y`` overlaps magnets that end at
+    ``+-(start + coil_length/2)``: from ``|y| = start`` (m) on, its force constant falls linearly
+    with the lost overlap, to zero at ``|y| = start + coil_length``. The fringing field at the
+    track's end rounds both corners: ``g`` is the hard overlap convolved with a logistic kernel
+    of scale ``fringe`` (m), ``g = 1 - ramp(y - start) - ramp(-y - start)``,
+    ``ramp(x) = fringe*(softplus(x/fringe) - softplus((x - coil_length)/fringe))/coil_length``.
+    The motor must then supply ``(1 - g)*u`` more, which is ``force`` (exact with ``u`` the motor
+    command: ``u*g = rest``).
+
+    Plant-only: it has no regressor columns, so no identified feedforward (LIP, PGNN, diagnosis)
+    carries it; its law exports like any other's.
+    """
+
+    start: float = 0.12
+    coil_length: float = 0.12
+    fringe: float = 0.004
+    type: ClassVar[str] = "track_end"
+    plant_only: ClassVar[bool] = True
+
+    def __post_init__(self):
+        _check_positive("track_end", start=self.start, coil_length=self.coil_length,
+                        fringe=self.fringe)
+        if not self.fringe < 0.5 * self.coil_length:
+            raise UserError(f"track_end: fringe must be below half the coil_length "
+                            f"({0.5 * self.coil_length!r} m), got {self.fringe!r}")
+
+    def _ramp(self, x, xp):
+        w, length = self.fringe, self.coil_length
+        return w * (_softplus(x / w, xp) - _softplus((x - length) / w, xp)) / length
+
+    def overlap(self, y, xp=NUMPY):
+        """The overlap fraction ``g(y)`` (-), the factor on the motor force at position ``y`` (m)."""
+        return 1.0 - self._ramp(y - self.start, xp) - self._ramp(-y - self.start, xp)
+
+    def law(self, y, v, u, xp):
+        return (self._ramp(y - self.start, xp) + self._ramp(-y - self.start, xp)) * u
+
+    def regressors(self, y, v, u):
+        raise UserError("track_end is plant-only: a linear-in-parameters model has no column "
+                        "for it")
+
+    def lower(self, terms):
+        terms.track_start.append(self.start)
+        terms.track_length.append(self.coil_length)
+        terms.track_fringe.append(self.fringe)
 
 
 @dataclass(frozen=True)
@@ -436,7 +503,7 @@ class ForceOffset(Effect):
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.type: cls for cls in (Cogging, ForceRipple, CableSlab, Stribeck, FrictionAsymmetry,
-                              ForceOffset, Presliding)
+                              ForceOffset, Presliding, TrackEnd)
 }
 
 

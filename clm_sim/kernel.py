@@ -39,13 +39,39 @@ _INLINE = dict(_JIT, inline="always")
 _EXP_UNDERFLOW = 750.0
 
 
+@nb.njit(**_JIT)
+def _softplus(x):
+    """``log(1 + e^x)`` without overflow."""
+    return (x if x > 0.0 else 0.0) + math.log1p(math.exp(-abs(x)))
+
+
+@nb.njit(**_JIT)
+def track_factor(x, track):
+    """Product of the track ends' overlap fractions ``g(x)`` (see ``clm_sim.effects.TrackEnd``);
+    ``track`` rows: start, coil length, fringe (m)."""
+    g = 1.0
+    for i in range(track.shape[0]):
+        start, length, w = track[i, 0], track[i, 1], track[i, 2]
+        d = x - start
+        lost = w * (_softplus(d / w) - _softplus((d - length) / w)) / length
+        d = -x - start
+        lost += w * (_softplus(d / w) - _softplus((d - length) / w)) / length
+        g *= 1.0 - lost
+    return g
+
+
 @nb.njit(**_INLINE)
-def applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset):
-    """Motor force (with ripple) minus the position-dependent parasitic forces, N."""
+def applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
+                  track):
+    """Motor force (with ripple and the track ends' factor) minus the position-dependent
+    parasitic forces, N."""
     rho = 0.0
     for i in range(rp_amp.shape[0]):
         rho += rp_amp[i] * math.sin(rp_k[i] * x + rp_ph[i])
-    f = u * (1.0 + rho) - offset
+    f = u * (1.0 + rho)
+    if track.shape[0] > 0:
+        f *= track_factor(x, track)
+    f -= offset
     for i in range(hk_amp.shape[0]):
         f -= hk_amp[i] * math.sin(hk_k[i] * x + hk_ph[i])
     d = x - poly_c
@@ -164,11 +190,15 @@ def dahl_substep(x, v, g, ad, bd, d_f, d_l, d_z):
 @nb.njit(**_INLINE)
 def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
             hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-            st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat):
-    """:func:`plant_step` with the friction levels of :func:`friction_levels` given."""
+            st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z, levels):
+    """:func:`plant_step` with the friction levels of :func:`friction_levels` given, as the tuple
+    ``levels``. (Calls stay within 30 arguments: CPython compiles a longer call as a ``*args``
+    call, which numba cannot inline.)"""
+    break_pos, break_neg, v_flat = levels
     dahl = d_f.shape[0] > 0
     for _ in range(nsub):
-        fa = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset)
+        fa = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
+                           track)
         if v == 0.0:
             fn = fa - fk * x
             if dahl:
@@ -206,7 +236,7 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
         v = 0.0
         rest = h - t0
         fn = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c,
-                           offset) - fk * x
+                           offset, track) - fk * x
         if dahl:
             fn -= dahl_force(d_f, d_z)
         if rest <= 0.0 or (fn <= break_pos and fn >= -break_neg):
@@ -225,24 +255,26 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
 @nb.njit(**_JIT)
 def plant_step(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-               st_amp, st_v, st_exp, asym, d_f, d_l, d_z):
+               st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z):
     """Advance the motor over one held-input sample of ``nsub`` sub-steps of ``h`` seconds.
 
     ``ad`` (2x2) and ``bd`` (2,) propagate ``[x, v]`` over one sub-step for a constant force
-    ``G``: ``[x, v] <- ad @ [x, v] + bd * G``. ``d_f, d_l`` (N, m): Dahl elements' sliding force
-    and length; ``d_z``: their states, advanced in place. Returns the new ``(x, v)``.
+    ``G``: ``[x, v] <- ad @ [x, v] + bd * G``. ``track`` (n, 3; m): the track ends' start,
+    coil length and fringe (:func:`track_factor`). ``d_f, d_l`` (N, m): Dahl elements' sliding
+    force and length; ``d_z``: their states, advanced in place. Returns the new ``(x, v)``.
     """
     break_pos, break_neg, v_flat = friction_levels(fc, st_amp, st_v, st_exp, asym)
     return advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                    hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                   st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat)
+                   st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
+                   (break_pos, break_neg, v_flat))
 
 
 @nb.njit(_nrt=False, **_JIT)
 def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
                 h, nsub, ad, bd, mass, fv, fc, fk,
                 hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                st_amp, st_v, st_exp, asym, d_f, d_l, d_z,
+                st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
                 y_out, x_out, u_out, ufb_out, z):
     """Run the sampled loop over ``len(r)`` samples, writing into the four output arrays.
 
@@ -273,7 +305,8 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
         ufb_out[k] = ufb
         x, v = advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                        hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                       st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat)
+                       st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
+                       (break_pos, break_neg, v_flat))
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1
     return 0
@@ -282,7 +315,7 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
 @nb.njit(_nrt=False, **_JIT)
 def open_loop(u, x0, v0, h, nsub, ad, bd, mass, fv, fc, fk,
               hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-              st_amp, st_v, st_exp, asym, d_f, d_l, d_z, x_out, v_out):
+              st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z, x_out, v_out):
     """The motor driven by the held inputs ``u`` (N), no controller: ``x_out[k], v_out[k]`` is
     the state (m, m/s) at sample k, from ``(x0, v0)`` at sample 0, ``u[k]`` held over
     ``[t_k, t_k+1)`` and the motor advanced by :func:`plant_step` (Dahl states ``d_z`` advanced
@@ -298,7 +331,8 @@ def open_loop(u, x0, v0, h, nsub, ad, bd, mass, fv, fc, fk,
             break
         x, v = advance(x, v, u[k], h, nsub, ad, bd, mass, fv, fc, fk,
                        hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                       st_amp, st_v, st_exp, asym, d_f, d_l, d_z, break_pos, break_neg, v_flat)
+                       st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
+                       (break_pos, break_neg, v_flat))
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1
     return 0

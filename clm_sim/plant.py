@@ -100,6 +100,21 @@ class Plant:
         base = rigid_body(self.theta(), a, v, np.sign(v), y)
         return base + total_force(self.effects, y, v, base if u is None else u)
 
+    def motor_command(self, y, v, a) -> np.ndarray:
+        """The motor command (N) that produces the motion ``(y, v, a)`` exactly: the fixed point
+        of ``u = inverse_force(y, v, a, u)``, since effects that scale the motor force (ripple,
+        a track end) depend on ``u``. The same bits as :meth:`inverse_force` for a plant whose
+        effects do not. Converges while the motor force is scaled by a factor in (0, 2)."""
+        u = self.inverse_force(y, v, a)
+        for _ in range(200):
+            nxt = self.inverse_force(y, v, a, u)
+            if np.max(np.abs(nxt - u), initial=0.0) <= 1e-13 * max(1.0, float(
+                    np.max(np.abs(nxt), initial=0.0))):
+                return nxt
+            u = nxt
+        raise UserError("plant: the motor command did not converge (a motor-force factor "
+                        "outside (0, 2))")
+
     def substep_matrices(self, ts: float) -> tuple[float, np.ndarray, np.ndarray]:
         """``(h, ad, bd)``: exact propagation of the linear part over one sub-step of ``h`` s
         for a constant force, ``[y, v] <- ad @ [y, v] + bd * F``."""

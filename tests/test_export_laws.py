@@ -26,6 +26,7 @@ from clm_sim.effects import (
     ForceRipple,
     FrictionAsymmetry,
     Stribeck,
+    TrackEnd,
     lower_effects,
 )
 from clm_sim.errors import UserError
@@ -50,6 +51,8 @@ EFFECTS = {
     "friction_asymmetry": FrictionAsymmetry(coulomb_pos=0.4, coulomb_neg=0.7, viscous_pos=1.0,
                                             viscous_neg=2.0),
     "force_offset": ForceOffset(force_n=-0.8),
+    # plant-only (no feedforward identifies it), but its law exports as any other's
+    "track_end": TrackEnd(start=0.02, coil_length=0.03, fringe=0.003),
 }
 
 
@@ -123,7 +126,7 @@ def _kernel_force(effect, y, v, u):
     v_flat = friction_levels(0.0, a[9], a[10], a[11], a[12])[2]
     out = np.empty(len(y))
     for i in range(len(y)):
-        out[i] = (u[i] - applied_force(y[i], u[i], *a[:9])
+        out[i] = (u[i] - applied_force(y[i], u[i], *a[:9], a[13])
                   + friction_extra(v[i], 1.0 if v[i] > 0 else -1.0, a[9], a[10], a[11], a[12],
                                    v_flat))
     return out

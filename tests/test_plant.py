@@ -20,7 +20,9 @@ import scipy.integrate
 import scipy.signal
 
 from clm_sim.effects import (EFFECTS, CableSlab, Cogging, ForceOffset, ForceRipple,
-                             FrictionAsymmetry, Presliding, Stribeck, dahl_path, total_force)
+                             FrictionAsymmetry, Presliding, Stribeck, TrackEnd, dahl_path,
+                             total_force)
+from clm_sim.errors import UserError
 from clm_sim.loop import simulate
 from clm_sim.plant import Plant
 from clm_sim.reference import PointToPoint
@@ -280,6 +282,8 @@ EFFECT_CASES = {
                                             viscous_neg=10.0),
     "force_offset": ForceOffset(force_n=3.0),
     "presliding": Presliding(sliding=4.0, stiffness=2.0e5),
+    # the coil leaves the track 3 mm from the start: the motor force falls to ~70 % by 15 mm
+    "track_end": TrackEnd(start=0.003, coil_length=0.04, fringe=0.004),
 }
 
 
@@ -370,6 +374,10 @@ def test_effect_regressors_round_trip(name):
     those columns join the fit and the round trip returns the rest.
     """
     effect = EFFECT_CASES[name]
+    if effect.plant_only:  # no column to fit: refused with a one-line error
+        with pytest.raises(UserError, match=f"{effect.type} is plant-only"):
+            effect.regressors(np.zeros(3), np.zeros(3), np.zeros(3))
+        return
     rng = np.random.default_rng(7)
     n = 4000
     y = rng.uniform(-0.12, 0.12, n)

@@ -99,6 +99,9 @@ class _OnnxNamespace:
     sign = staticmethod(lambda x: x._op("Sign", x))
     tanh = staticmethod(lambda x: x._op("Tanh", x))
     relu = staticmethod(lambda x: x._op("Relu", x))
+    # ONNX has no Log1p: Log(1 + x) loses x's relative digits where |x| << 1 but stays within
+    # 1.1e-16 absolute, which is what a sum like softplus needs (TrackEnd's law)
+    log1p = staticmethod(lambda x: x._op("Log", 1.0 + x))
 
     @staticmethod
     def const(x: float) -> float:

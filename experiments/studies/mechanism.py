@@ -25,6 +25,10 @@ data; the rest is its remainder. ``cubic`` coefficients are least-squares fits o
 c2 y^2 + c3 y^3`` over the static curve inside the training range: the remainder's ``c3`` is
 what the drift builds, the truth's is what there is to build (the default plant's cable carrier,
 2000 N/m^3). A case whose effects have no such term (a linear cable) is the control.
+The true force is the plant's motor command (``Plant.motor_command``: exact where an effect
+scales the motor force, as a track end does). A static curve holds v = a = 0; the study also
+prints, per model, the rms force error along the outside reference where it is beyond the
+range, against the command that reference's exact motion needs (accelerations included).
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``mechanism:`` section;
 ``mechanism.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/force_beyond.png``
@@ -159,15 +163,26 @@ def _cell(cell: Cell) -> dict:
     within = np.abs(y) <= inside.position_m
     beyond = ~within
     zeros = np.zeros_like(y)
-    truth = tb.machine.inverse_force(y, zeros, zeros)
+    truth = tb.machine.motor_command(y, zeros, zeros)  # exact where an effect scales u
     lip_static = lip.theta_["stiffness"] * y
 
     def rms_beyond(f):
         return float(np.sqrt(np.mean((f - truth)[beyond] ** 2)))
 
+    # The force along the outside reference where it is beyond the range, against the motor
+    # command its exact motion needs: what a static curve misses where an effect scales m*a.
+    sig = config.references[st.outside].sample(ts)
+    along = np.abs(sig.r) > inside.position_m
+    need = tb.machine.motor_command(sig.r, sig.v, sig.a)
+
+    def rms_along(model):
+        return float(np.sqrt(np.mean((model.feedforward(sig.r, ts) - need)[along] ** 2)))
+
     out = {"case": cell.case, "record": cell.record, "position_limit_m": inside.position_m,
            "y": y.tolist(), "truth": truth.tolist(), "lip_static": lip_static.tolist(),
            "lip": {"theta": dict(lip.theta_), "error_beyond_rms_n": rms_beyond(lip_static),
+                   "error_along_rms_n": rms_along(lip),
+                   "need_along_rms_n": float(np.sqrt(np.mean(need[along] ** 2))),
                    "mae": {r: tb.replay(lip, r).mae for r in (st.inside, st.outside)}},
            "truth_cubic": cubic(y[within], truth[within]), "fits": []}
     for draw in range(st.draws):
@@ -185,6 +200,7 @@ def _cell(cell: Cell) -> dict:
                 "theta": dict(model.theta_),
                 "mae": {r: tb.replay(model, r).mae for r in (st.inside, st.outside)},
                 "error_beyond_rms_n": rms_beyond(total),
+                "error_along_rms_n": rms_along(model),
                 "dwell_force_n": float(np.interp(reach, y, total)),
                 "drift_stiffness": model.theta_["stiffness"] - lip.theta_["stiffness"],
                 "network_linear": dict(zip(("mass", "viscous", "coulomb", "stiffness",
@@ -266,6 +282,7 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
                 "mae_inside_um": med(lam, "mae", settings.inside) * 1e6,
                 "mae_outside_um": med(lam, "mae", ref) * 1e6,
                 "error_beyond_rms_n": med(lam, "error_beyond_rms_n"),
+                "error_along_rms_n": med(lam, "error_along_rms_n"),
                 "dwell_force_n": med(lam, "dwell_force_n"),
                 "drift_stiffness": med(lam, "drift_stiffness"),
                 "network_linear_stiffness": med(lam, "network_linear", "stiffness"),
@@ -281,7 +298,11 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
                "mae_outside_um": float(np.median([r["lip"]["mae"][ref]
                                                   for r in cell_list])) * 1e6,
                "error_beyond_rms_n": float(np.median([r["lip"]["error_beyond_rms_n"]
-                                                      for r in cell_list]))}
+                                                      for r in cell_list])),
+               "error_along_rms_n": float(np.median([r["lip"]["error_along_rms_n"]
+                                                     for r in cell_list])),
+               "need_along_rms_n": float(np.median([r["lip"]["need_along_rms_n"]
+                                                    for r in cell_list]))}
         every = [f for f in fits]
         rho = scipy.stats.spearmanr([f["mae"][ref] for f in every],
                                     [f["error_beyond_rms_n"] for f in every])
@@ -366,6 +387,21 @@ def report(s: dict) -> str:
                 f"{row['model_linear_stiffness_minus_lip']:+.3g} | "
                 f"{row['remainder_cubic']:.0f} | {row['model_cubic']:.0f} | "
                 f"{row['converged']}/{row['fits']} |")
+    out += ["", f"**The force along {st['outside']} beyond the range** (medians; rms over the "
+            f"samples of {st['outside']} with |r| beyond the training range, of the "
+            "feedforward minus the motor command the reference's exact motion needs, "
+            "accelerations included; the static curve above holds v = a = 0):", "",
+            "| case | rms of the needed command [N] | LIP error [N] | "
+            + " | ".join(f"{n.replace('lambda=', 'λ = ')} error [N]"
+                         for n in next(iter(s["cases"].values()))["rows"]) + " |",
+            "|---|---|---|" + "---|" * len(next(iter(s["cases"].values()))["rows"])]
+    for case, c in s["cases"].items():
+        lip = c["lip"]
+        if "error_along_rms_n" not in lip:  # a summary written before this table
+            continue
+        out.append(f"| {case} | {lip['need_along_rms_n']:.2f} | {lip['error_along_rms_n']:.2f} | "
+                   + " | ".join(f"{row['error_along_rms_n']:.2f}" for row in c["rows"].values())
+                   + " |")
     out += ["", "Figure: `figures/force_beyond.png` (first record, draw 0 of each case)."]
     return "\n".join(out) + "\n"
 
