@@ -184,11 +184,9 @@ class CellResult:
                 "regularized": self.regularized.to_json()}
 
 
-def run_cell(cell: Cell) -> dict:
-    """Compute one cell in a worker (single-threaded torch): ``{"status": "ok", "result":
-    CellResult, "elapsed_s"}``. Never raises for the cell's own failure: ``{"status": "failed",
-    "error"}`` is returned instead, so the others go on."""
-    start = time.perf_counter()
+def run_cell(cell: Cell) -> CellResult | CellFailure:
+    """Compute one cell in a worker (single-threaded torch). Never raises for the cell's own
+    failure: a :class:`CellFailure` is returned instead, so the others go on."""
     try:
         import torch
 
@@ -199,11 +197,11 @@ def run_cell(cell: Cell) -> dict:
         finally:
             torch.set_num_threads(threads)
         json.dumps(out.to_json(), allow_nan=False)  # a NaN in the results is a failure
-        return {"status": "ok", "result": out, "elapsed_s": time.perf_counter() - start}
+        return out
     except Exception as exc:  # noqa: BLE001 (recorded, not raised: the other cells go on)
         text = " ".join(str(exc).split()) or type(exc).__name__
-        return {"status": "failed", "case": cell.case, "hidden": cell.hidden, "seed": cell.seed,
-                "error": f"{type(exc).__name__}: {text}"}
+        return CellFailure(case=cell.case, hidden=cell.hidden, seed=cell.seed,
+                           error=f"{type(exc).__name__}: {text}")
 
 
 def _cell(cell: Cell) -> CellResult:
@@ -250,13 +248,12 @@ def verdict(ratio: LogRatio) -> str:
     return "holds" if ratio.low > 1 else "reversed" if ratio.high < 1 else "undecided"
 
 
-def summarize(settings: FailureMapSettings, results: list[dict]) -> FailureMapResult:
+def summarize(settings: FailureMapSettings,
+              results: list[CellResult | CellFailure]) -> FailureMapResult:
     """The failure map from the cell results (any order): per case, direction and n_l the
     paired ratio with its interval and verdict, the mechanism numbers and every fit's stop."""
-    ok: list[CellResult] = [r["result"] for r in results if r["status"] == "ok"]
-    failures = tuple(CellFailure(case=r.get("case"), hidden=r.get("hidden"), seed=r.get("seed"),
-                                 error=r.get("error"))
-                     for r in results if r["status"] != "ok")
+    ok = [r for r in results if isinstance(r, CellResult)]
+    failures = tuple(r for r in results if isinstance(r, CellFailure))
     by = {(r.case, r.hidden): sorted((x for x in ok if (x.case, x.hidden) == (r.case, r.hidden)),
                                      key=lambda x: x.seed)
           for r in ok}
@@ -366,7 +363,7 @@ def cells(config: ExperimentConfig, settings: FailureMapSettings) -> list[Cell]:
 
 
 def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: int = 1,
-            progress=None) -> list[dict]:
+            progress=None) -> list[CellResult | CellFailure]:
     """Run every cell (in ``workers`` processes when > 1) and return the results in task order.
     The results do not depend on ``workers``: each cell is deterministic and single-threaded."""
     from experiments.workers import map_in_order
@@ -376,7 +373,7 @@ def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: 
 
     def done(count, i, result):
         t = tasks[i]
-        status = "ok" if result["status"] == "ok" else f"FAILED {result['error']}"
+        status = f"FAILED {result.error}" if isinstance(result, CellFailure) else "ok"
         progress(f"cell {count}/{len(tasks)}: {t.case}, n_l={t.hidden}, seed {t.seed}: {status}")
 
     return map_in_order(run_cell, tasks, workers, done)
