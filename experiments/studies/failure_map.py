@@ -19,9 +19,12 @@ claim is about, and the log makes it symmetric), transformed back to a ratio. A 
 ``undecided``; Holm's correction over all extrapolation cells is reported beside it.
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
-(:class:`FailureMapSettings`); the cells (case x n_l x seed) are independent and run on a
-process pool (``experiments.workers.map_in_order``, one thread per worker). The output folder
-holds ``failure_map.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/*.png``.
+(:class:`~experiments.studies.failure_map_settings.FailureMapSettings`); the cells (case x n_l
+x seed) are independent and run on a process pool (``experiments.workers.map_in_order``, one
+thread per worker). The result is a typed
+:class:`~experiments.studies.failure_map_result.FailureMapResult`; the output folder holds
+``failure_map.json`` (its ``to_json``), ``report.md``, ``config.resolved.yaml`` and
+``figures/*.png``.
 """
 
 from __future__ import annotations
@@ -31,20 +34,18 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
 
-from clm_sim.effects import CableSlab, Cogging, Effect, ForceRipple, Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
-from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study
 from experiments.sweeps.store import code_version
@@ -53,63 +54,12 @@ from experiments.results import BeyondRange, error_beyond_rms
 from experiments.studies.failure_map_result import (BothFits, CellFailure, CellStats, Drift,
                                                     FailureMapResult, FitRow, Interval, Mechanism,
                                                     NetworkBeyond, ThetaDrift)
+from experiments.studies.failure_map_settings import FailureMapSettings
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
 
 if TYPE_CHECKING:  # the record type only; importing it would import torch
     from controllers.pgnn.fit_record import FitRecord
-
-
-def _default_cases() -> dict[str, tuple[Effect, ...]]:
-    # The sizes are argued in experiments/configs/failure_map.yaml.
-    return {
-        "none": (),
-        "cable_carrier": (CableSlab(coefficients=(0.0, 10.0, 0.0, 2000.0), center=0.0),),
-        "cogging": (Cogging(amplitude=1.0, period=0.012, phase=0.0),),
-        "force_ripple": (ForceRipple(amplitude=0.01, period=0.024, phase=0.0),),
-        "stribeck": (Stribeck(peak=1.0, velocity=0.001, exponent=2.0),),
-    }
-
-
-@dataclass(frozen=True)
-class FailureMapSettings:
-    """The ``failure_map:`` section of a config.
-
-    cases: name -> the parasitic effects of the plant in that case (they replace
-    ``plant.effects``; ``[]`` is the plant without any); outside: direction of extrapolation ->
-    the reference that leaves the training range that way; inside: the training reference
-    (reported for context); hidden: network sizes n_l; lam: the regularization weight compared
-    with lambda = 0 (physical units, > 0); seeds: paired seeds per cell (>= 2 for an interval);
-    confidence: level of the intervals; pgnn: network and optimizer settings shared by every fit.
-    """
-
-    cases: dict[str, tuple[Effect, ...]] = field(default_factory=_default_cases)
-    outside: dict[str, str] = field(
-        default_factory=lambda: {"position": "r2", "velocity": "r3"})
-    inside: str = "r1"
-    hidden: tuple[int, ...] = (8, 32)
-    lam: float = 0.01
-    seeds: int = 10
-    confidence: float = 0.95
-    pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"]}  # config -> field
-
-    def __post_init__(self):
-        if not self.cases:
-            raise UserError("cases: expected at least one case")
-        if not self.outside:
-            raise UserError("outside: expected at least one direction: reference")
-        if not self.hidden or any(h < 1 for h in self.hidden) or len(set(self.hidden)) < len(
-                self.hidden):
-            raise UserError(f"hidden: expected distinct integers >= 1, got {list(self.hidden)}")
-        if not self.lam > 0:
-            raise UserError(f"lambda: expected a number > 0 (compared with lambda = 0), "
-                            f"got {self.lam!r}")
-        if not (isinstance(self.seeds, int) and self.seeds >= 2):
-            raise UserError(f"seeds: expected an integer >= 2 (a paired interval needs two), "
-                            f"got {self.seeds!r}")
-        if not 0.5 <= self.confidence < 1:
-            raise UserError(f"confidence: expected a level in [0.5, 1), got {self.confidence!r}")
 
 
 def load_failure_map(path) -> tuple[ExperimentConfig, FailureMapSettings]:
@@ -342,7 +292,8 @@ def _mechanism(outside: list[CellStats]) -> Mechanism:
 
     xs, ys = [], []
     for c in outside:
-        e0, e1 = c.network.unregularized.error_beyond_rms_n, c.network.regularized.error_beyond_rms_n
+        e0 = c.network.unregularized.error_beyond_rms_n
+        e1 = c.network.regularized.error_beyond_rms_n
         if e0 and e1:
             xs.append(math.log(e0 / e1))
             ys.append(c.ratio.log_mean)

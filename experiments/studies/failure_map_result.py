@@ -16,6 +16,7 @@ import numpy as np
 
 from clm_sim.schema import build, to_plain
 from experiments.paired import LogRatio
+from experiments.studies.failure_map_settings import FailureMapSettings
 
 T = TypeVar("T")
 
@@ -215,7 +216,7 @@ class FailureMapResult:
     failed cells and the mechanism; wall time (s), workers and code version of the run that
     computed it (None until the run sets them)."""
 
-    settings: object  # FailureMapSettings (not imported: failure_map imports this module)
+    settings: FailureMapSettings
     interval: str
     cells: tuple[CellStats, ...]
     drift: dict[tuple[str, int], Drift]
@@ -267,8 +268,6 @@ class FailureMapResult:
     @classmethod
     def from_json(cls, d: dict) -> FailureMapResult:
         """From a stored ``failure_map.json`` (its derived counts are recomputed)."""
-        from experiments.studies.failure_map import FailureMapSettings
-
         def drift_key(key: str) -> tuple[str, int]:
             case, hidden = key.rsplit("/", 1)
             return case, int(hidden)
