@@ -222,10 +222,11 @@ def summarize(settings: FailureMapSettings,
             drift[(case, hidden)] = _drift(rows)
             for direction, ref in directions.items():
                 cells.append(_cell_stats(settings, case, hidden, direction, ref, rows))
-    outside = [c for c in cells if c.outside]
-    adjusted = iter(holm([c.ratio.p for c in outside]))
-    cells = [replace(c, p_holm=(p := next(adjusted)), holm_significant=p < 1 - settings.confidence)
-             if c.outside else c for c in cells]
+    adjusted = iter(holm([c.ratio.p for c in cells if c.outside]))
+    for i, c in enumerate(cells):
+        if c.outside:
+            p = next(adjusted)
+            cells[i] = replace(c, p_holm=p, holm_significant=p < 1 - settings.confidence)
     return FailureMapResult(
         settings=settings,
         interval=(f"{settings.confidence:.0%} t-interval on the per-seed log ratio "

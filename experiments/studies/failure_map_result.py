@@ -180,10 +180,7 @@ class FitRow:
     restarts: int | None
 
     def to_json(self) -> dict:
-        d = dataclasses.asdict(self)
-        return {"case": self.case, "hidden": self.hidden, "seed": self.seed, "lambda": self.lam,
-                **{k: d[k] for k in ("stop", "iterations", "data_cost", "reg_cost", "grad_norm",
-                                     "restarts")}}
+        return {("lambda" if k == "lam" else k): v for k, v in dataclasses.asdict(self).items()}
 
     @classmethod
     def from_json(cls, d: dict) -> FitRow:
