@@ -46,6 +46,43 @@ def test_holm_by_hand():
 
 
 # --------------------------------------------------------------------------------------------
+# the file's keys for the two fits are no contract between modules
+# --------------------------------------------------------------------------------------------
+
+def _json_key_uses() -> set[tuple[str, int]]:
+    """(file, line) of every string literal (docstrings aside) in the packages that is one of
+    failure_map.json's names for the two fits of a cell, or contains "lam0"."""
+    import ast
+
+    hits = set()
+    for package in ("clm_sim", "controllers", "experiments"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            tree = ast.parse(path.read_text(), str(path))
+            docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                          if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef,
+                                               ast.AsyncFunctionDef))
+                          and node.body and isinstance(node.body[0], ast.Expr)
+                          and isinstance(node.body[0].value, ast.Constant)}
+            for node in ast.walk(tree):
+                if (isinstance(node, ast.Constant) and isinstance(node.value, str)
+                        and id(node) not in docstrings
+                        and (node.value in ("lam0", "reg") or "lam0" in node.value)):
+                    hits.add((path.relative_to(ROOT).as_posix(), node.lineno))
+    return hits
+
+
+def test_lam0_and_reg_appear_only_in_the_json_mapping():
+    import ast
+
+    module = ROOT / "experiments" / "studies" / "failure_map_result.py"
+    mapping = next(node.lineno for node in ast.parse(module.read_text()).body
+                   if isinstance(node, ast.Assign) and node.targets[0].id == "_JSON_KEYS")
+    # The scan finds the mapping itself (so it can find a use), and nothing else: the report,
+    # the figures and the study read typed fields, never the file's keys.
+    assert _json_key_uses() == {("experiments/studies/failure_map_result.py", mapping)}
+
+
+# --------------------------------------------------------------------------------------------
 # config: strict, names the key
 # --------------------------------------------------------------------------------------------
 
@@ -166,7 +203,32 @@ def test_tiny_grid_does_not_depend_on_the_worker_count(tiny, tmp_path):
 
     _, _, s, _, path = tiny
     config, settings = load_failure_map(path)
-    inline = summarize(settings, compute(config, settings, workers=1))
+    inline = summarize(settings, compute(config, settings, workers=1)).to_json()
     # Each cell is single-threaded and seeded: the same bits in a worker and inline.
     assert json.dumps(inline["cells"]) == json.dumps(s["cells"])
     assert math.isfinite(inline["cells"][0]["ratio"]["ratio"])
+
+
+@pytest.mark.slow
+def test_tiny_json_reads_back_into_the_same_result_and_figures(tiny, tmp_path):
+    from experiments.studies.failure_map import draw, report
+    from experiments.studies.failure_map_result import FailureMapResult
+
+    _, out, s, text, path = tiny
+    result = FailureMapResult.from_json(s)
+    _config, settings = load_failure_map(path)
+    assert result.settings == settings
+    # The file is the result's one mapping: written back, the same bytes; and the report and
+    # figures drawn from the read-back result are those the run wrote.
+    assert json.dumps(result.to_json(), indent=1) == (out / "failure_map.json").read_text()
+    assert FailureMapResult.from_json(result.to_json()) == result
+    assert report(result) == text
+    draw(result, tmp_path)
+    for figure in ("ratio", "mechanism", "drift"):
+        assert (tmp_path / f"{figure}.png").read_bytes() == \
+            (out / "figures" / f"{figure}.png").read_bytes()
+    # The file's keys map to the right fits: "lam0" is lambda = 0, "reg" the regularized one.
+    first = result.cells[0]
+    assert first.mae.unregularized == tuple(s["cells"][0]["mae_lam0"]["per_seed"])
+    assert first.mae.regularized == tuple(s["cells"][0]["mae_reg"]["per_seed"])
+    assert {f.lam for f in result.fits if f.stop} == {0.0, settings.lam}

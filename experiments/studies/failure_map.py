@@ -19,9 +19,12 @@ claim is about, and the log makes it symmetric), transformed back to a ratio. A 
 ``undecided``; Holm's correction over all extrapolation cells is reported beside it.
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
-(:class:`FailureMapSettings`); the cells (case x n_l x seed) are independent and run on a
-process pool (``experiments.workers.map_in_order``, one thread per worker). The output folder
-holds ``failure_map.json``, ``report.md``, ``config.resolved.yaml`` and ``figures/*.png``.
+(:class:`~experiments.studies.failure_map_settings.FailureMapSettings`); the cells (case x n_l
+x seed) are independent and run on a process pool (``experiments.workers.map_in_order``, one
+thread per worker). The result is a typed
+:class:`~experiments.studies.failure_map_result.FailureMapResult`; the output folder holds
+``failure_map.json`` (its ``to_json``), ``report.md``, ``config.resolved.yaml`` and
+``figures/*.png``.
 """
 
 from __future__ import annotations
@@ -31,84 +34,32 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
 
-from clm_sim.effects import CableSlab, Cogging, Effect, ForceRipple, Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
-from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study
 from experiments.sweeps.store import code_version
 from experiments.paired import LogRatio, Paired, holm
 from experiments.results import BeyondRange, error_beyond_rms
+from experiments.studies.failure_map_result import (BothFits, CellFailure, CellStats, Drift,
+                                                    FailureMapResult, FitRow, Interval, Mechanism,
+                                                    NetworkBeyond, ThetaDrift)
+from experiments.studies.failure_map_settings import FailureMapSettings
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
 
 if TYPE_CHECKING:  # the record type only; importing it would import torch
     from controllers.pgnn.fit_record import FitRecord
-
-VERDICTS = ("holds", "reversed", "undecided")
-
-
-def _default_cases() -> dict[str, tuple[Effect, ...]]:
-    # The sizes are argued in experiments/configs/failure_map.yaml.
-    return {
-        "none": (),
-        "cable_carrier": (CableSlab(coefficients=(0.0, 10.0, 0.0, 2000.0), center=0.0),),
-        "cogging": (Cogging(amplitude=1.0, period=0.012, phase=0.0),),
-        "force_ripple": (ForceRipple(amplitude=0.01, period=0.024, phase=0.0),),
-        "stribeck": (Stribeck(peak=1.0, velocity=0.001, exponent=2.0),),
-    }
-
-
-@dataclass(frozen=True)
-class FailureMapSettings:
-    """The ``failure_map:`` section of a config.
-
-    cases: name -> the parasitic effects of the plant in that case (they replace
-    ``plant.effects``; ``[]`` is the plant without any); outside: direction of extrapolation ->
-    the reference that leaves the training range that way; inside: the training reference
-    (reported for context); hidden: network sizes n_l; lam: the regularization weight compared
-    with lambda = 0 (physical units, > 0); seeds: paired seeds per cell (>= 2 for an interval);
-    confidence: level of the intervals; pgnn: network and optimizer settings shared by every fit.
-    """
-
-    cases: dict[str, tuple[Effect, ...]] = field(default_factory=_default_cases)
-    outside: dict[str, str] = field(
-        default_factory=lambda: {"position": "r2", "velocity": "r3"})
-    inside: str = "r1"
-    hidden: tuple[int, ...] = (8, 32)
-    lam: float = 0.01
-    seeds: int = 10
-    confidence: float = 0.95
-    pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"]}  # config -> field
-
-    def __post_init__(self):
-        if not self.cases:
-            raise UserError("cases: expected at least one case")
-        if not self.outside:
-            raise UserError("outside: expected at least one direction: reference")
-        if not self.hidden or any(h < 1 for h in self.hidden) or len(set(self.hidden)) < len(
-                self.hidden):
-            raise UserError(f"hidden: expected distinct integers >= 1, got {list(self.hidden)}")
-        if not self.lam > 0:
-            raise UserError(f"lambda: expected a number > 0 (compared with lambda = 0), "
-                            f"got {self.lam!r}")
-        if not (isinstance(self.seeds, int) and self.seeds >= 2):
-            raise UserError(f"seeds: expected an integer >= 2 (a paired interval needs two), "
-                            f"got {self.seeds!r}")
-        if not 0.5 <= self.confidence < 1:
-            raise UserError(f"confidence: expected a level in [0.5, 1), got {self.confidence!r}")
 
 
 def load_failure_map(path) -> tuple[ExperimentConfig, FailureMapSettings]:
@@ -183,11 +134,9 @@ class CellResult:
                 "regularized": self.regularized.to_json()}
 
 
-def run_cell(cell: Cell) -> dict:
-    """Compute one cell in a worker (single-threaded torch): ``{"status": "ok", "result":
-    CellResult, "elapsed_s"}``. Never raises for the cell's own failure: ``{"status": "failed",
-    "error"}`` is returned instead, so the others go on."""
-    start = time.perf_counter()
+def run_cell(cell: Cell) -> CellResult | CellFailure:
+    """Compute one cell in a worker (single-threaded torch). Never raises for the cell's own
+    failure: a :class:`CellFailure` is returned instead, so the others go on."""
     try:
         import torch
 
@@ -198,11 +147,11 @@ def run_cell(cell: Cell) -> dict:
         finally:
             torch.set_num_threads(threads)
         json.dumps(out.to_json(), allow_nan=False)  # a NaN in the results is a failure
-        return {"status": "ok", "result": out, "elapsed_s": time.perf_counter() - start}
+        return out
     except Exception as exc:  # noqa: BLE001 (recorded, not raised: the other cells go on)
         text = " ".join(str(exc).split()) or type(exc).__name__
-        return {"status": "failed", "case": cell.case, "hidden": cell.hidden, "seed": cell.seed,
-                "error": f"{type(exc).__name__}: {text}"}
+        return CellFailure(case=cell.case, hidden=cell.hidden, seed=cell.seed,
+                           error=f"{type(exc).__name__}: {text}")
 
 
 def _cell(cell: Cell) -> CellResult:
@@ -249,12 +198,12 @@ def verdict(ratio: LogRatio) -> str:
     return "holds" if ratio.low > 1 else "reversed" if ratio.high < 1 else "undecided"
 
 
-def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
+def summarize(settings: FailureMapSettings,
+              results: list[CellResult | CellFailure]) -> FailureMapResult:
     """The failure map from the cell results (any order): per case, direction and n_l the
     paired ratio with its interval and verdict, the mechanism numbers and every fit's stop."""
-    ok: list[CellResult] = [r["result"] for r in results if r["status"] == "ok"]
-    failures = [{k: r.get(k) for k in ("case", "hidden", "seed", "error")}
-                for r in results if r["status"] != "ok"]
+    ok = [r for r in results if isinstance(r, CellResult)]
+    failures = tuple(r for r in results if isinstance(r, CellFailure))
     by = {(r.case, r.hidden): sorted((x for x in ok if (x.case, x.hidden) == (r.case, r.hidden)),
                                      key=lambda x: x.seed)
           for r in ok}
@@ -266,40 +215,26 @@ def summarize(settings: FailureMapSettings, results: list[dict]) -> dict:
             rows = by.get((case, hidden), [])
             for r in rows:
                 for f in (r.unregularized, r.regularized):
-                    fits.append({"case": case, "hidden": hidden, "seed": r.seed,
-                                 "lambda": f.lam, **fit_entry(f.fit)})
+                    fits.append(FitRow(case=case, hidden=hidden, seed=r.seed, lam=f.lam,
+                                       **fit_entry(f.fit)))
             if len(rows) < 2:
                 continue
-            drift[f"{case}/{hidden}"] = _drift(rows)
+            drift[(case, hidden)] = _drift(rows)
             for direction, ref in directions.items():
                 cells.append(_cell_stats(settings, case, hidden, direction, ref, rows))
-    outside = [c for c in cells if c["direction"] != "inside"]
-    for c, p in zip(outside, holm([c["ratio"]["p"] for c in outside])):
-        c["ratio"]["p_holm"] = p
-        c["holm_significant"] = p < 1 - settings.confidence
-    region = {v: [_label(c) for c in outside if c["verdict"] == v] for v in VERDICTS}
-    capped = [f for f in fits if f["stop"] == "max_iter"]
-    unconverged = [f for f in fits if f["stop"] != "converged"]
-    return {
-        "settings": to_plain(settings),
-        "interval": (f"{settings.confidence:.0%} t-interval on the per-seed log ratio "
-                     "ln MAE(lambda=0) - ln MAE(lambda), paired by seed (same training run and "
-                     "network initialization); p-values two-sided, Holm-adjusted over the "
-                     "extrapolation cells"),
-        "cells": cells, "region": region, "drift": drift, "fits": fits,
-        "fit_stops": {s: sum(f["stop"] == s for f in fits) for s in sorted({f["stop"] for f in
-                                                                           fits})},
-        "capped_fits": len(capped), "unconverged_fits": len(unconverged), "failures": failures,
-        "mechanism": _mechanism(outside),
-    }
-
-
-# failure_map.json names the two fits of a cell by these keys (the file's format).
-_JSON_KEYS = {"lam0": "unregularized", "reg": "regularized"}
-
-
-def _label(c: dict) -> str:
-    return f"{c['direction']} ({c['reference']}) / {c['case']} / n_l={c['hidden']}"
+    adjusted = iter(holm([c.ratio.p for c in cells if c.outside]))
+    for i, c in enumerate(cells):
+        if c.outside:
+            p = next(adjusted)
+            cells[i] = replace(c, p_holm=p, holm_significant=p < 1 - settings.confidence)
+    return FailureMapResult(
+        settings=settings,
+        interval=(f"{settings.confidence:.0%} t-interval on the per-seed log ratio "
+                  "ln MAE(lambda=0) - ln MAE(lambda), paired by seed (same training run and "
+                  "network initialization); p-values two-sided, Holm-adjusted over the "
+                  "extrapolation cells"),
+        cells=tuple(cells), drift=drift, fits=tuple(fits), failures=failures,
+        mechanism=_mechanism([c for c in cells if c.outside]))
 
 
 def _mean(values):
@@ -307,48 +242,50 @@ def _mean(values):
     return float(np.mean(values)) if values else None
 
 
-def _cell_stats(settings, case, hidden, direction, ref, rows) -> dict:
+def _cell_stats(settings, case, hidden, direction, ref, rows) -> CellStats:
     a = [r.unregularized.mae[ref] for r in rows]
     b = [r.regularized.mae[ref] for r in rows]
     pair = Paired.of(a, b, settings.confidence)
     ratio = pair.log_ratio  # MAEs are positive and a cell has >= 2 seeds
-    part = {key: {q: _mean([getattr(getattr(r, which).beyond[ref], q) for r in rows])
-                  for q in ("network_peak_beyond_n", "network_peak_within_n",
-                            "error_beyond_rms_n")}
-            for key, which in _JSON_KEYS.items()}
+
+    def network(which: str) -> NetworkBeyond:
+        return NetworkBeyond(**{q: _mean([getattr(getattr(r, which).beyond[ref], q) for r in rows])
+                                for q in ("network_peak_beyond_n", "network_peak_within_n",
+                                          "error_beyond_rms_n")})
+
     stops = [f.fit.stop for r in rows for f in (r.unregularized, r.regularized)]
-    return {"case": case, "hidden": hidden, "direction": direction, "reference": ref,
-            "n_seeds": len(rows), "seeds": [r.seed for r in rows],
-            "mae_lam0": {"mean": float(np.mean(a)), "per_seed": a},
-            "mae_reg": {"mean": float(np.mean(b)), "per_seed": b},
-            "mae_lip": {"mean": float(np.mean([r.lip_mae[ref] for r in rows]))},
-            "ratio": dataclasses.asdict(ratio),
-            "difference_m": {"mean": pair.diff, "low": pair.ci[0], "high": pair.ci[1]},
-            "verdict": verdict(ratio),
-            "network": part, "lip_error_beyond_rms_n":
-                _mean([r.lip_error_beyond_rms_n[ref] for r in rows]),
-            "capped_fits": stops.count("max_iter"),
-            "unconverged_fits": sum(x != "converged" for x in stops)}
+    return CellStats(
+        case=case, hidden=hidden, direction=direction, reference=ref,
+        seeds=tuple(r.seed for r in rows), mae=BothFits(tuple(a), tuple(b)),
+        mae_lip_mean=float(np.mean([r.lip_mae[ref] for r in rows])), ratio=ratio,
+        difference_m=Interval(mean=pair.diff, low=pair.ci[0], high=pair.ci[1]),
+        verdict=verdict(ratio),
+        network=BothFits(network("unregularized"), network("regularized")),
+        lip_error_beyond_rms_n=_mean([r.lip_error_beyond_rms_n[ref] for r in rows]),
+        capped_fits=stops.count("max_iter"),
+        unconverged_fits=sum(x != "converged" for x in stops))
 
 
-def _drift(rows) -> dict:
+def _drift(rows) -> Drift:
     """theta_phy - theta_LIP per parameter (SI units), mean and spread over seeds, and the force
     it moves at the edge of the training range (N): the parameter times the largest |feature|
     of the training reference (|a|, |v|, 1, |y|)."""
     edge = rows[0].ranges
     scale = {"mass": edge["acceleration_m_s2"], "viscous": edge["velocity_m_s"],
              "coulomb": 1.0, "stiffness": edge["position_m"]}
-    out = {"theta_lip": {k: float(np.mean([r.lip_theta[k] for r in rows]))
-                         for k in THETA_NAMES}}
-    for key, which in _JSON_KEYS.items():
+
+    def of(which: str) -> dict[str, ThetaDrift]:
         d = {k: [getattr(r, which).theta[k] - r.lip_theta[k] for r in rows] for k in THETA_NAMES}
-        out[key] = {k: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1)),
-                        "edge_force_n": float(np.mean(np.abs(v)) * scale[k])}
-                    for k, v in d.items()}
-    return out
+        return {k: ThetaDrift(mean=float(np.mean(v)), std=float(np.std(v, ddof=1)),
+                              edge_force_n=float(np.mean(np.abs(v)) * scale[k]))
+                for k, v in d.items()}
+
+    return Drift(theta_lip={k: float(np.mean([r.lip_theta[k] for r in rows]))
+                            for k in THETA_NAMES},
+                 theta=BothFits(of("unregularized"), of("regularized")))
 
 
-def _mechanism(outside: list[dict]) -> dict:
+def _mechanism(outside: list[CellStats]) -> Mechanism:
     """How the MAE ratio follows the model's force error beyond the range: Spearman's rank
     correlation over the extrapolation cells of ln(MAE ratio) with
     ln(error_beyond(lambda = 0) / error_beyond(lambda))."""
@@ -356,15 +293,15 @@ def _mechanism(outside: list[dict]) -> dict:
 
     xs, ys = [], []
     for c in outside:
-        e0, e1 = c["network"]["lam0"]["error_beyond_rms_n"], c["network"]["reg"][
-            "error_beyond_rms_n"]
+        e0 = c.network.unregularized.error_beyond_rms_n
+        e1 = c.network.regularized.error_beyond_rms_n
         if e0 and e1:
             xs.append(math.log(e0 / e1))
-            ys.append(c["ratio"]["log_mean"])
+            ys.append(c.ratio.log_mean)
     if len(xs) < 3:
-        return {"n_cells": len(xs), "spearman": None}
+        return Mechanism(n_cells=len(xs), spearman=None)
     rho = stats.spearmanr(xs, ys)
-    return {"n_cells": len(xs), "spearman": float(rho.statistic)}
+    return Mechanism(n_cells=len(xs), spearman=float(rho.statistic))
 
 
 # ----------------------------------------------------------------------------- running
@@ -378,7 +315,7 @@ def cells(config: ExperimentConfig, settings: FailureMapSettings) -> list[Cell]:
 
 
 def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: int = 1,
-            progress=None) -> list[dict]:
+            progress=None) -> list[CellResult | CellFailure]:
     """Run every cell (in ``workers`` processes when > 1) and return the results in task order.
     The results do not depend on ``workers``: each cell is deterministic and single-threaded."""
     from experiments.workers import map_in_order
@@ -388,15 +325,15 @@ def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: 
 
     def done(count, i, result):
         t = tasks[i]
-        status = "ok" if result["status"] == "ok" else f"FAILED {result['error']}"
+        status = f"FAILED {result.error}" if isinstance(result, CellFailure) else "ok"
         progress(f"cell {count}/{len(tasks)}: {t.case}, n_l={t.hidden}, seed {t.seed}: {status}")
 
     return map_in_order(run_cell, tasks, workers, done)
 
 
 def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out, *,
-                    workers: int | None = None, quiet: bool = False) -> dict:
-    """Run the study and write it into ``out`` (replaced atomically). Returns the summary."""
+                    workers: int | None = None, quiet: bool = False) -> FailureMapResult:
+    """Run the study and write it into ``out`` (replaced atomically). Returns the map."""
     progress = Progress(quiet)
     out = Path(out)
     workers = workers or os.cpu_count() or 1
@@ -405,15 +342,14 @@ def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out,
             {**resolved(config), "failure_map": to_plain(settings)}, sort_keys=False))
         start = time.perf_counter()
         results = compute(config, settings, workers=workers, progress=progress)
-        summary = summarize(settings, results)
-        summary["wall_time_s"] = time.perf_counter() - start
-        summary["workers"] = workers
-        summary["code_version"] = code_version()  # the sources that computed the cells
-        (tmp / "failure_map.json").write_text(json.dumps(summary, indent=1))
-        draw(summary, tmp / "figures")
-        (tmp / "report.md").write_text(report(summary))
+        result = replace(summarize(settings, results),
+                         wall_time_s=time.perf_counter() - start, workers=workers,
+                         code_version=code_version())  # the sources that computed the cells
+        (tmp / "failure_map.json").write_text(json.dumps(result.to_json(), indent=1))
+        draw(result, tmp / "figures")
+        (tmp / "report.md").write_text(report(result))
     progress(f"report in {out}/report.md")
-    return summary
+    return result
 
 
 def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
@@ -426,9 +362,9 @@ def main(config_path, out=None, *, workers: int | None = None, quiet: bool = Fal
     except UserError as exc:
         raise UserError(f"{config_path}: {exc}") from None
     out = Path(out) if out else Path("results") / Path(config_path).stem
-    summary = run_failure_map(config, settings, out, workers=workers, quiet=quiet)
+    result = run_failure_map(config, settings, out, workers=workers, quiet=quiet)
     print((out / "report.md").read_text(), end="")
-    return 1 if summary["failures"] else 0
+    return 1 if result.failures else 0
 
 
 # ----------------------------------------------------------------------------- report
@@ -437,70 +373,70 @@ def _um(x: float) -> str:
     return f"{x * 1e6:.3f}"
 
 
-def _ci(stat: dict) -> str:
-    return f"{stat['ratio']:.2f} [{stat['low']:.2f}, {stat['high']:.2f}]"
+def _ci(r: LogRatio) -> str:
+    return f"{r.ratio:.2f} [{r.low:.2f}, {r.high:.2f}]"
 
 
-def _why(s: dict, c: dict) -> str:
+def _why(s: FailureMapResult, c: CellStats) -> str:
     """One generated sentence on the mechanism of a cell: the drift, the network beyond the
     range and the model's force error there."""
-    d = s["drift"][f"{c['case']}/{c['hidden']}"]
-    top = sorted(THETA_NAMES, key=lambda k: -d["lam0"][k]["edge_force_n"])[:2]
-    drift = ", ".join(f"{k} {d['lam0'][k]['mean']:+.3g} {THETA_UNITS[k]} (±"
-                      f"{d['lam0'][k]['std']:.2g}; {d['lam0'][k]['edge_force_n']:.2f} N at the "
+    d = s.drift[(c.case, c.hidden)].theta.unregularized
+    top = sorted(THETA_NAMES, key=lambda k: -d[k].edge_force_n)[:2]
+    drift = ", ".join(f"{k} {d[k].mean:+.3g} {THETA_UNITS[k]} (±"
+                      f"{d[k].std:.2g}; {d[k].edge_force_n:.2f} N at the "
                       f"edge of the range)" for k in top)
-    n0, n1 = c["network"]["lam0"], c["network"]["reg"]
+    n0, n1 = c.network.unregularized, c.network.regularized
     text = f"λ = 0 drifts {drift}"
-    if n0["network_peak_beyond_n"] is not None:
-        text += (f"; beyond the range its network outputs up to {n0['network_peak_beyond_n']:.2f}"
-                 f" N against {n1['network_peak_beyond_n']:.2f} N, and the model misses the true"
-                 f" force there by {n0['error_beyond_rms_n']:.2f} N rms against "
-                 f"{n1['error_beyond_rms_n']:.2f} N (LIP {c['lip_error_beyond_rms_n']:.2f} N)")
+    if n0.network_peak_beyond_n is not None:
+        text += (f"; beyond the range its network outputs up to {n0.network_peak_beyond_n:.2f}"
+                 f" N against {n1.network_peak_beyond_n:.2f} N, and the model misses the true"
+                 f" force there by {n0.error_beyond_rms_n:.2f} N rms against "
+                 f"{n1.error_beyond_rms_n:.2f} N (LIP {c.lip_error_beyond_rms_n:.2f} N)")
     return text
 
 
-def report(s: dict) -> str:
-    """``report.md``: every sentence and number generated from the summary."""
-    st = s["settings"]
-    lam = st["lambda"]
-    outside = [c for c in s["cells"] if c["direction"] != "inside"]
-    inside = [c for c in s["cells"] if c["direction"] == "inside"]
+def report(s: FailureMapResult) -> str:
+    """``report.md``: every sentence and number generated from the map."""
+    st = s.settings
+    lam = st.lam
+    outside, inside = s.outside, s.inside
     lines = [f"# Where does λ = 0 fail? MAE(λ = 0) / MAE(λ = {lam:g}) outside the training range",
              "",
-             f"Cases (parasitic force of the plant): {', '.join(st['cases'])}; directions: "
-             + ", ".join(f"{d} ({r})" for d, r in st["outside"].items())
-             + f"; training reference {st['inside']}; n_l ∈ {{{', '.join(map(str, st['hidden']))}}}"
-             f"; {st['seeds']} seeds per cell. Interval: {s['interval']}. "
-             f"Wall time {s['wall_time_s']:.0f} s on {s['workers']} workers; code "
-             f"{s.get('code_version', '?')}.", ""]
-    n_fits = len(s["fits"])
-    stops = ", ".join(f"{n} {k}" for k, n in s["fit_stops"].items())
+             f"Cases (parasitic force of the plant): {', '.join(st.cases)}; directions: "
+             + ", ".join(f"{d} ({r})" for d, r in st.outside.items())
+             + f"; training reference {st.inside}; n_l ∈ {{{', '.join(map(str, st.hidden))}}}"
+             f"; {st.seeds} seeds per cell. Interval: {s.interval}. "
+             f"Wall time {s.wall_time_s:.0f} s on {s.workers} workers; code "
+             f"{s.code_version or '?'}.", ""]
+    n_fits = len(s.fits)
+    stops = ", ".join(f"{n} {k}" for k, n in s.fit_stops.items())
     lines += [f"**Fits:** {n_fits} ({stops}). "
-              + (f"**{s['unconverged_fits']} fits did not pass the convergence test**, "
-                 f"{s['capped_fits']} of them stopped at the iteration cap (max_iter "
-                 f"{st['pgnn']['max_iter']}); the cells that contain them are marked † below "
+              + (f"**{s.unconverged_fits} fits did not pass the convergence test**, "
+                 f"{s.capped_fits} of them stopped at the iteration cap (max_iter "
+                 f"{st.pgnn.max_iter}); the cells that contain them are marked † below "
                  f"(the count per cell is in failure_map.json)."
-                 if s["unconverged_fits"] else "Every fit passed the convergence test.")]
-    if s["failures"]:
-        lines += ["", f"**{len(s['failures'])} cells failed** and are left out: "
-                  + "; ".join(f"{f['case']} n_l={f['hidden']} seed {f['seed']}: {f['error']}"
-                              for f in s["failures"])]
+                 if s.unconverged_fits else "Every fit passed the convergence test.")]
+    if s.failures:
+        lines += ["", f"**{len(s.failures)} cells failed** and are left out: "
+                  + "; ".join(f"{f.case} n_l={f.hidden} seed {f.seed}: {f.error}"
+                              for f in s.failures)]
     lines += ["", "## Where finding (iii) holds (generated from this run)", ""]
     lines += [_region_sentence(s, outside)]
-    holds = [c for c in outside if c["verdict"] == "holds"]
+    holds = [c for c in outside if c.verdict == "holds"]
     for c in holds:
-        lines.append(f"- **{_label(c)}**: ratio {_ci(c['ratio'])} (λ = 0 {_um(c['mae_lam0']['mean'])}"
-                     f" µm, λ = {lam:g} {_um(c['mae_reg']['mean'])} µm, LIP "
-                     f"{_um(c['mae_lip']['mean'])} µm; Holm p = {c['ratio']['p_holm']:.2g}). "
+        m = c.mae_mean
+        lines.append(f"- **{c.label}**: ratio {_ci(c.ratio)} (λ = 0 {_um(m.unregularized)}"
+                     f" µm, λ = {lam:g} {_um(m.regularized)} µm, LIP "
+                     f"{_um(c.mae_lip_mean)} µm; Holm p = {c.p_holm:.2g}). "
                      f"{_why(s, c)}.")
-    rev = [c for c in outside if c["verdict"] == "reversed"]
+    rev = [c for c in outside if c.verdict == "reversed"]
     for c in rev:
-        lines.append(f"- reversed, **{_label(c)}**: ratio {_ci(c['ratio'])}. {_why(s, c)}.")
-    m = s["mechanism"]
-    if m["spearman"] is not None:
-        lines += ["", (f"Across the {m['n_cells']} extrapolation cells the MAE ratio follows the "
+        lines.append(f"- reversed, **{c.label}**: ratio {_ci(c.ratio)}. {_why(s, c)}.")
+    m = s.mechanism
+    if m.spearman is not None:
+        lines += ["", (f"Across the {m.n_cells} extrapolation cells the MAE ratio follows the "
                   f"ratio of the model's force error beyond the training range (λ = 0 over "
-                  f"λ = {lam:g}): Spearman ρ = {m['spearman']:.2f}.")]
+                  f"λ = {lam:g}): Spearman ρ = {m.spearman:.2f}.")]
     lines += ["", "## Extrapolation cells", "",
               (f"MAE mean over seeds [µm]; ratio MAE(λ = 0)/MAE(λ = {lam:g}) with its interval; "
               f"difference λ = 0 minus λ = {lam:g} [µm] with its interval; network peak beyond "
@@ -509,32 +445,34 @@ def report(s: dict) -> str:
               + " | ratio [CI] | difference [CI] | Holm p | verdict | network beyond [N] |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in outside:
-        d = c["difference_m"]
-        n0, n1 = (c["network"][k]["network_peak_beyond_n"] for k in ("lam0", "reg"))
-        dag = f" †{c['unconverged_fits']}" if c["unconverged_fits"] else ""
+        d = c.difference_m
+        n0, n1 = c.network.unregularized.network_peak_beyond_n, \
+            c.network.regularized.network_peak_beyond_n
+        m = c.mae_mean
+        dag = f" †{c.unconverged_fits}" if c.unconverged_fits else ""
         lines.append(
-            f"| {c['direction']} ({c['reference']}) | {c['case']}{dag} | {c['hidden']} | "
-            f"{_um(c['mae_lip']['mean'])} | {_um(c['mae_lam0']['mean'])} | "
-            f"{_um(c['mae_reg']['mean'])} | {_ci(c['ratio'])} | {d['mean'] * 1e6:+.3f} "
-            f"[{d['low'] * 1e6:+.3f}, {d['high'] * 1e6:+.3f}] | {c['ratio']['p_holm']:.2g} | "
-            f"{c['verdict']}{'' if c['holm_significant'] or c['verdict'] == 'undecided' else ' (not after Holm)'} | "
+            f"| {c.direction} ({c.reference}) | {c.case}{dag} | {c.hidden} | "
+            f"{_um(c.mae_lip_mean)} | {_um(m.unregularized)} | "
+            f"{_um(m.regularized)} | {_ci(c.ratio)} | {d.mean * 1e6:+.3f} "
+            f"[{d.low * 1e6:+.3f}, {d.high * 1e6:+.3f}] | {c.p_holm:.2g} | "
+            f"{c.verdict}{'' if c.holm_significant or c.verdict == 'undecided' else ' (not after Holm)'} | "
             + (f"{n0:.2f} / {n1:.2f} |" if n0 is not None else "– |"))
-    lines += ["", f"## Inside the training range ({st['inside']}), for context", "",
+    lines += ["", f"## Inside the training range ({st.inside}), for context", "",
               "| case | n_l | LIP | λ = 0 | λ = " + f"{lam:g} | ratio [CI] |", "|---|---|---|---|---|---|"]
     for c in inside:
-        lines.append(f"| {c['case']} | {c['hidden']} | {_um(c['mae_lip']['mean'])} | "
-                     f"{_um(c['mae_lam0']['mean'])} | {_um(c['mae_reg']['mean'])} | "
-                     f"{_ci(c['ratio'])} |")
+        m = c.mae_mean
+        lines.append(f"| {c.case} | {c.hidden} | {_um(c.mae_lip_mean)} | "
+                     f"{_um(m.unregularized)} | {_um(m.regularized)} | "
+                     f"{_ci(c.ratio)} |")
     lines += ["", "## Which parameters drift", "",
               ("θ_phy − θ_LIP, mean ± std over seeds (the force it moves at the edge of the training"
               " range in brackets, N)."), "",
               "| case | n_l | λ | " + " | ".join(f"{k} [{THETA_UNITS[k]}]" for k in THETA_NAMES) + " |",
               "|---|---|---|" + "---|" * len(THETA_NAMES)]
-    for key, d in s["drift"].items():
-        case, hidden = key.split("/")
-        for lk, lv in (("lam0", "0"), ("reg", f"{lam:g}")):
+    for (case, hidden), d in s.drift.items():
+        for theta, lv in ((d.theta.unregularized, "0"), (d.theta.regularized, f"{lam:g}")):
             lines.append(f"| {case} | {hidden} | {lv} | " + " | ".join(
-                f"{d[lk][k]['mean']:+.3g} ± {d[lk][k]['std']:.2g} ({d[lk][k]['edge_force_n']:.2f})"
+                f"{theta[k].mean:+.3g} ± {theta[k].std:.2g} ({theta[k].edge_force_n:.2f})"
                 for k in THETA_NAMES) + " |")
     lines += ["", "## Figures", "",
               "The ratio with its interval per case and n_l, one panel per direction:", "",
@@ -546,24 +484,24 @@ def report(s: dict) -> str:
     return "\n".join(lines)
 
 
-def _region_sentence(s: dict, outside: list[dict]) -> str:
-    lam = s["settings"]["lambda"]
+def _region_sentence(s: FailureMapResult, outside: list[CellStats]) -> str:
+    lam = s.settings.lam
     n = len(outside)
-    holds = [c for c in outside if c["verdict"] == "holds"]
-    rev = [c for c in outside if c["verdict"] == "reversed"]
-    strict = [c for c in holds if c["holm_significant"]]
+    holds = [c for c in outside if c.verdict == "holds"]
+    rev = [c for c in outside if c.verdict == "reversed"]
+    strict = [c for c in holds if c.holm_significant]
     if not holds:
         head = (f"**Finding (iii) holds in none of the {n} extrapolation cells**: no interval of "
                 f"MAE(λ = 0)/MAE(λ = {lam:g}) lies above 1.")
     else:
         head = (f"**Finding (iii) holds in {len(holds)} of {n} extrapolation cells** (interval "
                 f"above 1; {len(strict)} of them also after Holm's correction): "
-                + "; ".join(f"{_label(c)} {_ci(c['ratio'])}" for c in holds) + ".")
+                + "; ".join(f"{c.label} {_ci(c.ratio)}" for c in holds) + ".")
     per_dir = []
-    for direction in s["settings"]["outside"]:
-        cs = [c for c in outside if c["direction"] == direction]
-        k = sum(c["verdict"] == "holds" for c in cs)
-        ratios = [c["ratio"]["ratio"] for c in cs]
+    for direction in s.settings.outside:
+        cs = [c for c in outside if c.direction == direction]
+        k = sum(c.verdict == "holds" for c in cs)
+        ratios = [c.ratio.ratio for c in cs]
         if not cs:
             per_dir.append(f"{direction}: no cell computed")
             continue
@@ -572,16 +510,16 @@ def _region_sentence(s: dict, outside: list[dict]) -> str:
     tail = f" By direction: {'; '.join(per_dir)}."
     if rev:
         tail += (f" Reversed (λ = 0 better, interval below 1) in {len(rev)}: "
-                 + "; ".join(_label(c) for c in rev) + ".")
+                 + "; ".join(c.label for c in rev) + ".")
     return head + tail
 
 
 # ----------------------------------------------------------------------------- figures
 
-def draw(summary: dict, folder: Path) -> None:
+def draw(result: FailureMapResult, folder: Path) -> None:
     """The report's figures (:func:`failure_map_figures`) as PNG files."""
     from experiments import plots
     from experiments.studies.failure_map_figures import failure_map_figures
 
-    for stem, fig in failure_map_figures(summary).items():
+    for stem, fig in failure_map_figures(result).items():
         plots.save(fig, Path(folder) / f"{stem}.png")
