@@ -624,7 +624,7 @@ def test_network_variants_export(variant, training_run, fitted, tmp_path):
             assert _rel(c.stream(r), want) < REL, flags
     pytest.importorskip("onnx")
     from controllers.export import onnx_graph
-    if activation in ("softplus", "gelu"):
+    if activation == "gelu":  # erf has no exact ONNX form here
         with pytest.raises(UserError, match="ONNX"):
             onnx_graph.model(wf)
         return

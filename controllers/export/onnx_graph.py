@@ -152,7 +152,8 @@ def _activation(g: _Graph, name: str, x: str) -> str:
     """The activation ``name`` (its law, :data:`~controllers.export.window.ACTIVATION_LAWS`) as
     graph nodes of ``x``. A sigmoid is ``1/(1 + e^-x)``, not the Sigmoid operator: ONNX
     Runtime's float64 Sigmoid is an approximation (1e-4 off, measured with 1.32), its Exp is
-    exact to rounding. softplus and gelu need log1p and erf, which this namespace lacks."""
+    exact to rounding. softplus uses Log(1 + e^x) (log1p below); gelu needs erf, which this
+    namespace lacks."""
     try:
         return ACTIVATION_LAWS[name](_Node(g, x), _OnnxNamespace()).name
     except AttributeError:
