@@ -34,7 +34,7 @@ def plot_theta_history(models: dict, lip_theta: dict, name: str, keys: list[str]
     ref = lip_theta[name] if lip_theta[name] else 1.0
     for i, key in enumerate(keys):
         hist = models[key][0].history_
-        ax.plot([h["iteration"] for h in hist], [h["theta"][name] / ref for h in hist],
+        ax.plot([h.iteration for h in hist], [h.theta[name] / ref for h in hist],
                 color=(colors or {}).get(key, color(i)), lw=1.2, label=variant_label(key))
     ax.set_title(f"{name} (θ_LIP = {lip_theta[name]:.4g} {THETA_UNITS[name]})", fontsize=9)
     ax.set_xlabel("LM iteration [–]")
@@ -66,10 +66,10 @@ def cost_figure(summary: ExtrapolationResult, models: dict) -> Figure:
     ax_d, ax_p = fig.subplots(1, 2, sharex=True)
     for key in [SEQUENTIAL] + summary.lam_keys:
         hist = models[key][0].history_
-        it = [h["iteration"] for h in hist]
-        ax_d.plot(it, [h["data"] for h in hist], color=colors[key], lw=1.2,
+        it = [h.iteration for h in hist]
+        ax_d.plot(it, [h.data for h in hist], color=colors[key], lw=1.2,
                   ls="--" if key == SEQUENTIAL else "-", label=variant_label(key))
-        dev = [h["deviation"] for h in hist]
+        dev = [h.deviation for h in hist]
         if max(dev) > 0:
             ax_p.plot(it, dev, color=colors[key], lw=1.2)
     ax_d.axhline(summary.lip_residual_rms_n ** 2, color=colors[LIP], lw=1, ls=":",
