@@ -64,7 +64,7 @@ class Point:
 
 def tail_decrease(history: list) -> float:
     """The fall of the data cost (N**2) over the last ``TAIL`` iterations of a fit's history
-    (``controllers.pgnn.fit_record.Iterate``\ s, one per iteration)."""
+    (``controllers.pgnn.fit_record.Iterate`` records, one per iteration)."""
     if len(history) < 2:
         return 0.0
     return float(history[max(0, len(history) - 1 - TAIL)].data - history[-1].data)
