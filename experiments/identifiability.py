@@ -62,12 +62,12 @@ class Point:
                 "iterations": self.iterations, "tail_decrease": self.tail}
 
 
-def tail_decrease(history: list[dict]) -> float:
+def tail_decrease(history: list) -> float:
     """The fall of the data cost (N**2) over the last ``TAIL`` iterations of a fit's history
-    (entries with a ``data`` term, one per iteration)."""
+    (``controllers.pgnn.fit_record.Iterate`` records, one per iteration)."""
     if len(history) < 2:
         return 0.0
-    return float(history[max(0, len(history) - 1 - TAIL)]["data"] - history[-1]["data"])
+    return float(history[max(0, len(history) - 1 - TAIL)].data - history[-1].data)
 
 
 def scales(phi: np.ndarray, target: np.ndarray) -> dict[str, float]:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -24,6 +25,9 @@ from matplotlib.transforms import offset_copy
 from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
 from experiments.table import THETA_UNITS, series
+
+if TYPE_CHECKING:
+    from experiments.profiles_result import SizeProfiles
 
 
 # Okabe & Ito's colour-blind-safe set (yellow left out: unreadable on white), then grey, and
@@ -438,28 +442,28 @@ def plot_origin_scan(delta: float, shifts: np.ndarray, rms: np.ndarray, ax=None)
 
 # ----------------------------------------------------------------------------- identifiability
 
-def plot_profile(ident: dict, name: str, ax=None):
+def plot_profile(ident: dict[str, SizeProfiles], name: str, ax=None):
     """The data cost's profile over parameter ``name`` (above the best data cost, N²) per
     network size, the threshold δ, and the table's λ = 0 and λ = 0.01 fits at their θ (a fit
     beyond the grid is drawn at its edge as a triangle pointing out; data costs are those of
     each row's own fit, its data term alone)."""
     ax = _ax(ax)
     for i, (key, rec) in enumerate(ident.items()):
-        e = rec["parameters"][name]
-        pts = sorted(e["profile"], key=lambda p: p["value"])
-        best = rec["best_data_cost"]
-        x = [p["value"] for p in pts]
-        ax.plot(x, [p["data_cost"] - best for p in pts], "-o", ms=3, color=color(i),
+        e = rec.curves[name]
+        pts = sorted(zip(e.values, e.data_costs), key=lambda p: p[0])
+        best = rec.best_data_cost
+        x = [v for v, _ in pts]
+        ax.plot(x, [c - best for _, c in pts], "-o", ms=3, color=color(i),
                 label=f"profile, n_l={key}")
-        ax.axhline(rec["delta"], color=color(i), ls=":", lw=1, label=f"δ, n_l={key}")
-        lo, hi = e["bound"]
-        for f in rec["fits"]:
-            lam0 = not f["lambda"]
-            v = f["theta"][name]
+        ax.axhline(rec.delta, color=color(i), ls=":", lw=1, label=f"δ, n_l={key}")
+        lo, hi = e.bound
+        for f in rec.fits:
+            lam0 = not f.lam
+            v = f.theta[name]
             marker = "x" if lam0 else "+"
             if v < lo or v > hi:
                 v, marker = (lo, "<") if v < lo else (hi, ">")
-            ax.plot([v], [max(f["data_cost"] - best, 0.0)], marker, ms=6, ls="none",
+            ax.plot([v], [max(f.data_cost - best, 0.0)], marker, ms=6, ls="none",
                     mec=color(i), mfc="none", alpha=0.7)
     ax.plot([], [], "x", color="0.3", ls="none", label="λ = 0 fits (colour: n_l)")
     ax.plot([], [], "+", color="0.3", ls="none", label="λ = 0.01 fits")
@@ -468,12 +472,13 @@ def plot_profile(ident: dict, name: str, ax=None):
     return ax
 
 
-def identifiability_figure(ident: dict) -> Figure:
-    """One panel per physical parameter: :func:`plot_profile`."""
+def identifiability_figure(ident: dict[str, SizeProfiles]) -> Figure:
+    """One panel per physical parameter: :func:`plot_profile`; ``ident``: per network size n_l,
+    :func:`experiments.profiles_result.sizes_from_json` of the study's record."""
     fig = _figure(11.0, 7.0)
     axes = fig.subplots(2, 2).ravel()
     for ax, name in zip(axes, THETA_NAMES):
         plot_profile(ident, name, ax)
-        ax.set_yscale("symlog", linthresh=max(r["delta"] for r in ident.values()))
+        ax.set_yscale("symlog", linthresh=max(r.delta for r in ident.values()))
     _legend_right(axes[1])
     return fig

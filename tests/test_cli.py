@@ -19,6 +19,7 @@ from small_config import SMALL_CONFIG
 from clm_sim.record import load_record, save_npz
 from experiments.cli import main
 from experiments.config import load_config
+from experiments.studies.extrapolation_result import ExtrapolationResult
 
 ROOT = Path(__file__).resolve().parents[1]
 BASELINE = ROOT / "experiments" / "configs" / "lip_baseline.yaml"
@@ -324,6 +325,7 @@ def test_study_trains_every_seed_it_reports(tmp_path, capsys):
     code, _, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 0, err
     summary = json.loads((tmp_path / "out" / "study.json").read_text())
+    assert ExtrapolationResult.from_json(summary).to_json() == summary
     for key in ("sequential", "lambda=0", "lambda=0.01"):
         variant = summary["variants"][key]
         assert len(variant["theta_phy_per_seed"]) == 2, key

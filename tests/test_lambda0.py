@@ -86,11 +86,13 @@ def test_regularizers_name_every_term_and_start():
 def test_theta_movement_measures_the_last_quarter():
     """theta_phy's force change over the last quarter of the iterations, relative to the force
     rms: zero for a theta that stopped moving, the move's share when it did not."""
+    from controllers.pgnn.fit_record import Iterate
+
     data = synthetic()
     th = dict(zip(THETA_NAMES, (18.8, 172.0, 7.2, 20.0)))
-    still = [{"iteration": i, "theta": th} for i in range(9)]
+    still = [Iterate(i, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, th) for i in range(9)]
     assert theta_movement(still, data) == 0.0
-    moving = still[:-1] + [{"iteration": 8, "theta": {**th, "viscous": 202.0}}]
+    moving = still[:-1] + [Iterate(8, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, {**th, "viscous": 202.0})]
     expected = (np.sqrt(np.mean((30.0 * data.phi[:, 1]) ** 2))
                 / np.sqrt(np.mean(data.target ** 2)))
     assert theta_movement(moving, data) == pytest.approx(expected, rel=1e-12)

@@ -65,7 +65,7 @@ def test_optimized_init_never_costs_more_than_lip(training, lam):
         lip_cost = float(np.mean((data.target - data.phi @ theta) ** 2))
         model = PGNNFeedforward(hidden=1 + draw % 12, training=training, lam=lam, max_iter=1)
         model.fit_data(data=data, theta_lip=as_dict(theta), rng=np.random.default_rng(draw))
-        init = model.history_[0]["cost"]
+        init = model.history_[0].cost
         # 1e-9 relative: round-off of two least-squares solutions of the same problem.
         assert init <= lip_cost * (1 + 1e-9)
         h = hidden_outputs(model, data, theta, draw)
@@ -86,7 +86,7 @@ def test_init_equals_lip_cost_when_residual_is_orthogonal(data):
     assert not lemma_condition(flat, h, theta)
     model.fit_data(data=flat, theta_lip=as_dict(theta), rng=np.random.default_rng(3))
     lip_cost = float(np.mean(noise**2))
-    assert model.history_[0]["cost"] == pytest.approx(lip_cost, rel=1e-9)  # round-off only
+    assert model.history_[0].cost == pytest.approx(lip_cost, rel=1e-9)  # round-off only
 
 
 def test_very_large_lambda_pins_theta_to_lip(data):
@@ -126,7 +126,7 @@ def test_regularized_pgnn_learns_parasitic_force_and_keeps_theta(data):
     assert model.cost_["data"] < 0.1 * lip_cost
     # theta_LIP itself is close to the truth: the sine hides no bias in mass, viscous, coulomb.
     np.testing.assert_allclose(theta[:3], THETA_TRUE[:3], rtol=0.05)
-    costs = [h["cost"] for h in model.history_]
+    costs = [h.cost for h in model.history_]
     assert all(b <= a for a, b in itertools.pairwise(costs))  # LM accepts only decreases
 
 

@@ -227,3 +227,26 @@ def test_study_runs_end_to_end(tmp_path):
     assert main(["study", str(cfg), "--out", str(again), "--quiet", "--workers", "2"]) == 0
     assert json.loads((again / "identifiability.json").read_text())["sizes"] == json.loads(
         (out / "identifiability.json").read_text())["sizes"]
+
+
+def test_the_figure_reads_the_typed_profiles_of_the_record():
+    """The record's keys are read once (profiles_result); the figure draws the fields: the
+    profile sorted by value, above the best data cost, and the fits at their θ."""
+    from experiments.plots import identifiability_figure
+    from experiments.profiles_result import sizes_from_json
+
+    theta = {"mass": 2.0, "viscous": 40.0, "coulomb": 5.0, "stiffness": 100.0}
+    params = {name: {"profile": [{"value": v * 1.1, "data_cost": 1.5, "stop": "converged"},
+                                 {"value": v * 0.9, "data_cost": 1.2, "stop": "converged"},
+                                 {"value": v, "data_cost": 1.0, "stop": "converged"}],
+                     "bound": [v * 0.5, v * 1.5], "range": None}
+              for name, v in theta.items()}
+    record = {"2": {"best_data_cost": 1.0, "delta": 0.1, "parameters": params,
+                    "fits": [{"lambda": 0.0, "data_cost": 1.05, "theta": theta}]}}
+    sizes = sizes_from_json(record)
+    assert sizes["2"].curves["mass"].values == (2.2, 1.8, 2.0)
+    assert sizes["2"].fits[0].lam == 0.0 and sizes["2"].delta == 0.1
+    fig = identifiability_figure(sizes)
+    line = fig.axes[0].lines[0]
+    assert list(line.get_xdata()) == [1.8, 2.0, 2.2]
+    assert list(line.get_ydata()) == pytest.approx([0.2, 0.0, 0.5])

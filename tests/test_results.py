@@ -72,6 +72,32 @@ def test_a_saved_model_with_a_broken_fit_section_is_refused_naming_it(fitted, tm
         PGNNFeedforward.load(tmp_path / "m")
 
 
+def test_history_is_typed_and_the_file_keeps_its_keys(fitted, tmp_path):
+    from controllers.pgnn.fit_record import Iterate
+
+    h = fitted.history_
+    assert all(isinstance(e, Iterate) for e in h) and len(h) >= 2
+    assert [e.iteration for e in h] == list(range(len(h)))
+    assert h[-1].data == pytest.approx(fitted.cost_["data"])
+    fitted.save(tmp_path / "m")
+    doc = json.loads((tmp_path / "m.json").read_text())
+    assert list(doc["history"][0]) == ["iteration", "cost", "data", "deviation", "pinn",
+                                       "orthogonal", "weight_decay", "theta"]
+    back = PGNNFeedforward.load(tmp_path / "m")
+    assert back.history_ == h
+    assert json.dumps(back.to_json(), indent=1) == (tmp_path / "m.json").read_text()
+
+
+@pytest.mark.parametrize("bad", [{"iteration": 0}, [1], {"iteration": 0, "cost": "x",
+                                                        "theta": {}}])
+def test_a_saved_model_with_a_broken_history_is_refused_naming_it(fitted, tmp_path, bad):
+    fitted.save(tmp_path / "m")
+    doc = json.loads((tmp_path / "m.json").read_text())
+    (tmp_path / "m.json").write_text(json.dumps({**doc, "history": [bad]}))
+    with pytest.raises(UserError, match="cannot read PGNN model .history: "):
+        PGNNFeedforward.load(tmp_path / "m")
+
+
 def test_table_row_from_seed_results(fitted):
     spec = FeedforwardSpec.pgnn_row(training="simultaneous", lam=0.01, hidden=3, settings={})
     lip = {"mass": 2.0, "viscous": 40.0, "coulomb": 0.0, "stiffness": 50.0}

@@ -18,6 +18,48 @@ from clm_sim.plant import THETA_NAMES
 
 
 @dataclass(frozen=True)
+class Iterate:
+    """One accepted iteration of a fit, as ``PGNNFeedforward.history_`` keeps it: the iteration,
+    the optimizer's cost and its terms (N**2; the names of
+    :data:`controllers.pgnn.cost.TERMS`), theta_phy (named, SI units) and, with a held-out
+    check, the held-out mean squared force error (N**2). The model file stores the history
+    through :meth:`to_json` (its keys are the file format's)."""
+
+    iteration: int
+    cost: float
+    data: float
+    deviation: float
+    pinn: float
+    orthogonal: float
+    weight_decay: float
+    theta: dict[str, float]
+    validation: float | None = None
+
+    def to_json(self) -> dict:
+        out = {"iteration": self.iteration, "cost": self.cost, "data": self.data,
+               "deviation": self.deviation, "pinn": self.pinn, "orthogonal": self.orthogonal,
+               "weight_decay": self.weight_decay, "theta": dict(self.theta)}
+        if self.validation is not None:
+            out["validation"] = self.validation
+        return out
+
+    @classmethod
+    def from_json(cls, d) -> Iterate:
+        """An entry of a model file's ``history`` (a term missing from an older file: 0)."""
+        if not isinstance(d, dict) or not isinstance(d.get("theta"), dict):
+            raise UserError("history: expected entries with 'iteration', 'cost' and 'theta'")
+        try:
+            return cls(int(d["iteration"]), float(d["cost"]),
+                       *(float(d.get(t, 0.0)) for t in ("data", "deviation", "pinn",
+                                                         "orthogonal", "weight_decay")),
+                       theta={k: float(d["theta"][k]) for k in THETA_NAMES},
+                       validation=(None if d.get("validation") is None
+                                   else float(d["validation"])))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise UserError(f"history: an entry lacks or mistypes {exc}") from None
+
+
+@dataclass(frozen=True)
 class ThetaPoint:
     """theta_phy (named, SI units) and the data cost (N**2) at one iteration of a fit."""
 

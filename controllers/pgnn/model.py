@@ -73,7 +73,7 @@ from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import TERMS, SeparableCost, Weights
-from controllers.pgnn.fit_record import FitRecord, Start, ThetaPoint
+from controllers.pgnn.fit_record import FitRecord, Iterate, Start, ThetaPoint
 from controllers.pgnn.network import PGNNNetwork
 from clm_sim.schema import build
 from controllers.pgnn_settings import (CONSTRAINTS, LAMBDA_KEYS, PGNNSettings, check_settings,
@@ -350,8 +350,8 @@ class PGNNFeedforward:
 
             def record(it, p, value):
                 theta, _, _ = cost.linear(p)
-                history.append({"iteration": it, "cost": value, **cost.terms(p),
-                                "theta": dict(zip(THETA_NAMES, map(float, theta)))})
+                history.append(Iterate(it, value, **cost.terms(p),
+                                       theta=dict(zip(THETA_NAMES, map(float, theta)))))
 
             res = optim.levenberg_marquardt(cost, net.get_nonlinear(), max_iter=self.max_iter,
                                             ftol=self.ftol, callback=record)
@@ -417,16 +417,16 @@ class PGNNFeedforward:
 
         def record(it, p, value):
             beta, (theta, w, b) = unpack(p)
-            entry = {"iteration": it, "cost": value, **terms(p),
-                     "theta": dict(zip(THETA_NAMES, map(float, theta)))}
-            score = value
+            validation = None
             if check is not None:
                 net.set_nonlinear(beta)
                 net.set_linear(theta, w, b)
                 pred = _predict(net, held_out)
-                entry["validation"] = float(np.mean((held_out.target - pred) ** 2))
-                score = entry["validation"]
-            history.append(entry)
+                validation = float(np.mean((held_out.target - pred) ** 2))
+            history.append(Iterate(it, value, **terms(p),
+                                   theta=dict(zip(THETA_NAMES, map(float, theta))),
+                                   validation=validation))
+            score = value if validation is None else validation
             if score < best["score"]:
                 best.update(score=score, p=p.copy(), iteration=it)
 
@@ -508,7 +508,8 @@ class PGNNFeedforward:
                     "edge_samples")},
                 "theta": self.theta_, "theta_lip": self.theta_lip_, "cost": self.cost_,
                 "fit": self.fit_.to_json(), "best_iteration": self.best_iteration_,
-                "n_samples": self.n_samples_, "history": self.history_}
+                "n_samples": self.n_samples_, "history": (None if self.history_ is None
+                                                        else [h.to_json() for h in self.history_])}
 
     def save(self, path) -> None:
         """Write ``path.pt`` (the module's state_dict: float64 tensors, input scalings included)
@@ -536,6 +537,11 @@ class PGNNFeedforward:
             theta = {k: number(theta.get(k), f"theta.{k}") for k in THETA_NAMES}
             ts = sample_time(info.get("ts"))
             fit = FitRecord.from_json(info.get("fit"))
+            history = info.get("history")
+            if history is not None:
+                if not isinstance(history, list):
+                    raise UserError("history: expected a list")
+                history = [Iterate.from_json(e) for e in history]
             # The weights' size follows from the widths: a larger file is not this model's.
             weights = parameter_count(settings["hidden"]) + 8  # + the input scalings
             if pt.stat().st_size > 16 * weights + 2 ** 20:
@@ -562,7 +568,7 @@ class PGNNFeedforward:
         model.network_ = net
         model.theta_ = theta
         model.theta_lip_ = info.get("theta_lip")
-        model.history_ = info.get("history")
+        model.history_ = history
         model.best_iteration_ = info.get("best_iteration")
         model.cost_ = info.get("cost")
         model.fit_ = fit
@@ -589,23 +595,23 @@ def _generator(rng) -> np.random.Generator:
 CHECKPOINTS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
 
 
-def theta_path(history: list[dict]) -> tuple[ThetaPoint, ...]:
+def theta_path(history: list[Iterate]) -> tuple[ThetaPoint, ...]:
     """theta_phy (named) at the iterations ``CHECKPOINTS`` that the fit reached, and at its last
     accepted iteration: how theta moves as the optimizer goes on."""
-    by_it = {e["iteration"]: e for e in history}
-    its = [i for i in CHECKPOINTS if i in by_it] + [history[-1]["iteration"]]
-    return tuple(ThetaPoint(i, by_it[i]["data"], dict(by_it[i]["theta"]))
+    by_it = {e.iteration: e for e in history}
+    its = [i for i in CHECKPOINTS if i in by_it] + [history[-1].iteration]
+    return tuple(ThetaPoint(i, by_it[i].data, dict(by_it[i].theta))
                  for i in dict.fromkeys(its))
 
 
-def theta_movement(history: list[dict], data: TrainingData) -> float:
+def theta_movement(history: list[Iterate], data: TrainingData) -> float:
     """How far theta_phy still travels at the end of a fit: the rms of ``T . delta theta`` over
     ``data`` (delta theta: last accepted iterate minus the one a quarter of the iterations
     earlier), as a fraction of the rms training force. 0 for a fit without iterations."""
     last = history[-1]
-    m = max(1, int(np.ceil(last["iteration"] / 4)))
-    earlier = next((e for e in history if e["iteration"] >= last["iteration"] - m), history[0])
-    d = _as_theta(last["theta"]) - _as_theta(earlier["theta"])
+    m = max(1, int(np.ceil(last.iteration / 4)))
+    earlier = next((e for e in history if e.iteration >= last.iteration - m), history[0])
+    d = _as_theta(last.theta) - _as_theta(earlier.theta)
     return float(np.sqrt(np.mean((data.phi @ d) ** 2)) / np.sqrt(np.mean(data.target ** 2)))
 
 

@@ -31,6 +31,9 @@ from experiments.studies import extrapolation_figures as figures
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.results import BeyondRange, ForceSplit
 from experiments.runner import preflight
+from experiments.studies.extrapolation_result import (
+    FEEDBACK, LIP, SEQUENTIAL, Costs, ExtrapolationResult, NetworkParts, Spread, Trained,
+    Variant, variant_key, variant_label)
 from experiments.studies.kinds import take_kind
 from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
@@ -97,8 +100,8 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
 
 
 def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,
-              quiet: bool = False) -> dict:
-    """Run the study and write it into ``out`` (replaced atomically). Returns the summary."""
+              quiet: bool = False) -> ExtrapolationResult:
+    """Run the study and write it into ``out`` (replaced atomically). Returns its result."""
     progress = Progress(quiet)
     out = Path(out)
     with atomic_folder(out, marker="study.json", what="a clm-sim study") as tmp:
@@ -110,14 +113,15 @@ def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,
 def _variants(study: StudySettings):
     """(key, label, spec) of every trained PGNN variant, sequential first."""
     common = {"kind": "pgnn", "hidden": study.hidden, "seeds": study.seeds, "pgnn": study.pgnn}
-    out = [("sequential", "sequential", FeedforwardSpec(training="sequential", **common))]
+    out = [(SEQUENTIAL, "sequential", FeedforwardSpec(training="sequential", **common))]
     for lam in sorted(study.lams):
-        out.append((f"lambda={lam:g}", f"λ = {lam:g}",
+        out.append((variant_key(lam), f"λ = {lam:g}",
                     FeedforwardSpec(training="simultaneous", lam=lam, **common)))
     return out
 
 
-def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) -> dict:
+def _study(config: ExperimentConfig, study: StudySettings, out: Path,
+           progress) -> ExtrapolationResult:
     ts = config.ts
     (out / "config.resolved.yaml").write_text(yaml.safe_dump(
         {**resolved(config), "study": to_plain(study)}, sort_keys=False))
@@ -130,7 +134,7 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
     def replay(model):
         return {k: tb.replay(model, k) for k in names}
 
-    runs = {"feedback only": replay(None), "LIP": replay(lip)}
+    runs = {FEEDBACK: replay(None), LIP: replay(lip)}
     models: dict[str, list] = {}
     mae: dict[str, dict[str, list[float]]] = {
         k: {r: [run.mae] for r, run in v.items()} for k, v in runs.items()}
@@ -155,7 +159,7 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path, progress) 
     parts = {key: {r: [m.predict_parts(y=ref, ts=ts) for m in ms] for r, ref in refs.items()}
              for key, ms in models.items()}
     summary = _summarize(config, study, lip, refs, models, mae, runs, truth, parts)
-    (out / "study.json").write_text(json.dumps(summary, indent=1))
+    (out / "study.json").write_text(json.dumps(summary.to_json(), indent=1))
     _figures(summary, config, lip, refs, models, runs, truth, parts, out / "figures")
     (out / "report.md").write_text(_report(summary, study))
     return summary
@@ -166,16 +170,15 @@ def _figures(summary, config, lip, refs, models, runs, truth, parts, folder: Pat
     ts = config.ts
     plots.save(figures.theta_figure(summary, models), folder / "theta_training.png")
     plots.save(figures.cost_figure(summary, models), folder / "cost_terms.png")
-    inside = TrainingRange(**summary["ranges"][summary["inside"]])
-    for ref in summary["outside"]:
+    inside = summary.ranges[summary.inside]
+    for ref in summary.outside:
         beyond = inside.beyond(config.features, refs[ref], ts)
         split = ForceSplit(reference=ref, ts=ts, r=refs[ref],
                            lip_force=lip.predict(y=refs[ref], ts=ts), beyond=beyond,
                            parts={key: p[ref][0] for key, p in parts.items()},
                            truth=truth[ref])
         plots.save(figures.split_figure(summary, split), folder / f"split_{ref}.png")
-    shown = ["feedback only", "LIP", "sequential", "lambda=0",
-             f"lambda={summary['paper_lambda']:g}"]
+    shown = [FEEDBACK, LIP, SEQUENTIAL, variant_key(0.0), variant_key(summary.paper_lam)]
     colors = {_label(k): c for k, c in figures.variant_colors(summary).items()}
     for ref in refs:
         replays = {_label(k): runs[k] for k in shown}
@@ -185,16 +188,17 @@ def _figures(summary, config, lip, refs, models, runs, truth, parts, folder: Pat
 
 def _label(key: str) -> str:
     """A variant key as the figures name it (``lambda=0`` -> ``PGNN λ = 0``)."""
-    return {"sequential": "PGNN sequential"}.get(key, key.replace("lambda=", "PGNN λ = "))
+    return key if key in (FEEDBACK, LIP) else "PGNN " + variant_label(key)
 
 
-def _seed_mean(seeds: list[BeyondRange], name: str) -> float | None:
-    """The mean over seeds of one quantity (None where no sample leaves the range)."""
-    values = [getattr(b, name) for b in seeds]
+def _seed_mean(seeds: list[BeyondRange], get) -> float | None:
+    """The mean over seeds of one quantity ``get(b)`` (None where no sample leaves the range)."""
+    values = [get(b) for b in seeds]
     return None if None in values else float(np.mean(values))
 
 
-def _summarize(config, study, lip, refs, models, mae, runs, truth, predicted) -> dict:
+def _summarize(config, study, lip, refs, models, mae, runs, truth,
+               predicted) -> ExtrapolationResult:
     ts = config.ts
     ranges = {r: TrainingRange.of(config.features, ref, ts) for r, ref in refs.items()}
     variants = {}
@@ -204,54 +208,54 @@ def _summarize(config, study, lip, refs, models, mae, runs, truth, predicted) ->
             beyond = ranges[study.inside].beyond(config.features, ref, ts)
             seeds = [BeyondRange.of(p, n, beyond, truth[r]) for p, n in predicted[key][r]]
             mean = functools.partial(_seed_mean, seeds)
-            parts[r] = {
-                "network_max_abs_n": mean("network_peak_n"),
-                "network_rms_n": mean("network_rms_n"),
-                "network_max_abs_beyond_n": mean("network_peak_beyond_n"),
-                "network_max_abs_within_n": mean("network_peak_within_n"),
-                "fraction_beyond": float(beyond.mean()),
+            parts[r] = NetworkParts(
+                network_max_abs_n=mean(lambda b: b.network_peak_n),
+                network_rms_n=mean(lambda b: b.network_rms_n),
+                network_max_abs_beyond_n=mean(lambda b: b.network_peak_beyond_n),
+                network_max_abs_within_n=mean(lambda b: b.network_peak_within_n),
+                fraction_beyond=float(beyond.mean()),
                 # Model force minus the true plant force, rms over the samples beyond the
                 # training range (N), mean over seeds.
-                "model_error_beyond_rms_n": mean("error_beyond_rms_n"),
-            }
-        variants[key] = {
-            "mae": {r: {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1))
-                        if len(v) > 1 else 0.0, "per_seed": v} for r, v in mae[key].items()},
-            "theta_phy_per_seed": [m.theta_ for m in ms],
-            "theta_phy": {k: float(np.mean([m.theta_[k] for m in ms])) for k in THETA_NAMES},
-            "cost": {t: float(np.mean([m.cost_[t] for m in ms])) for t in ("data", "deviation")},
-            "iterations": [len(m.history_) - 1 for m in ms],
-            "parts": parts,
-        }
-    for key in ("feedback only", "LIP"):
-        variants[key] = {"mae": {r: {"mean": v[0], "std": 0.0, "per_seed": v}
-                                 for r, v in mae[key].items()}}
+                model_error_beyond_rms_n=mean(lambda b: b.error_beyond_rms_n))
+        trained = Trained(
+            theta_phy_per_seed=tuple(m.theta_ for m in ms),
+            theta_phy={k: float(np.mean([m.theta_[k] for m in ms])) for k in THETA_NAMES},
+            cost=Costs(*(float(np.mean([m.cost_[t] for m in ms]))
+                         for t in ("data", "deviation"))),
+            iterations=tuple(len(m.history_) - 1 for m in ms), parts=parts)
+        variants[key] = Variant(
+            mae={r: Spread(float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0,
+                           tuple(v)) for r, v in mae[key].items()},
+            trained=trained)
     lip_beyond = {}
     for r, ref in refs.items():
         beyond = ranges[study.inside].beyond(config.features, ref, ts)
         if beyond.any():
             lip_beyond[r] = float(np.sqrt(np.mean(
                 (lip.predict(y=ref, ts=ts) - truth[r])[beyond] ** 2)))
-    variants["LIP"]["model_error_beyond_rms_n"] = lip_beyond
-    return {"lambdas": sorted(study.lams), "paper_lambda": study.paper_lam,
-            "hidden": study.hidden, "seeds": study.seeds, "inside": study.inside,
-            "outside": list(study.outside),
-            "theta_lip": lip.theta_, "lip_residual_rms_n": lip.residual_rms_,
-            "ranges": {r: v.as_dict() for r, v in ranges.items()}, "variants": variants}
+    for key in (FEEDBACK, LIP):
+        variants[key] = Variant(
+            mae={r: Spread(v[0], 0.0, tuple(v)) for r, v in mae[key].items()},
+            lip_error_beyond_rms_n=lip_beyond if key == LIP else None)
+    return ExtrapolationResult(
+        lams=tuple(sorted(study.lams)), paper_lam=study.paper_lam, hidden=study.hidden,
+        seeds=study.seeds, inside=study.inside, outside=tuple(study.outside),
+        theta_lip=lip.theta_, lip_residual_rms_n=lip.residual_rms_, ranges=ranges,
+        variants=variants)
 
 
 def _um(x: float) -> str:
     return f"{x * 1e6:.3f} µm"
 
 
-def _findings(s: dict) -> list[str]:
+def _findings(s: ExtrapolationResult) -> list[str]:
     """Sentences with this run's numbers that name the mechanism."""
-    v, lip = s["variants"], s["theta_lip"]
-    zero, paper = v["lambda=0"], v[f"lambda={s['paper_lambda']:g}"]
-    inside, outside = s["inside"], s["outside"]
+    v, lip = s.variants, s.theta_lip
+    zero, paper = s.unregularized.trained, s.regularized.trained
+    inside = s.inside
 
-    def drift(var):
-        return {k: (var["theta_phy"][k] - lip[k]) / abs(lip[k]) if lip[k] else np.inf
+    def drift(var: Trained):
+        return {k: (var.theta_phy[k] - lip[k]) / abs(lip[k]) if lip[k] else np.inf
                 for k in THETA_NAMES}
 
     dz, dp = drift(zero), drift(paper)
@@ -259,48 +263,48 @@ def _findings(s: dict) -> list[str]:
     lines = []
     lines.append(
         "**Which parameters drift.** Without regularization (λ = 0) θ_phy moves away from θ_LIP: "
-        + "; ".join(f"{k} {lip[k]:.4g} → {zero['theta_phy'][k]:.4g} {THETA_UNITS[k]} "
+        + "; ".join(f"{k} {lip[k]:.4g} → {zero.theta_phy[k]:.4g} {THETA_UNITS[k]} "
                     f"({dz[k] * 100:+.0f} %)" for k in order[:3])
-        + f" (mean over {s['seeds']} seeds). With λ = {s['paper_lambda']:g} the largest relative "
+        + f" (mean over {s.seeds} seeds). With λ = {s.paper_lam:g} the largest relative "
         f"change is {max(abs(x) for x in dp.values()) * 100:.2f} % ({max(dp, key=lambda k: abs(dp[k]))})."
         " Only the sum of physics and network is constrained by the data, so without the penalty the "
         "network absorbs part of what the physical terms explained (and vice versa).")
-    rz, rp = zero["parts"], paper["parts"]
-    mz, mp = zero["mae"], paper["mae"]
-    ml, ms = v["LIP"]["mae"], v["sequential"]["mae"]
-    rng_in = s["ranges"][inside]
+    rz, rp = zero.parts, paper.parts
+    mz, mp = s.unregularized.mae, s.regularized.mae
+    ml, ms = v[LIP].mae, v[SEQUENTIAL].mae
+    rng_in = s.ranges[inside]
     lines.append(
         f"**Inside the training range ({inside}).** The network force of λ = 0 peaks at "
-        f"{rz[inside]['network_max_abs_n']:.2f} N (rms {rz[inside]['network_rms_n']:.2f} N), that "
-        f"of λ = {s['paper_lambda']:g} at {rp[inside]['network_max_abs_n']:.2f} N (rms "
-        f"{rp[inside]['network_rms_n']:.2f} N): with λ = 0 the network carries what the drifted "
-        f"physical terms no longer do. MAE on {inside}: λ = 0 {_um(mz[inside]['mean'])}, "
-        f"λ = {s['paper_lambda']:g} {_um(mp[inside]['mean'])}, sequential "
-        f"{_um(ms[inside]['mean'])}, LIP {_um(ml[inside]['mean'])}.")
-    for outside in s["outside"]:
-        rng_out = s["ranges"][outside]
+        f"{rz[inside].network_max_abs_n:.2f} N (rms {rz[inside].network_rms_n:.2f} N), that "
+        f"of λ = {s.paper_lam:g} at {rp[inside].network_max_abs_n:.2f} N (rms "
+        f"{rp[inside].network_rms_n:.2f} N): with λ = 0 the network carries what the drifted "
+        f"physical terms no longer do. MAE on {inside}: λ = 0 {_um(mz[inside].mean)}, "
+        f"λ = {s.paper_lam:g} {_um(mp[inside].mean)}, sequential "
+        f"{_um(ms[inside].mean)}, LIP {_um(ml[inside].mean)}.")
+    for outside in s.outside:
+        rng_out = s.ranges[outside]
         leaves = [name for name, key in (("position", "position_m"), ("velocity", "velocity_m_s"),
                                          ("acceleration", "acceleration_m_s2"))
-                  if rng_out[key] > rng_in[key] * 1.01]
-        text = (f"**{outside}.** It reaches |y| = {rng_out['position_m'] * 1e3:.0f} mm, |v| = "
-                f"{rng_out['velocity_m_s']:.3g} m/s, |a| = {rng_out['acceleration_m_s2']:.3g} m/s² "
-                f"against {rng_in['position_m'] * 1e3:.0f} mm, {rng_in['velocity_m_s']:.3g} m/s, "
-                f"{rng_in['acceleration_m_s2']:.3g} m/s² on {inside}: it extrapolates in "
+                  if getattr(rng_out, key) > getattr(rng_in, key) * 1.01]
+        text = (f"**{outside}.** It reaches |y| = {rng_out.position_m * 1e3:.0f} mm, |v| = "
+                f"{rng_out.velocity_m_s:.3g} m/s, |a| = {rng_out.acceleration_m_s2:.3g} m/s² "
+                f"against {rng_in.position_m * 1e3:.0f} mm, {rng_in.velocity_m_s:.3g} m/s, "
+                f"{rng_in.acceleration_m_s2:.3g} m/s² on {inside}: it extrapolates in "
                 f"{', '.join(leaves) if leaves else 'nothing'}")
-        bz, bp = rz[outside]["network_max_abs_beyond_n"], rp[outside]["network_max_abs_beyond_n"]
+        bz, bp = rz[outside].network_max_abs_beyond_n, rp[outside].network_max_abs_beyond_n
         if bz is not None:
-            ez = rz[outside]["model_error_beyond_rms_n"]
-            ep = rp[outside]["model_error_beyond_rms_n"]
-            eq = v["sequential"]["parts"][outside]["model_error_beyond_rms_n"]
-            el = v["LIP"]["model_error_beyond_rms_n"][outside]
-            text += (f" ({rz[outside]['fraction_beyond'] * 100:.0f} % of its samples). There the "
+            ez = rz[outside].model_error_beyond_rms_n
+            ep = rp[outside].model_error_beyond_rms_n
+            eq = v[SEQUENTIAL].trained.parts[outside].model_error_beyond_rms_n
+            el = v[LIP].lip_error_beyond_rms_n[outside]
+            text += (f" ({rz[outside].fraction_beyond * 100:.0f} % of its samples). There the "
                      f"network force reaches {bz:.2f} N for λ = 0 and {bp:.2f} N for "
-                     f"λ = {s['paper_lambda']:g}, and the whole model misses the true plant force "
-                     f"by {ez:.2f} N rms for λ = 0, {ep:.2f} N for λ = {s['paper_lambda']:g}, "
+                     f"λ = {s.paper_lam:g}, and the whole model misses the true plant force "
+                     f"by {ez:.2f} N rms for λ = 0, {ep:.2f} N for λ = {s.paper_lam:g}, "
                      f"{eq:.2f} N sequential and {el:.2f} N for the LIP")
-        ratio = mz[outside]["mean"] / mp[outside]["mean"]
+        ratio = mz[outside].mean / mp[outside].mean
         # Paired over seeds: seed s of every variant shares the training run and the draw.
-        d = np.array(mz[outside]["per_seed"]) - np.array(mp[outside]["per_seed"])
+        d = np.array(mz[outside].per_seed) - np.array(mp[outside].per_seed)
         diff, lo, hi = t_interval(d)
         verdict = ("λ = 0 loses more than the regularized PGNN" if ratio > 1.1 else
                    "λ = 0 does not lose more than the regularized PGNN" if ratio > 0.9 else
@@ -309,24 +313,24 @@ def _findings(s: dict) -> list[str]:
                     + (f"[{lo * 1e6:+.3f}, {hi * 1e6:+.3f}] µm" if len(d) > 1 else "none")
                     + f" over {len(d)} seeds: the interval "
                     + ("excludes" if len(d) > 1 and (lo > 0 or hi < 0) else "contains") + " 0)")
-        text += (f". MAE: λ = 0 {_um(mz[outside]['mean'])} ± {_um(mz[outside]['std'])}, "
-                 f"λ = {s['paper_lambda']:g} {_um(mp[outside]['mean'])} ± "
-                 f"{_um(mp[outside]['std'])}, sequential {_um(ms[outside]['mean'])}, LIP "
-                 f"{_um(ml[outside]['mean'])}; ratio λ = 0 / λ = {s['paper_lambda']:g} "
+        text += (f". MAE: λ = 0 {_um(mz[outside].mean)} ± {_um(mz[outside].std)}, "
+                 f"λ = {s.paper_lam:g} {_um(mp[outside].mean)} ± "
+                 f"{_um(mp[outside].std)}, sequential {_um(ms[outside].mean)}, LIP "
+                 f"{_um(ml[outside].mean)}; ratio λ = 0 / λ = {s.paper_lam:g} "
                  f"{ratio:.2f}: {verdict} here.")
         lines.append(text)
     return lines
 
 
-def _report(s: dict, study: StudySettings) -> str:
-    v = s["variants"]
-    refs = [s["inside"], *s["outside"]]
-    lines = [f"# Extrapolation study: PGNN with n_l = {s['hidden']}, λ swept over "
-             f"{', '.join(f'{x:g}' for x in s['lambdas'])}", "",
-             f"One dithered training run on {s['inside']}, one LIP (θ_LIP: " + ", ".join(
-                 f"{k} {x:.4g} {THETA_UNITS[k]}" for k, x in s["theta_lip"].items())
-             + f"), {s['seeds']} training seeds per variant; replays without dither on "
-             f"{s['inside']} (the training range) and {', '.join(s['outside'])}.", "",
+def _report(s: ExtrapolationResult, study: StudySettings) -> str:
+    v = s.variants
+    refs = list(s.references)
+    lines = [f"# Extrapolation study: PGNN with n_l = {s.hidden}, λ swept over "
+             f"{', '.join(f'{x:g}' for x in s.lams)}", "",
+             f"One dithered training run on {s.inside}, one LIP (θ_LIP: " + ", ".join(
+                 f"{k} {x:.4g} {THETA_UNITS[k]}" for k, x in s.theta_lip.items())
+             + f"), {s.seeds} training seeds per variant; replays without dither on "
+             f"{s.inside} (the training range) and {', '.join(s.outside)}.", "",
              "## Findings (generated from this run)", ""]
     lines += [f"- {x}" for x in _findings(s)] + [""]
     head = (["variant"] + [f"MAE {r} [µm]" for r in refs]
@@ -335,19 +339,18 @@ def _report(s: dict, study: StudySettings) -> str:
     lines += ["## Table (mean ± std over seeds)", "", "| " + " | ".join(head) + " |",
               "|" + "---|" * len(head)]
     for key, var in v.items():
-        cells = [key] + [f"{var['mae'][r]['mean'] * 1e6:.3f} ± {var['mae'][r]['std'] * 1e6:.3f}"
+        cells = [key] + [f"{var.mae[r].mean * 1e6:.3f} ± {var.mae[r].std * 1e6:.3f}"
                          for r in refs]
-        th = var.get("theta_phy")
-        cells += [f"{th[k]:.4g}" for k in THETA_NAMES] if th else ["–"] * 4
-        cost = var.get("cost")
-        cells += [f"{cost['data']:.4g}", f"{cost['deviation']:.3g}"] if cost else ["–"] * 2
+        t = var.trained
+        cells += [f"{t.theta_phy[k]:.4g}" for k in THETA_NAMES] if t else ["–"] * 4
+        cells += [f"{t.cost.data:.4g}", f"{t.cost.deviation:.3g}"] if t else ["–"] * 2
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "## Figures", "",
               "θ_phy over the LM iterations, relative to θ_LIP (seed 0):", "",
               "![theta](figures/theta_training.png)", "",
               "Data-fit term and parameter-deviation term over the iterations (seed 0):", "",
               "![costs](figures/cost_terms.png)", ""]
-    for r in s["outside"]:
+    for r in s.outside:
         lines += [f"Feedforward on {r} split into the physical part θ_phy·T (minus the LIP force) "
                   f"and the network part (seed 0; shaded: samples outside the training range):",
                   "", f"![split {r}](figures/split_{r}.png)", ""]

@@ -14,17 +14,17 @@ from clm_sim.plant import THETA_NAMES
 from experiments.plots import MM, PALETTE, UM, _ax, _figure, _legend_right, _panels, color
 from experiments.table import THETA_UNITS
 
+from experiments.studies.extrapolation_result import (
+    FEEDBACK, LIP, SEQUENTIAL, ExtrapolationResult, variant_key, variant_label)
+
 if TYPE_CHECKING:
     from experiments.results import ForceSplit
 
-def variant_colors(summary) -> dict[str, str]:
+
+def variant_colors(summary: ExtrapolationResult) -> dict[str, str]:
     """One colour per variant of the study, the same in every figure."""
-    keys = ["feedback only", "LIP", "sequential"] + [f"lambda={x:g}" for x in summary["lambdas"]]
+    keys = [FEEDBACK, LIP, SEQUENTIAL] + summary.lam_keys
     return {k: color(i) for i, k in enumerate(keys)}
-
-
-def _lambda_label(key: str) -> str:
-    return key.replace("lambda=", "λ = ")
 
 
 def plot_theta_history(models: dict, lip_theta: dict, name: str, keys: list[str], ax=None, *,
@@ -34,8 +34,8 @@ def plot_theta_history(models: dict, lip_theta: dict, name: str, keys: list[str]
     ref = lip_theta[name] if lip_theta[name] else 1.0
     for i, key in enumerate(keys):
         hist = models[key][0].history_
-        ax.plot([h["iteration"] for h in hist], [h["theta"][name] / ref for h in hist],
-                color=(colors or {}).get(key, color(i)), lw=1.2, label=_lambda_label(key))
+        ax.plot([h.iteration for h in hist], [h.theta[name] / ref for h in hist],
+                color=(colors or {}).get(key, color(i)), lw=1.2, label=variant_label(key))
     ax.set_title(f"{name} (θ_LIP = {lip_theta[name]:.4g} {THETA_UNITS[name]})", fontsize=9)
     ax.set_xlabel("LM iteration [–]")
     ax.set_ylabel(f"{name} / {name}_LIP [–]")
@@ -43,14 +43,14 @@ def plot_theta_history(models: dict, lip_theta: dict, name: str, keys: list[str]
     return ax
 
 
-def theta_figure(summary: dict, models: dict) -> Figure:
+def theta_figure(summary: ExtrapolationResult, models: dict) -> Figure:
     """θ_phy relative to θ_LIP over the iterations, one panel per parameter, one line per λ."""
-    keys = [f"lambda={x:g}" for x in summary["lambdas"]]
+    keys = summary.lam_keys
     colors = variant_colors(summary)
     fig = _figure(11, 6.5)
     axes = fig.subplots(2, 2, sharex=True)
     for ax, name in zip(axes.flat, THETA_NAMES):
-        plot_theta_history(models, summary["theta_lip"], name, keys, ax, colors=colors)
+        plot_theta_history(models, summary.theta_lip, name, keys, ax, colors=colors)
     for ax in axes[0]:
         ax.set_xlabel("")
     handles, labels = axes[0, 0].get_legend_handles_labels()
@@ -59,20 +59,20 @@ def theta_figure(summary: dict, models: dict) -> Figure:
     return fig
 
 
-def cost_figure(summary: dict, models: dict) -> Figure:
+def cost_figure(summary: ExtrapolationResult, models: dict) -> Figure:
     """Data-fit term (N²) and deviation term (N²) over the iterations, per λ and sequential."""
     colors = variant_colors(summary)
     fig = _figure(12, 4.2)
     ax_d, ax_p = fig.subplots(1, 2, sharex=True)
-    for key in ["sequential"] + [f"lambda={x:g}" for x in summary["lambdas"]]:
+    for key in [SEQUENTIAL] + summary.lam_keys:
         hist = models[key][0].history_
-        it = [h["iteration"] for h in hist]
-        ax_d.plot(it, [h["data"] for h in hist], color=colors[key], lw=1.2,
-                  ls="--" if key == "sequential" else "-", label=_lambda_label(key))
-        dev = [h["deviation"] for h in hist]
+        it = [h.iteration for h in hist]
+        ax_d.plot(it, [h.data for h in hist], color=colors[key], lw=1.2,
+                  ls="--" if key == SEQUENTIAL else "-", label=variant_label(key))
+        dev = [h.deviation for h in hist]
         if max(dev) > 0:
             ax_p.plot(it, dev, color=colors[key], lw=1.2)
-    ax_d.axhline(summary["lip_residual_rms_n"] ** 2, color=colors["LIP"], lw=1, ls=":",
+    ax_d.axhline(summary.lip_residual_rms_n ** 2, color=colors[LIP], lw=1, ls=":",
                  label="LIP (all samples)")
     ax_d.set_title("data-fit term: mean squared force error", fontsize=9)
     ax_p.set_title("deviation term (θ−θ_LIP)ᵀΛ(θ−θ_LIP)", fontsize=9)
@@ -86,14 +86,14 @@ def cost_figure(summary: dict, models: dict) -> Figure:
     return fig
 
 
-def split_figure(summary: dict, split: ForceSplit) -> Figure:
+def split_figure(summary: ExtrapolationResult, split: ForceSplit) -> Figure:
     """The feedforward on ``split.reference`` split into its physical part (minus the LIP force:
     what the drift of θ_phy changes) and its network part, and their sum against the true plant
     force, for λ = 0, the paper's λ and sequential (one seed, as the study predicted them);
     shaded: the samples beyond the training range."""
-    keys = ["lambda=0", f"lambda={summary['paper_lambda']:g}", "sequential"]
+    keys = [variant_key(0.0), variant_key(summary.paper_lam), SEQUENTIAL]
     colors = variant_colors(summary)
-    limit = summary["ranges"][summary["inside"]]["position_m"]
+    limit = summary.ranges[summary.inside].position_m
     r, lip_force, beyond = split.r, split.lip_force, split.beyond
     t = np.arange(len(r)) * split.ts
     fig, axes = _panels(4, [0.8, 1, 1, 1], width=11)
@@ -106,7 +106,7 @@ def split_figure(summary: dict, split: ForceSplit) -> Figure:
                       fontsize=9)
     for key in keys:
         phys, net = split.parts[key]
-        kw = {"color": colors[key], "lw": 0.9, "label": _lambda_label(key)}
+        kw = {"color": colors[key], "lw": 0.9, "label": variant_label(key)}
         axes[1].plot(t, phys - lip_force, **kw)
         axes[2].plot(t, net, **kw)
         axes[3].plot(t, phys + net - lip_force, **kw)
@@ -133,23 +133,23 @@ def split_figure(summary: dict, split: ForceSplit) -> Figure:
     return fig
 
 
-def plot_mae_vs_lambda(summary: dict, ref: str, ax=None, *, marker: str = "o",
+def plot_mae_vs_lambda(summary: ExtrapolationResult, ref: str, ax=None, *, marker: str = "o",
                        color: str = PALETTE[5]):
     """MAE (µm, mean ± std over seeds) on ``ref`` against λ; λ = 0 is drawn one decade left
     of the smallest positive λ; the LIP and the sequential PGNN as horizontal lines."""
     ax = _ax(ax)
-    lams = summary["lambdas"]
+    lams = summary.lams
     positive = [x for x in lams if x > 0]
     zero_at = min(positive) / 10 if positive else 1e-4
     xs = [x if x > 0 else zero_at for x in lams]
-    v = summary["variants"]
-    mean = [v[f"lambda={x:g}"]["mae"][ref]["mean"] * UM for x in lams]
-    std = [v[f"lambda={x:g}"]["mae"][ref]["std"] * UM for x in lams]
+    v = summary.variants
+    mean = [v[key].mae[ref].mean * UM for key in summary.lam_keys]
+    std = [v[key].mae[ref].std * UM for key in summary.lam_keys]
     ax.errorbar(xs, mean, yerr=std, marker=marker, capsize=3, color=color,
                 label=f"PGNN on {ref}")
-    ax.axhline(v["LIP"]["mae"][ref]["mean"] * UM, color=color, ls=":", lw=1,
+    ax.axhline(v[LIP].mae[ref].mean * UM, color=color, ls=":", lw=1,
                label=f"LIP on {ref}")
-    ax.axhline(v["sequential"]["mae"][ref]["mean"] * UM, color=color, ls="--", lw=1,
+    ax.axhline(v[SEQUENTIAL].mae[ref].mean * UM, color=color, ls="--", lw=1,
                label=f"sequential on {ref}")
     ax.set_xscale("log")
     ax.set_xticks(xs, [f"{x:g}" for x in lams])
@@ -160,11 +160,11 @@ def plot_mae_vs_lambda(summary: dict, ref: str, ax=None, *, marker: str = "o",
     return ax
 
 
-def mae_vs_lambda_figure(summary: dict) -> Figure:
+def mae_vs_lambda_figure(summary: ExtrapolationResult) -> Figure:
     """MAE against λ on every reference of the study, one colour per reference."""
     fig = _figure(8.5, 4.2)
     ax = fig.subplots()
-    for i, ref in enumerate([summary["inside"], *summary["outside"]]):
+    for i, ref in enumerate(summary.references):
         plot_mae_vs_lambda(summary, ref, ax, marker="osd^v"[i % 5], color=color(i + 5))
     _legend_right(ax)
     return fig

@@ -371,6 +371,7 @@ def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
     """Run the study and write it into ``out`` (replaced atomically). Returns the record per
     network size."""
     from experiments import plots
+    from experiments.profiles_result import sizes_from_json
 
     progress = Progress(quiet)
     out = Path(out)
@@ -385,7 +386,8 @@ def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
             {"wall_time_s": time.perf_counter() - start, "sizes": result}, indent=1,
             allow_nan=False))
         (tmp / "report.md").write_text(to_markdown(result))
-        plots.save(plots.identifiability_figure(result), tmp / "figures" / "identifiability.png")
+        plots.save(plots.identifiability_figure(sizes_from_json(result)),
+                   tmp / "figures" / "identifiability.png")
     progress(f"report in {out}/report.md")
     return result
 
