@@ -41,13 +41,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 import yaml
 
-from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
 from experiments.config import ExperimentConfig, resolved
-from experiments.studies.kinds import load_case_study
+from experiments.studies.kinds import load_case_study, run_checked
 from experiments.sweeps.store import code_version
 from experiments.paired import LogRatio, Paired, holm
 from experiments.results import BeyondRange, error_beyond_rms
@@ -354,16 +353,8 @@ def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out,
 
 def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
     """``clm-sim study CONFIG`` for a config with a ``failure_map:`` section."""
-    from experiments.runner import preflight
-
-    config, settings = load_failure_map(config_path)
-    try:  # the checks clm-sim run makes before any computation
-        preflight(config)
-    except UserError as exc:
-        raise UserError(f"{config_path}: {exc}") from None
-    out = Path(out) if out else Path("results") / Path(config_path).stem
-    result = run_failure_map(config, settings, out, workers=workers, quiet=quiet)
-    print((out / "report.md").read_text(), end="")
+    result = run_checked(config_path, out, load_failure_map, run_failure_map,
+                         workers=workers, quiet=quiet)
     return 1 if result.failures else 0
 
 

@@ -78,3 +78,22 @@ def load_case_study(path, kind: str, settings_type, references):
             raise UserError(f"{path}: {section}: reference {key!r} is not defined under "
                             f"'references'")
     return config, settings
+
+
+def run_checked(config_path, out, load, run, *, workers: int | None = None,
+                quiet: bool = False):
+    """``clm-sim study CONFIG`` for a study run on an experiment config: ``load(config_path)``
+    gives ``(config, settings)``, the checks ``clm-sim run`` makes before any computation (errors
+    name the file), ``run(config, settings, out, workers=, quiet=)`` into ``out`` (default
+    ``results/<config stem>``); prints the report and returns the run's result."""
+    from experiments.runner import preflight
+
+    config, settings = load(config_path)
+    try:
+        preflight(config)
+    except UserError as exc:
+        raise UserError(f"{config_path}: {exc}") from None
+    out = Path(out) if out else Path("results") / Path(config_path).stem
+    result = run(config, settings, out, workers=workers, quiet=quiet)
+    print((out / "report.md").read_text(), end="")
+    return result

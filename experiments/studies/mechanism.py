@@ -55,7 +55,7 @@ from clm_sim.outdir import atomic_folder
 from clm_sim.schema import to_plain
 from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
-from experiments.studies.kinds import load_case_study
+from experiments.studies.kinds import load_case_study, run_checked
 from experiments.table import holm
 from experiments.testbed import Progress, Testbed
 
@@ -492,14 +492,6 @@ def run_mechanism(config: ExperimentConfig, settings: MechanismSettings, out, *,
 
 def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
     """``clm-sim study CONFIG`` for a config with a ``mechanism:`` section."""
-    from experiments.runner import preflight
-
-    config, settings = load_mechanism(config_path)
-    try:
-        preflight(config)
-    except UserError as exc:
-        raise UserError(f"{config_path}: {exc}") from None
-    out = Path(out) if out else Path("results") / Path(config_path).stem
-    run_mechanism(config, settings, out, workers=workers, quiet=quiet)
-    print((out / "report.md").read_text(), end="")
+    run_checked(config_path, out, load_mechanism, run_mechanism, workers=workers,
+                quiet=quiet)
     return 0

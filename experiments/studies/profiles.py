@@ -39,7 +39,7 @@ from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import PGNNSettings
 from experiments import identifiability as ident
 from experiments.config import ExperimentConfig, resolved
-from experiments.studies.kinds import take_kind
+from experiments.studies.kinds import run_checked, take_kind
 from experiments.testbed import STREAM_NETWORK, Progress, Testbed, stream
 
 
@@ -394,14 +394,6 @@ def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
 
 def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
     """``clm-sim study CONFIG`` for ``kind: identifiability``."""
-    from experiments.runner import preflight
-
-    config, settings = load_profiles(config_path)
-    try:
-        preflight(config)
-    except UserError as exc:
-        raise UserError(f"{config_path}: {exc}") from None
-    out = Path(out) if out else Path("results") / Path(config_path).stem
-    run_profiles(config, settings, out, workers=workers, quiet=quiet)
-    print((out / "report.md").read_text(), end="")
+    run_checked(config_path, out, load_profiles, run_profiles, workers=workers,
+                quiet=quiet)
     return 0
