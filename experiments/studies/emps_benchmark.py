@@ -24,7 +24,9 @@ every candidate that is a measurement is made again, by the same procedure, from
 alone and ranked by its open-loop RMSE on the rest (initial state from that part's first
 ``init_samples``); the chosen row's test score is that of its fit on the whole training record.
 Rule B reads the split from both ends (also made on the last part, scored on the first) and
-ranks by the mean of the two held-out RMSEs.
+ranks by the mean of the two held-out RMSEs. Rule C leaves one cycle of the training record's
+repeated program out at a time and names the simplest candidate within one standard error of
+the best mean (:mod:`experiments.studies.emps_cycles`).
 
 Beside them: each row's closed-loop twin on both records (the published controller on the
 reference, with ``known_input`` as a known external input), and why the diagnosis-extended model
@@ -50,7 +52,10 @@ from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments.diagnosis.model import SimulationModel, load_model
 from experiments.simulation import Simulation, Twin, simulate_record, twin_record
+from experiments.studies.emps_cycles import (CycleScores, cycle_edges, fitted_parameters,
+                                             left_out, one_se_choice)
 from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
+from experiments.studies.emps_plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
 
 
@@ -82,6 +87,8 @@ class BenchmarkSettings:
     # The test record's column of a known external input (in the input's unit, scaled like
     # ``u``), given to the closed-loop twin; "" for none.
     known_input: str = ""
+    # Rule C: the training record's repetitions of its program, each left out once (0: no rule C).
+    cycles: int = 0
 
 
 @dataclass(frozen=True)
@@ -104,6 +111,7 @@ class Row:
     held_out_back: Simulation | None = None  # remade on the last part, on the first third
     twin_train: Twin | None = None  # the published controller around the row's plant
     twin_test: Twin | None = None
+    cycles: CycleScores | None = None  # rule C: made without each cycle, simulated on it
 
     def to_json(self) -> dict:
         return {"name": self.name, "made_from": self.made_from, "note": self.note,
@@ -117,6 +125,9 @@ class Row:
                 "held_out_note": self.held_out_note,
                 "held_out_backward_rmse_m": None if self.held_out_back is None else
                 self.held_out_back.score.rmse,
+                "left_one_cycle_out_rmse_m": None if self.cycles is None else
+                list(self.cycles.rmse_m),
+                "fitted_parameters": fitted_parameters(self.plant),
                 **{f"twin_{k}": None if t is None else t.to_json() for k, t in
                    (("train", self.twin_train), ("test", self.twin_test))},
                 "test_fit_percent":
@@ -144,6 +155,9 @@ def load_benchmark(path) -> tuple[str, BenchmarkSettings]:
         raise UserError(f"{path}: benchmark.estimation_fraction: expected a number between 0 "
                         f"and 1 (the first part of the training record), got "
                         f"{settings.estimation_fraction}")
+    if settings.cycles == 1 or settings.cycles < 0:
+        raise UserError(f"{path}: benchmark.cycles: expected 0 (no rule C) or at least 2 "
+                        f"repetitions of the training record's program, got {settings.cycles}")
     return str(data.get("name", Path(path).stem)), settings
 
 
@@ -308,8 +322,20 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
              f"the first {len(held_back)}:")
     back = make_models(estimation_back, published, settings, second_start=False,
                        skip={m.name for m in full if not m.measured}, progress=progress)
+    folds = []  # rule C: (the left-out cycle, the candidates made without it)
+    edges = cycle_edges(train.r, settings.cycles) if settings.cycles else ()
+    for k in range(settings.cycles):
+        rest, cycle = left_out(train, edges, k)
+        progress(f"every cycle but cycle {k + 1} of {settings.cycles} ({len(rest)} samples), "
+                 f"for that cycle ({len(cycle)}):")
+        folds.append((cycle, make_models(rest, published, settings, second_start=False,
+                                         skip={m.name for m in full if not m.measured},
+                                         progress=progress)))
     rows = []
-    for m, e, b in zip(full, part, back):
+    for i, (m, e, b) in enumerate(zip(full, part, back)):
+        cyc = None if not folds or any(f[i] is None for _, f in folds) else CycleScores(
+            tuple(sim(f[i].plant, cycle, f"cycle {k + 1}").score.rmse
+                  for k, (cycle, f) in enumerate(folds)), fitted_parameters(m.plant))
         note = m.note if m.second is None else (
             f"{m.note}; the second start's test RMSE "
             f"{sim(m.second, test).score.rmse * 1e3:.3f} mm")
@@ -318,7 +344,8 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
                 m.measured, None if e is None else sim(e.plant, held_out, "held-out part"),
                 None if e is None else e.plant, "" if e is None else e.note,
                 None if b is None else sim(b.plant, held_back, "first part"),
-                twin(m.plant, train, settings.training), twin(m.plant, twin_test, settings.test))
+                twin(m.plant, train, settings.training), twin(m.plant, twin_test, settings.test),
+                cyc)
         progress(f"{m.name}: test RMSE {r.test.score.rmse * 1e3:.3f} mm, training "
                  f"{r.train.score.rmse * 1e3:.3f} mm, held-out "
                  + ("not refitted" if e is None else f"{r.held_out.score.rmse * 1e3:.3f} mm")
@@ -327,7 +354,8 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
     progress("why the extended model drifts: its terms taken apart")
     drift = explain_drift(train, test, published.plant, sim, estimation=estimation,
                           held_out=held_out)
-    return rows, drift
+    steady = cycle_friction(plateaus(train, edges or (0, len(train))))
+    return rows, dataclasses.replace(drift, steady=tuple(steady))
 
 
 def _restart(plant: Plant, start: Plant) -> Plant:
@@ -363,6 +391,43 @@ def _span(y, u, t) -> str:
     v = np.abs(np.diff(y)) / (t[1] - t[0])
     return (f"positions {y.min():.3f} to {y.max():.3f} m, peak speed {v.max():.3f} m/s, peak "
             f"force {np.abs(u).max():.0f} N")
+
+
+def _rule_c(pub: Row, candidates: list[Row], settings: BenchmarkSettings) -> list[str]:
+    """Rule C's verdict and its table: each candidate made without one cycle of the training
+    record, simulated on that cycle; the simplest within one standard error of the best mean."""
+    scored = {r.name: r.cycles for r in candidates if r.cycles is not None}
+    if not scored:
+        return []
+    by_name = {r.name: r for r in candidates}
+    pick = by_name[one_se_choice(scored)]
+    best = min(scored, key=lambda k: scored[k].mean)
+    bar = scored[best].mean + scored[best].se
+    mm, p_mm = pick.test.score.rmse * 1e3, pub.test.score.rmse * 1e3
+    k = len(pick.cycles.rmse_m)
+    head = "| model | fitted parameters | " + " | ".join(
+        f"cycle {j + 1} (mm)" for j in range(k)) + " | mean ± se (mm) | within one se |"
+    table = [head, "|---" * (k + 4) + "|"]
+    for r in [pub, *candidates]:
+        c = r.cycles
+        if c is None:
+            continue
+        table.append(f"| {r.name} | {c.parameters} | "
+                     + " | ".join(f"{x * 1e3:.2f}" for x in c.rmse_m)
+                     + f" | {c.mean * 1e3:.2f} ± {c.se * 1e3:.2f} | "
+                     + ("(not a candidate)" if r is pub else
+                        "yes" if c.mean <= bar else "no") + " |")
+    return [
+        f"Left one cycle out (rule C, written down before its first result: the training "
+        f"record's program repeats {k} times, cut at the reference's reversals at the low end; "
+        f"every candidate made on the other cycles joined and simulated on the left-out one; "
+        f"the candidate with the fewest fitted parameters whose mean RMSE is within one "
+        f"standard error of the lowest mean), the choice is **{pick.name}**: "
+        f"{pick.cycles.mean * 1e3:.2f} ± {pick.cycles.se * 1e3:.2f} mm over the cycles "
+        f"(lowest mean: {best}, {scored[best].mean * 1e3:.2f} ± {scored[best].se * 1e3:.2f} "
+        f"mm), {pick.cycles.parameters} fitted parameters; {mm:.2f} mm on test, "
+        f"{'better' if mm < p_mm else 'worse'} than the published model by "
+        f"{abs(100 * (mm / p_mm - 1)):.0f} % ({mm - p_mm:+.2f} mm).", "", *table, ""]
 
 
 def _twin_table(rows: list[Row]) -> list[str]:
@@ -437,6 +502,7 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
             f"{abs(rel(by_both)):.0f} % ({mm(by_both) - mm(pub):+.2f} mm). Ranking (mm): "
             f"{ranking(both, [r for r in candidates if r.held_out_back is not None])}; the "
             f"published model {both(pub) * 1e3 if pub.held_out_back else float('nan'):.2f}."]),
+        *_rule_c(pub, candidates, settings),
         f"For contrast, the in-sample rule (lowest training RMSE of the fit on the whole "
         f"training record) would pick **{by_train.name}**: {mm(by_train):.2f} mm on test. "
         f"In-sample ranking (mm): "

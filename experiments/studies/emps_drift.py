@@ -29,6 +29,7 @@ from experiments.diagnosis.extend import extended_plant, joint_fit
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.search import forward_select
 from experiments.hac import newey_west
+from experiments.studies.emps_plateaus import to_markdown as steady_table
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,8 @@ class Drift:
     swaps: tuple[tuple[str, float], ...]  # taken from the test fit, test RMSE
     test_fitted_rmse_m: float  # all terms fitted on the test record, simulated on it
     traces: tuple = ()  # (label, Simulation) on the test record, for plot_drift
+    # The training record's constant-speed friction per cycle (emps_plateaus), model-free.
+    steady: tuple = ()
 
     def to_json(self) -> dict:
         return {"coefficients": [dataclasses.asdict(c) for c in self.coefficients],
@@ -72,7 +75,8 @@ class Drift:
                              for a in self.ablation],
                 "swaps_after_the_fact": [{"taken_from_test_fit": s, "test_rmse_m": r}
                                          for s, r in self.swaps],
-                "test_fitted_rmse_m": self.test_fitted_rmse_m}
+                "test_fitted_rmse_m": self.test_fitted_rmse_m,
+                "steady_friction_per_cycle": [dataclasses.asdict(c) for c in self.steady]}
 
     def to_markdown(self, published_test_m: float) -> list[str]:
         mm = 1e3
@@ -83,6 +87,11 @@ class Drift:
             out.append(f"| {c.name} | {c.value:.4g} | {c.std_white:.2g} | {c.std_hac:.2g} | "
                        f"{', '.join(f'{b:.3g}' for b in c.blocks)} | {c.block_spread:.2g} | "
                        f"{c.test:.4g} |")
+        if self.steady:
+            out += ["", "The training record's friction on its constant-speed plateaus, per "
+                    "cycle of its program (model-free; a line through each direction's "
+                    "plateaus, mean force against measured speed):", "",
+                    *steady_table(list(self.steady))]
         out += ["", f"Residual lag-1 autocorrelation at the fitted samples "
                 f"{self.lag1_autocorr:.2f}; Newey-West with {self.hac_lags} lags.", "",
                 "| extended model | training RMSE (mm) | held-out RMSE (mm) | "
