@@ -149,7 +149,9 @@ def test_the_plateau_friction_follows_a_drift_within_the_record():
     from experiments.studies.emps_cycles import joined
     from experiments.studies.emps_plateaus import cycle_friction, plateaus
 
-    r = ref.trapezoid_reference(TS, moves=MOVES, accel=1.0, dwell=0.1)
+    # Three speeds each way, so that a line through them can miss one.
+    moves = [(0.04, 0.04), (0.08, 0.08), (0.14, 0.12), (0.10, 0.06), (0.06, 0.1), (0.0, 0.03)]
+    r = ref.trapezoid_reference(TS, moves=moves, accel=1.0, dwell=0.1)
     runs = []
     for viscous, seed in ((172.0, 5), (190.0, 6)):
         x = ref.run_loop(ref.Stage(mass=18.8, viscous=viscous, coulomb=7.21),
@@ -159,10 +161,22 @@ def test_the_plateau_friction_follows_a_drift_within_the_record():
     rec = joined(runs)
     rows = cycle_friction(plateaus(rec, cycle_edges(rec.r, 2), min_samples=50))
     assert [r.cycle for r in rows] == [0, 1]
-    # Two plateaus a direction, 0.5-1 s each, 0.5 N of dither: the slopes within 1 % (an
+    # Three plateaus a direction, 0.3-1 s each, 0.5 N of dither: the slopes within 1 % (an
     # 18 N·s/m drift is 10 %), the intercepts within 2 % of the Coulomb friction.
     for row, viscous in zip(rows, (172.0, 190.0)):
         assert row.viscous == pytest.approx(viscous, rel=0.01)
         assert abs(row.viscous_odd) < 0.01 * viscous
         assert row.intercept_up == pytest.approx(7.21, rel=0.02)
         assert row.intercept_down == pytest.approx(-7.21, rel=0.02)
+        # The reference stage's friction is affine in speed: every plateau on its line within
+        # the dither's mean over a plateau (0.5 N / sqrt(500 samples) ~ 0.02 N, and 0.1 N).
+        assert row.off_line_n < 0.1
+    # A friction that is not affine in speed (a Stribeck rise of 3 N fading by 0.05 m/s: 1.6 N
+    # at 0.04 m/s, 0.2 N at 0.08) leaves a plateau off its line (the line takes up part of it).
+    x = ref.run_loop(ref.Stage(mass=18.8, viscous=172.0, coulomb=7.21, stribeck_peak=3.0,
+                               stribeck_velocity=0.05),
+                     ref.Cascade(kp=160.0, kv=1700.0, ts=TS), r, TS, resolution=1e-7,
+                     dither_std=0.5, seed=7)
+    run = Run(t=x.t, r=x.r, y=x.y, u=x.u)
+    (row,) = cycle_friction(plateaus(run, cycle_edges(run.r, 1), min_samples=50))
+    assert row.off_line_n > 0.1

@@ -32,13 +32,16 @@ class Plateau:
 @dataclass(frozen=True)
 class CycleFriction:
     """Per direction, the line ``force = intercept + slope * speed`` through one cycle's
-    plateaus: intercepts (N) and slopes (N·s/m), upward (+) and downward (−)."""
+    plateaus: intercepts (N) and slopes (N·s/m), upward (+) and downward (−), and the largest
+    distance (N) of a plateau from its line (friction not affine in speed, or depending on
+    where in the stroke the plateau lies, shows there)."""
 
     cycle: int
     intercept_up: float
     slope_up: float
     intercept_down: float
     slope_down: float
+    off_line_n: float = 0.0
 
     @property
     def viscous(self) -> float:
@@ -75,23 +78,25 @@ def cycle_friction(points: list[Plateau]) -> list[CycleFriction]:
     speeds in each direction)."""
     out = []
     for c in sorted({p.cycle for p in points}):
-        lines = []
+        lines, off = [], 0.0
         for sign in (1, -1):
             ps = [p for p in points if p.cycle == c and np.sign(p.speed) == sign]
             if len({round(p.speed, 3) for p in ps}) < 2:
                 break
-            slope, intercept = np.polyfit([p.speed for p in ps], [p.force_n for p in ps], 1)
+            v, f = np.array([p.speed for p in ps]), np.array([p.force_n for p in ps])
+            slope, intercept = np.polyfit(v, f, 1)
             lines += [float(intercept), float(slope)]
+            off = max(off, float(np.abs(f - intercept - slope * v).max()))
         if len(lines) == 4:
-            out.append(CycleFriction(c, *lines))
+            out.append(CycleFriction(c, *lines, off))
     return out
 
 
 def to_markdown(rows: list[CycleFriction]) -> list[str]:
     out = ["| cycle | upward: intercept (N) | upward: slope (N·s/m) | downward: intercept (N) | "
            "downward: slope (N·s/m) | symmetric viscous (N·s/m) | direction-odd viscous "
-           "(N·s/m) |", "|---|---|---|---|---|---|---|"]
+           "(N·s/m) | largest plateau off its line (N) |", "|---|---|---|---|---|---|---|---|"]
     out += [f"| {r.cycle + 1} | {r.intercept_up:+.2f} | {r.slope_up:.1f} | "
             f"{r.intercept_down:+.2f} | {r.slope_down:.1f} | {r.viscous:.1f} | "
-            f"{r.viscous_odd:+.1f} |" for r in rows]
+            f"{r.viscous_odd:+.1f} | {r.off_line_n:.2f} |" for r in rows]
     return out
