@@ -68,13 +68,12 @@ def test_leaving_a_cycle_out_keeps_it_out_of_the_estimation_part(record):
 
 
 def _scores(means, ses, params):
-    """CycleScores with the given mean and standard error (four cycles: mean ± 2 se·√4/√3)."""
+    """CycleScores of four cycles with the given means and standard errors: the values m ± d
+    twice each have a standard deviation d·√(4/3), so a standard error d/√3."""
     out = {}
     for name, m, s, p in zip("abcd", means, ses, params):
-        d = s * 2 / np.sqrt(4 / 3) / 2  # four values m ± d, d = se·√4/(2/√3·… ) solved below
-        vals = np.array([m - d, m - d, m + d, m + d])
-        vals = m + (vals - m) * s / (np.std(vals, ddof=1) / 2)
-        out[name] = CycleScores(tuple(vals), p)
+        d = s * np.sqrt(3.0)
+        out[name] = CycleScores((m - d, m - d, m + d, m + d), p)
     return out
 
 
