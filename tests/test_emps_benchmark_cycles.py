@@ -139,6 +139,12 @@ def test_the_page_prints_rule_c_and_its_choice(record):
     assert "Left one cycle out (rule C" in page and "the choice is **simple**" in page
     assert "| simple | 3 | 5.00 | 5.50 | 6.00 | 5.50 ± 0.29 | yes |" in page
     assert "| published | 4 | 9.00 | 9.00 | 9.00 | 9.00 ± 0.00 | (not a candidate) |" in page
+    # benchmark.json carries each row's cycle scores and its parameter count.
+    import json
+
+    saved = json.loads(json.dumps(rows[2].to_json()))
+    assert saved["left_one_cycle_out_rmse_m"] == [5e-3, 5.5e-3, 6e-3]
+    assert saved["fitted_parameters"] == 3
 
 
 def test_the_plateau_friction_follows_a_drift_within_the_record():

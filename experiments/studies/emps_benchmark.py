@@ -547,7 +547,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
             {"name": name, "command": command, "rows": [r.to_json() for r in rows],
              "baselines": [dataclasses.asdict(b) for b in settings.baselines],
              "init_samples": settings.init_samples,
-             "estimation_fraction": settings.estimation_fraction,
+             "estimation_fraction": settings.estimation_fraction, "cycles": settings.cycles,
              "drift": drift.to_json()}, indent=1))
         (tmp / "table.md").write_text(table)
         for i, r in enumerate(rows):
