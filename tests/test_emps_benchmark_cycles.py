@@ -133,12 +133,14 @@ def test_the_page_prints_rule_c_and_its_choice(record):
         ForceOffset(force_n=1.0), Cogging(amplitude=1.0, period=0.0025, phase=0.0)))
     rows = [row("published", 1.3, CycleScores((9e-3, 9e-3, 9e-3), 4)),
             row("rich", 1.02, CycleScores((3e-3, 5e-3, 7e-3), fitted_parameters(rich)), rich),
-            row("simple", 1.05, CycleScores((5e-3, 5.5e-3, 6e-3), fitted_parameters(truth)))]
+            row("simple", 1.05, CycleScores((5e-3, 5.5e-3, 6e-3), fitted_parameters(truth),
+                                            ("M 18.1", "M 18.2", "M 18.3")))]
     page = to_markdown("b", rows, BenchmarkSettings(training="a", test="b", cycles=3), "cmd")
     assert "(lowest mean: rich, 5.00 ± 1.15 mm)" in page
     assert "Left one cycle out (rule C" in page and "the choice is **simple**" in page
     assert "| simple | 3 | 5.00 | 5.50 | 6.00 | 5.50 ± 0.29 | yes |" in page
     assert "| published | 4 | 9.00 | 9.00 | 9.00 | 9.00 ± 0.00 | (not a candidate) |" in page
+    assert "- simple, without cycle 3: M 18.3" in page
     # benchmark.json carries each row's cycle scores and its parameter count.
     import json
 

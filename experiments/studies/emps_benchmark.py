@@ -335,7 +335,9 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
     for i, (m, e, b) in enumerate(zip(full, part, back)):
         cyc = None if not folds or any(f[i] is None for _, f in folds) else CycleScores(
             tuple(sim(f[i].plant, cycle, f"cycle {k + 1}").score.rmse
-                  for k, (cycle, f) in enumerate(folds)), fitted_parameters(m.plant))
+                  for k, (cycle, f) in enumerate(folds)), fitted_parameters(m.plant),
+            tuple(_params(f[i].plant) + (f" ({f[i].note})" if f[i].note else "")
+                  for _, f in folds))
         note = m.note if m.second is None else (
             f"{m.note}; the second start's test RMSE "
             f"{sim(m.second, test).score.rmse * 1e3:.3f} mm")
@@ -427,7 +429,11 @@ def _rule_c(pub: Row, candidates: list[Row], settings: BenchmarkSettings) -> lis
         f"(lowest mean: {best}, {scored[best].mean * 1e3:.2f} ± {scored[best].se * 1e3:.2f} "
         f"mm), {pick.cycles.parameters} fitted parameters; {mm:.2f} mm on test, "
         f"{'better' if mm < p_mm else 'worse'} than the published model by "
-        f"{abs(100 * (mm / p_mm - 1)):.0f} % ({mm - p_mm:+.2f} mm).", "", *table, ""]
+        f"{abs(100 * (mm / p_mm - 1)):.0f} % ({mm - p_mm:+.2f} mm).", "", *table, "",
+        *([] if not any(r.cycles.remade for r in candidates if r.cycles) else [
+            "Made without each cycle (rule C's folds):", "",
+            *(f"- {r.name}, without cycle {j + 1}: {d}" for r in candidates if r.cycles
+              for j, d in enumerate(r.cycles.remade)), ""])]
 
 
 def _twin_table(rows: list[Row]) -> list[str]:

@@ -73,10 +73,12 @@ def left_out(run: Run, edges: tuple[int, ...], k: int) -> tuple[Run, Run]:
 
 @dataclass(frozen=True)
 class CycleScores:
-    """A candidate's open-loop RMSE (m) on each left-out cycle, and its fitted parameters."""
+    """A candidate's open-loop RMSE (m) on each left-out cycle, its fitted parameters, and
+    (``remade``) each fold's model described (its parameters and its fit's note)."""
 
     rmse_m: tuple[float, ...]
     parameters: int
+    remade: tuple[str, ...] = ()
 
     @property
     def mean(self) -> float:
