@@ -47,8 +47,12 @@ TAIL = 10  # iterations over which a fit's last decrease is measured
 class Point:
     """One profile point: the value held (SI), its data cost (N**2), the optimizer's stop reason
     and iterations, how much its data cost fell over its last ``TAIL`` iterations (N**2; how
-    far from converged a ``max_iter`` point still is), and the fit's hidden layers (the next
-    point's start)."""
+    far from converged a ``max_iter`` point still is), the fit's hidden layers (the next
+    point's start), its last first-order measure (:func:`controllers.optim.first_order_measure`:
+    the relative decrease the Gauss-Newton model predicts; None: not measured) and the two
+    convergence tests it was held to: ``ftol`` (relative: ``first_order <= ftol``) and ``atol``
+    (the profile's resolution, N**2: the predicted absolute decrease
+    ``data_cost * first_order <= atol``; None: not tested)."""
 
     value: float
     data_cost: float
@@ -56,10 +60,46 @@ class Point:
     iterations: int
     beta: np.ndarray | None = None
     tail: float = 0.0
+    first_order: float | None = None
+    ftol: float | None = None
+    atol: float | None = None
+
+    @property
+    def predicted_decrease(self) -> float | None:
+        """The absolute decrease of the data cost (N**2) the Gauss-Newton model predicts."""
+        return None if self.first_order is None else self.data_cost * self.first_order
+
+    @property
+    def relative_test(self) -> bool:
+        """The optimizer's own convergence test: predicted relative decrease <= ftol."""
+        return (self.first_order is not None and self.ftol is not None
+                and self.first_order <= self.ftol)
+
+    @property
+    def resolution_test(self) -> bool:
+        """The profile's test: predicted absolute decrease <= atol (a fraction of delta)."""
+        return (self.first_order is not None and self.atol is not None
+                and self.predicted_decrease <= self.atol)
+
+    @property
+    def settled(self) -> bool:
+        """Whether either test holds (else the point is an upper bound on the profile)."""
+        return self.relative_test or self.resolution_test
 
     def to_json(self) -> dict:
         return {"value": self.value, "data_cost": self.data_cost, "stop": self.stop,
-                "iterations": self.iterations, "tail_decrease": self.tail}
+                "iterations": self.iterations, "tail_decrease": self.tail,
+                "first_order": self.first_order, "predicted_decrease": self.predicted_decrease,
+                "relative_test": self.relative_test, "resolution_test": self.resolution_test}
+
+
+def point_of(value: float, fit, *, atol: float | None, beta: np.ndarray | None = None,
+             tail: float = 0.0) -> Point:
+    """The profile point of a fit record (:class:`controllers.pgnn.fit_record.FitRecord`) at
+    ``value``, held to its own ``ftol`` and to ``atol`` (N**2)."""
+    return Point(value=float(value), data_cost=fit.data_cost, stop=fit.stop,
+                 iterations=fit.iterations, beta=beta, tail=tail, first_order=fit.first_order,
+                 ftol=fit.ftol, atol=atol)
 
 
 def tail_decrease(history: list) -> float:
@@ -182,10 +222,10 @@ def parameter_profile(start: Point, down: dict, up: dict, v_best: float, delta: 
     entry["profile"] = [p.to_json() for p in pts]
     entry["start"] = start.value
     entry["bound"] = list(bounds)
-    # A direction that "rises" at a point that did not converge may not rise: that point is
-    # an upper bound on the profile, so the end says so.
+    # A direction that "rises" at a point that passed neither convergence test may not rise:
+    # that point is an upper bound on the profile, so the end says so.
     entry["ends"] = {side: d["end"] + ("" if d["end"] != "rises" or all(
-        p.stop == "converged" for p in d["points"] if p.data_cost > level) else
+        p.settled for p in d["points"] if p.data_cost > level) else
         " (not converged)") for side, d in (("down", down), ("up", up))}
     entry["monotone"] = {side: monotone([start.data_cost] + [p.data_cost for p in d])
                          for side, d in (("down", down_pts), ("up", up_pts))}

@@ -51,8 +51,12 @@ class ProfileSettings:
     threshold is their spread; 5 or more for a usable one); draws: network draws per record;
     pgnn: the fit settings profiled (lambda is 0; default: the paper's cost); polish: further
     Levenberg-Marquardt iterations for a record's fit that did not converge (0: none); max_iter:
-    Levenberg-Marquardt iterations per profile point; points: profile points per direction at
-    most (the budget); step: first step in units of scale_k (the change of theta_k that alone
+    Levenberg-Marquardt iterations per profile point at most; resolution: a profile point is
+    resolved (and stops) when the Gauss-Newton model predicts an absolute decrease of its data
+    cost of at most this fraction of delta (besides the optimizer's relative test, ``pgnn.ftol``);
+    check: how many resolved points are continued for ``check_iter`` more iterations to test
+    that resolution (those with the largest predicted decrease; 0: none); points: profile points
+    per direction at most (the budget); step: first step in units of scale_k (the change of theta_k that alone
     moves the force by its rms); span: how far beyond the hull of theta* and theta_LIP the
     search goes, in units of scale_k; refine: bisections of the step where a profile rises
     (locating the range's end); sloppy: smallest Gauss-Newton directions reported per fit.
@@ -65,6 +69,9 @@ class ProfileSettings:
         weight_decay=0.0, continuation_lam=0.0))
     polish: int = 400
     max_iter: int = 100
+    resolution: float = 0.05
+    check: int = 4
+    check_iter: int = 500
     points: int = 8
     step: float = 0.25
     span: float = 4.0
@@ -73,13 +80,14 @@ class ProfileSettings:
 
     def __post_init__(self):
         for key, low in (("records", 2), ("draws", 1), ("polish", 0), ("max_iter", 1),
-                         ("points", 1), ("refine", 0), ("sloppy", 1)):
+                         ("check", 0), ("check_iter", 1), ("points", 1), ("refine", 0),
+                         ("sloppy", 1)):
             value = getattr(self, key)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
                 raise UserError(f"{key}: expected an integer >= {low}, got {value!r}")
         if not self.hidden or not all(isinstance(h, int) and h >= 1 for h in self.hidden):
             raise UserError(f"hidden: expected a list of integers >= 1, got {self.hidden!r}")
-        for key in ("step", "span"):
+        for key in ("step", "span", "resolution"):
             if not getattr(self, key) > 0:
                 raise UserError(f"{key}: expected a number > 0, got {getattr(self, key)!r}")
 
@@ -148,7 +156,7 @@ def run_record(task: tuple) -> dict:
             fits.append({"draw": draw, "lambda": 0.0, "data_cost": model.fit_.data_cost,
                          "stop": model.fit_.stop, "iterations": model.fit_.iterations,
                          "first": first, "tail_decrease": ident.tail_decrease(model.history_),
-                         "theta": dict(model.theta_),
+                         "theta": dict(model.theta_), "fit": model.fit_,
                          "sloppy": ident.sloppy_directions(model, data.phi, data.target,
                                                            settings.sloppy),
                          "beta": model.network_.get_nonlinear()})
@@ -162,29 +170,47 @@ def run_record(task: tuple) -> dict:
 
 def run_direction(task: tuple) -> dict:
     """One direction of one parameter's profile: (config, settings, hidden, data, theta_lip,
-    start Point, name, direction, bound, level) -> the walk's points and end."""
+    start Point, name, direction, bound, level, atol) -> the walk's points and end; each point
+    stops at the optimizer's relative test, at the resolution test (predicted decrease <=
+    ``atol``, N**2) or at ``settings.max_iter``."""
     import torch
 
     from controllers.pgnn import PGNNFeedforward
 
     torch.set_num_threads(1)
-    config, settings, hidden, data, theta_lip, start, name, direction, bound, level = task
+    config, settings, hidden, data, theta_lip, start, name, direction, bound, level, atol = task
     fs = _fit_settings(settings, hidden, settings.max_iter)
     sc = ident.scales(data.phi, data.target)[name]
 
     def fit_at(value: float, beta0: np.ndarray) -> ident.Point:
         model = PGNNFeedforward(**fs, features=config.features).fit_pinned(
-            data=data, theta_lip=theta_lip, beta0=beta0, pinned={name: value})
-        return ident.Point(value=float(value), data_cost=model.fit_.data_cost,
-                           stop=model.fit_.stop, iterations=model.fit_.iterations,
-                           beta=model.network_.get_nonlinear(),
-                           tail=ident.tail_decrease(model.history_))
+            data=data, theta_lip=theta_lip, beta0=beta0, pinned={name: value}, atol=atol)
+        return ident.point_of(value, model.fit_, atol=atol, beta=model.network_.get_nonlinear(),
+                              tail=ident.tail_decrease(model.history_))
 
     got = ident.walk(fit_at, start, direction, first_step=settings.step * sc, bound=bound,
                      level=level, points=settings.points, refine=settings.refine)
-    return {"name": name, "direction": direction, "end": got["end"],
-            "points": [ident.Point(p.value, p.data_cost, p.stop, p.iterations, tail=p.tail)
-                       for p in got["points"]]}
+    return {"name": name, "direction": direction, "end": got["end"], "points": got["points"]}
+
+
+def run_check(task: tuple) -> dict:
+    """The test of a resolved point: (config, settings, hidden, data, theta_lip, name, Point)
+    -> the same pinned fit continued from the point's hidden layers for
+    ``settings.check_iter`` iterations (no resolution stop): how far its data cost still
+    fell."""
+    import torch
+
+    from controllers.pgnn import PGNNFeedforward
+
+    torch.set_num_threads(1)
+    config, settings, hidden, data, theta_lip, name, point = task
+    fs = _fit_settings(settings, hidden, settings.check_iter)
+    model = PGNNFeedforward(**fs, features=config.features).fit_pinned(
+        data=data, theta_lip=theta_lip, beta0=point.beta, pinned={name: point.value})
+    return {"name": name, "value": point.value, "data_cost": point.data_cost,
+            "predicted_decrease": point.predicted_decrease,
+            "continued_cost": model.fit_.data_cost, "stop": model.fit_.stop,
+            "iterations": model.fit_.iterations}
 
 
 def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int = 1,
@@ -209,29 +235,42 @@ def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int
         delta = ident.record_threshold(best_per_record)
         best = min(first["sizes"][key], key=lambda f: f["data_cost"])
         start_cost = best["data_cost"]
+        atol = settings.resolution * delta
         directions = []
         for name in THETA_NAMES:
             bounds = ident.search_bounds(best["theta"][name], first["lip"][name], sc[name],
                                          settings.span)
-            start = ident.Point(best["theta"][name], start_cost, best["stop"],
-                                best["iterations"], best["beta"])
+            start = ident.point_of(best["theta"][name], best["fit"], atol=atol,
+                                   beta=best["beta"])
             for direction, bound in ((-1, bounds[0]), (1, bounds[1])):
                 directions.append((config, settings, hidden, data, first["lip"], start, name,
-                                   direction, bound, start_cost + delta))
+                                   direction, bound, start_cost + delta, atol))
         progress(f"n_l={key}: δ = {delta:.3g} N² over {len(records)} records; profiling from "
                  f"the best fit ({start_cost:.5f} N², {best['stop']}) in "
                  f"{len(directions)} directions")
         walks = map_in_order(run_direction, directions, workers, lambda done, i, w: progress(
             f"  n_l={key} {w['name']} {'+' if w['direction'] > 0 else '-'}: {w['end']} after "
-            f"{len(w['points'])} points"))
-        out[key] = summarize(settings, records, key, walks, delta, best, sc)
+            f"{len(w['points'])} points, "
+            f"{sum(p.settled for p in w['points'])} resolved or converged"))
+        # The resolution test trusts a local model: continue the resolved points it trusts
+        # least (largest predicted decrease) and see how far their cost still falls.
+        resolved = sorted(((w["name"], p) for w in walks for p in w["points"]
+                           if p.resolution_test and not p.relative_test),
+                          key=lambda np_: -np_[1].predicted_decrease)[:settings.check]
+        checks = map_in_order(run_check, [(config, settings, hidden, data, first["lip"], n, p)
+                                          for n, p in resolved], workers,
+                              lambda done, i, c: progress(
+                                  f"  n_l={key} check {done}/{len(resolved)}: {c['name']} "
+                                  f"fell {c['data_cost'] - c['continued_cost']:.2g} N² in "
+                                  f"{c['iterations']} more iterations"))
+        out[key] = summarize(settings, records, key, walks, delta, best, sc, checks)
     return out
 
 
 # ----------------------------------------------------------------------------- summary
 
 def summarize(settings: ProfileSettings, records: list[dict], key: str, walks: list[dict],
-              delta: float, best: dict, sc: dict) -> dict:
+              delta: float, best: dict, sc: dict, checks: list[dict] = ()) -> dict:
     """The identifiability record of one network size (see the module docstring)."""
     first = records[0]
     fits0 = first["sizes"][key]
@@ -241,8 +280,8 @@ def summarize(settings: ProfileSettings, records: list[dict], key: str, walks: l
     for name in THETA_NAMES:
         down, up = (next(w for w in walks if w["name"] == name and w["direction"] == d)
                     for d in (-1, 1))
-        start = ident.Point(best["theta"][name], best["data_cost"], best["stop"],
-                            best["iterations"], tail=best["tail_decrease"])
+        start = ident.point_of(best["theta"][name], best["fit"],
+                               atol=settings.resolution * delta, tail=best["tail_decrease"])
         bounds = ident.search_bounds(best["theta"][name], first["lip"][name], sc[name],
                                      settings.span)
         params[name] = ident.parameter_profile(start, down, up, v_best, delta, bounds)
@@ -255,7 +294,10 @@ def summarize(settings: ProfileSettings, records: list[dict], key: str, walks: l
                                         "tail_decrease", "theta")},
         "scale": sc, "max_iter": settings.max_iter, "points": settings.points,
         "step": settings.step, "span": settings.span, "refine": settings.refine,
-        "polish": settings.polish,
+        "polish": settings.polish, "resolution": settings.resolution,
+        "atol": settings.resolution * delta, "ftol": best["fit"].ftol,
+        "checks": [{**c, "moved": c["data_cost"] - c["continued_cost"]} for c in checks],
+        "check_iter": settings.check_iter,
         "fits": [{k: f[k] for k in ("lambda", "data_cost", "theta")} for f in fits0],
         "record_fits": [{"seed": r["seed"], **{k: f[k] for k in (
             "draw", "data_cost", "stop", "iterations", "first", "tail_decrease", "theta",
@@ -299,8 +341,8 @@ def to_markdown(ident_out: dict) -> str:
                   f"{rec['points']} points per direction, {rec['refine']} bisections where a "
                   "profile rises.", "",
                   "| parameter | θ* (best fit) | range within δ | ends (down / up) | points "
-                  "converged | monotone (down / up) | LIP ± 95 % Newey-West | LIP sd over "
-                  "records |", "|---|---|---|---|---|---|---|---|"]
+                  "converged / resolved / neither | monotone (down / up) | LIP ± 95 % "
+                  "Newey-West | LIP sd over records |", "|---|---|---|---|---|---|---|---|"]
         for name, e in rec["parameters"].items():
             unit = THETA_UNITS[name]
             if e["range"] is None:
@@ -310,24 +352,48 @@ def to_markdown(ident_out: dict) -> str:
                 rng = ((f"(flat to the {e['why_open'][0]}) " if e["open"][0] else "")
                        + f"[{_g(lo)}, {_g(hi)}]"
                        + (f" (flat to the {e['why_open'][1]})" if e["open"][1] else ""))
-            stops = [p["stop"] for p in e["profile"]]
+            n_rel = sum(p["relative_test"] for p in e["profile"])
+            n_res = sum(p["resolution_test"] and not p["relative_test"] for p in e["profile"])
             lines.append(
                 f"| {name} [{unit}] | {_g(e['start'])} | {rng} | {e['ends']['down']} / "
-                f"{e['ends']['up']} | {stops.count('converged')}/{len(stops)} | "
+                f"{e['ends']['up']} | {n_rel} / {n_res} / {len(e['profile']) - n_rel - n_res} | "
                 f"{'yes' if e['monotone']['down'] else 'no'} / "
                 f"{'yes' if e['monotone']['up'] else 'no'} | {_g(li['theta'][name])} ± "
                 f"{_g(1.96 * li['std_newey_west'][name])} | {_g(lr['std'][name])} |")
         pts = [p for e in rec["parameters"].values() for p in e["profile"]]
         stops = [p["stop"] for p in pts]
-        tail = max(p["tail_decrease"] for p in pts)
-        lines += ["", f"Profile points: {stops.count('converged')} of {len(stops)} converged ("
-                  + (", ".join(f"{stops.count(x)} {x}" for x in sorted(set(stops))
-                               if x != "converged") or "all") + "); a point that did not "
-                  "converge is an upper bound on the profile there. Ends: rises = the profile "
-                  "rose above δ; bound = flat to the search bound (" + f"{rec['span']:g} scales "
-                  "beyond θ* and θ_LIP). The largest fall of any point's data cost over its "
-                  f"last {ident.TAIL} iterations: {tail:.2g} N² ({tail / rec['delta']:.2g} δ; "
-                  "the pace at which the slowest unconverged point was still descending).", "",
+        rel = [p for p in pts if p["relative_test"]]
+        res = [p for p in pts if p["resolution_test"] and not p["relative_test"]]
+        rest = [p for p in pts if not (p["resolution_test"] or p["relative_test"])]
+        pred = [p["predicted_decrease"] for p in pts if p["predicted_decrease"] is not None]
+        tail = max(p["tail_decrease"] for p in rest) if rest else None
+        lines += ["", f"Profile points (the start counted once per parameter): {len(pts)}; "
+                  f"{len(rel)} pass the optimizer's relative test (Gauss-Newton predicted "
+                  f"relative decrease ≤ ftol = {rec['ftol']:g}), {len(res)} more pass the "
+                  f"resolution test only (predicted absolute decrease ≤ {rec['resolution']:g} δ "
+                  f"= {rec['atol']:.2g} N²), {len(rest)} pass neither (upper bounds on the "
+                  "profile there). Stops: " + ", ".join(
+                      f"{stops.count(x)} {x}" for x in sorted(set(stops))) + ". Predicted "
+                  f"decrease over the points: {min(pred) / rec['delta']:.2g} δ to "
+                  f"{max(pred) / rec['delta']:.2g} δ (median "
+                  f"{float(np.median(pred)) / rec['delta']:.2g} δ)"
+                  + (f"; the largest fall of an unsettled point's data cost over its last "
+                     f"{ident.TAIL} iterations {tail:.2g} N² ({tail / rec['delta']:.2g} δ)"
+                     if tail is not None else "") + ". Ends: rises = the profile rose above "
+                  "δ; bound = flat to the search bound (" + f"{rec['span']:g} scales beyond θ* "
+                  "and θ_LIP).", ""]
+        if rec["checks"]:
+            moved = [c["moved"] for c in rec["checks"]]
+            lines += [f"The resolution test, checked: the {len(moved)} resolved points with the "
+                      f"largest predicted decrease, each continued for up to "
+                      f"{rec['check_iter']} more iterations, fell by "
+                      + ", ".join(f"{m / rec['delta']:.2g} δ" for m in moved)
+                      + " (predicted: " + ", ".join(
+                          f"{c['predicted_decrease'] / rec['delta']:.2g} δ"
+                          for c in rec["checks"]) + f"); the stated resolution is "
+                      f"{rec['resolution']:g} δ: "
+                      + ("held" if max(moved) <= rec["atol"] else "NOT held") + ".", ""]
+        lines += [
                   f"LIP residual lag-1 autocorrelation {li['lag1_autocorr']:.2f} "
                   f"({li['lags']} Newey-West lags, {li['n_samples']} samples).", "",
                   "Sloppy directions of each record's fit (Gauss-Newton matrix J'J of the "
