@@ -83,7 +83,8 @@ def _symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float = 1e-3,
                         rtol: float = 0.0, ftol: float | None = None,
-                        atol: float | None = None, callback=None) -> OptimResult:
+                        atol: float | None = None, atol_window: int = 10,
+                        callback=None) -> OptimResult:
     """Minimize ``||r(p)||**2``; ``max_iter`` bounds the Jacobian evaluations.
 
     Converged when :func:`first_order_measure` is at most ``ftol`` (the Gauss-Newton model
@@ -91,8 +92,10 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     (off by default) also stops when an accepted step decreases the cost by less than that
     relative amount, the rule of the earlier fits. ``atol`` (off by default; the cost's units)
     also stops, as ``resolved``, when the predicted absolute decrease ``V * first_order`` is at
-    most ``atol``: the cost is then known to that resolution (as far as the local model holds;
-    a caller that states a resolution should check it by continuing some such points).
+    most ``atol`` and the cost fell by at most ``atol`` over the last ``atol_window`` accepted
+    iterations (since the start where there were fewer): the cost is then known to that
+    resolution as far as the local model and the recent pace tell (a caller that states a
+    resolution should check it by continuing some such points).
     """
     p = np.array(p0, dtype=np.float64)
     r, J = fun(p, True)
@@ -100,6 +103,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     if callback is not None:
         callback(0, p, cost)
     mu, nu, evals, it = mu0, 2.0, 1, 0
+    recent = [cost]  # the accepted costs (the resolution test's window)
     stop = "max_iter"
     d = np.zeros(len(p))
     while True:
@@ -110,7 +114,8 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
             if ftol is not None and measure <= ftol:
                 stop = "converged"
                 break
-            if atol is not None and measure * cost <= atol:
+            if (atol is not None and measure * cost <= atol
+                    and recent[max(0, len(recent) - 1 - atol_window)] - cost <= atol):
                 stop = "resolved"
                 break
         if it >= max_iter:
@@ -151,6 +156,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         r, J = fun(p, True)
         evals += 1
         cost = float(r @ r)
+        recent.append(cost)
         if callback is not None:
             callback(it, p, cost)
         if decrease < rtol:

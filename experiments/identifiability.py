@@ -15,8 +15,9 @@ flat is followed out to the search bound. A direction ends at the first point th
 Convergence, two tests per point (:class:`experiments.profiles_result.Point`): the optimizer's
 own, relative (the Gauss-Newton model predicts a relative decrease ``first_order <= ftol``), and
 the profile's resolution (it predicts an absolute decrease ``data_cost * first_order`` of at
-most ``resolution * delta``: the point's value is then known to a stated fraction of the
-threshold it is compared with). A point stops at the first that holds (``converged`` or
+most ``resolution * delta``, and the cost fell by no more than that over the last ``TAIL``
+iterations: the point's value is then known to a stated fraction of the threshold it is
+compared with). A point stops at the first that holds (``converged`` or
 ``resolved``) or at its iteration cap; a point that passes neither is an upper bound on the
 profile there. The Gauss-Newton prediction is a local model: the study continues the resolved
 points it trusts least and records how far their cost still fell.

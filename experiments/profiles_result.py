@@ -33,7 +33,8 @@ class Point:
     (:func:`controllers.optim.first_order_measure`: the relative decrease the Gauss-Newton
     model predicts; None: not measured) and the two convergence tests it was held to: ``ftol``
     (relative: ``first_order <= ftol``) and ``atol`` (the profile's resolution, N**2: the
-    predicted absolute decrease ``data_cost * first_order <= atol``; None: not tested)."""
+    predicted absolute decrease ``data_cost * first_order <= atol`` and the fall over the last
+    iterations ``tail <= atol``; None: not tested)."""
 
     value: float
     data_cost: float
@@ -58,9 +59,10 @@ class Point:
 
     @property
     def resolution_test(self) -> bool:
-        """The profile's test: predicted absolute decrease <= atol (a fraction of delta)."""
+        """The profile's test: the predicted absolute decrease and the fall over the last
+        iterations both <= atol (a fraction of delta)."""
         return (self.first_order is not None and self.atol is not None
-                and self.predicted_decrease <= self.atol)
+                and self.predicted_decrease <= self.atol and self.tail <= self.atol)
 
     @property
     def settled(self) -> bool:

@@ -67,7 +67,8 @@ class ProfileSettings:
     Levenberg-Marquardt iterations for a record's fit that did not converge (0: none); max_iter:
     Levenberg-Marquardt iterations per profile point at most; resolution: a profile point is
     resolved (and stops) when the Gauss-Newton model predicts an absolute decrease of its data
-    cost of at most this fraction of delta (besides the optimizer's relative test, ``pgnn.ftol``);
+    cost of at most this fraction of delta and its cost fell by no more over its last 10
+    iterations (besides the optimizer's relative test, ``pgnn.ftol``);
     check: how many resolved points are continued for ``check_iter`` more iterations to test
     that resolution (those with the largest predicted decrease; 0: none); points: profile points
     per direction at most (the budget); step: first step in units of scale_k (the change of
@@ -423,8 +424,9 @@ def to_markdown(sizes: dict[int, SizeRecord]) -> str:
         lines += ["", f"Profile points (the start counted once per parameter): {len(pts)}; "
                   f"{rel} pass the optimizer's relative test (Gauss-Newton predicted "
                   f"relative decrease ≤ ftol = {ws.ftol:g}), {res} more pass the "
-                  f"resolution test only (predicted absolute decrease ≤ {ws.resolution:g} δ "
-                  f"= {ws.atol:.2g} N²), {neither} pass neither (upper bounds on the "
+                  f"resolution test only (predicted absolute decrease, and the fall over the "
+                  f"last {ident.TAIL} iterations, ≤ {ws.resolution:g} δ = {ws.atol:.2g} N²), "
+                  f"{neither} pass neither (upper bounds on the "
                   "profile there). Stops: " + ", ".join(
                       f"{stops.count(x)} {x}" for x in sorted(set(stops))) + ". Predicted "
                   f"decrease over the points: {min(pred) / rec.delta:.2g} δ to "
