@@ -203,7 +203,7 @@ def test_run_sends_a_profile_config_to_study(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_study_runs_end_to_end(tmp_path):
-    """A tiny study through the command: two records, n_l = 2, two points per direction, a
+    """A tiny study through the command: two records, n_l = 3, two points per direction, a
     coarse resolution (so that points resolve and are checked); the same result in one
     process and in two; the file reads back into the typed record and writes the same."""
     import json
@@ -213,12 +213,12 @@ def test_study_runs_end_to_end(tmp_path):
 
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text("name: tiny\nkind: identifiability\nseed: 1\ntraining: {repeats: 1}\n"
-                   "identifiability: {hidden: [2], records: 2, max_iter: 3, points: 2, "
-                   "resolution: 5.0, check: 2, check_iter: 4}\n")
+                   "identifiability: {hidden: [3], records: 2, max_iter: 3, points: 2, "
+                   "resolution: 1000.0, check: 2, check_iter: 4}\n")
     out = tmp_path / "out"
     assert main(["study", str(cfg), "--out", str(out), "--quiet", "--workers", "1"]) == 0
     sizes = json.loads((out / "identifiability.json").read_text())["sizes"]
-    rec = sizes["2"]
+    rec = sizes["3"]
     assert rec["delta"] > 0 and len(rec["best_cost_per_record"]) == 2
     assert rec["atol"] == pytest.approx(1000.0 * rec["delta"], rel=1e-12)
     for e in rec["parameters"].values():
