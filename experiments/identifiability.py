@@ -38,6 +38,7 @@ network; and per theta direction, what is left of it once the network has absorb
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -54,12 +55,17 @@ TAIL = 10  # iterations over which a fit's last decrease is measured
 
 
 def point_of(value: float, fit, *, atol: float | None, beta: np.ndarray | None = None,
-             tail: float = 0.0) -> Point:
+             tail: float = 0.0, before: Point | None = None) -> Point:
     """The profile point of a fit record (:class:`controllers.pgnn.fit_record.FitRecord`) at
-    ``value``, held to its own ``ftol`` and to ``atol`` (N**2)."""
-    return Point(value=float(value), data_cost=fit.data_cost, stop=fit.stop,
-                 iterations=fit.iterations, beta=beta, tail=tail, first_order=fit.first_order,
-                 ftol=fit.ftol, atol=atol)
+    ``value``, held to its own ``ftol`` and to ``atol`` (N**2); ``before``: the point this fit
+    continued (its iterations are added, and its data cost kept as ``confirmed_from``)."""
+    point = Point(value=float(value), data_cost=fit.data_cost, stop=fit.stop,
+                  iterations=fit.iterations, beta=beta, tail=tail,
+                  first_order=fit.first_order, ftol=fit.ftol, atol=atol)
+    if before is None:
+        return point
+    return replace(point, iterations=before.iterations + fit.iterations,
+                   continued=fit.iterations, confirmed_from=before.data_cost)
 
 
 def tail_decrease(history: list) -> float:
@@ -84,29 +90,39 @@ def search_bounds(start: float, lip: float, scale: float, span: float) -> tuple[
 
 
 def walk(fit_at: Callable[[float, np.ndarray], Point], start: Point, direction: int, *,
-         first_step: float, bound: float, level: float, points: int, refine: int = 0) -> dict:
+         first_step: float, bound: float, level: float, points: int, refine: int = 0,
+         confirm: Callable[[Point], Point] | None = None) -> Walk:
     """Continuation of a profile from ``start`` in ``direction`` (+1 or -1): values
     ``start + direction * h * (1, 3, 7, 15, ...)`` (steps ``h, 2h, 4h, ...``), the last one
     clipped to ``bound``; ``h`` is ``first_step``, or larger where ``points`` such steps would
     not reach ``bound`` (so every direction is decided: it rises or is flat to the bound).
     ``fit_at(value, beta0)`` fits one point from the hidden layers ``beta0`` (the neighbour's).
-    Ends at the first point above ``level`` (``rises``) or at ``bound`` (``bound``; the
-    ``points``-th point is there). A rise is then bracketed ``refine`` times by bisection
-    (each midpoint started from the inside end), so that the crossing is located to
-    ``1 / 2**refine`` of the last step. Returns the :class:`Walk` (points in the order
-    fitted, the end's reason)."""
+    A point above ``level`` is first handed to ``confirm`` (None: taken as it is), which
+    continues its fit and returns the point it reaches: a rise rests on the point's end state,
+    not on where a local stopping test left it. Ends at the first point still above ``level``
+    (``rises``) or at ``bound`` (``bound``; the ``points``-th point is there). A rise is then
+    bracketed ``refine`` times by bisection (each midpoint started from the inside end,
+    confirmed likewise), so that the crossing is located to ``1 / 2**refine`` of the last
+    step. Returns the :class:`Walk` (points in the order fitted, the end's reason)."""
+
+    def fit(value: float, beta0: np.ndarray) -> Point:
+        point = fit_at(value, beta0)
+        if point.data_cost > level and confirm is not None:
+            point = confirm(point)
+        return point
+
     reach = abs(bound - start.value)
     out, prev, offset = [], start, 0.0
     step = max(first_step, reach / (2.0 ** points - 1.0))
     for i in range(points):
         offset = reach if i == points - 1 else min(offset + step, reach)
         step *= 2.0
-        point = fit_at(start.value + direction * offset, prev.beta)
+        point = fit(start.value + direction * offset, prev.beta)
         out.append(point)
         if point.data_cost > level:
             inside, outside = prev, point
             for _ in range(refine):
-                mid = fit_at(0.5 * (inside.value + outside.value), inside.beta)
+                mid = fit(0.5 * (inside.value + outside.value), inside.beta)
                 out.append(mid)
                 if mid.data_cost > level:
                     outside = mid

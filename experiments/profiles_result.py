@@ -34,7 +34,10 @@ class Point:
     model predicts; None: not measured) and the two convergence tests it was held to: ``ftol``
     (relative: ``first_order <= ftol``) and ``atol`` (the profile's resolution, N**2: the
     predicted absolute decrease ``data_cost * first_order <= atol`` and the fall over the last
-    iterations ``tail <= atol``; None: not tested)."""
+    iterations ``tail <= atol``; None: not tested). A point that rose above the profile's level
+    was continued before the rise counted: ``continued`` of its iterations are that
+    continuation's, and ``confirmed_from`` is its data cost before it (N**2; None: not
+    continued)."""
 
     value: float
     data_cost: float
@@ -45,6 +48,8 @@ class Point:
     first_order: float | None = None
     ftol: float | None = None
     atol: float | None = None
+    continued: int = 0
+    confirmed_from: float | None = None
 
     @property
     def predicted_decrease(self) -> float | None:
@@ -73,7 +78,8 @@ class Point:
         return {"value": self.value, "data_cost": self.data_cost, "stop": self.stop,
                 "iterations": self.iterations, "tail_decrease": self.tail,
                 "first_order": self.first_order, "predicted_decrease": self.predicted_decrease,
-                "relative_test": self.relative_test, "resolution_test": self.resolution_test}
+                "relative_test": self.relative_test, "resolution_test": self.resolution_test,
+                "continued_iterations": self.continued, "confirmed_from": self.confirmed_from}
 
     @classmethod
     def from_json(cls, d: dict, *, ftol: float | None, atol: float | None) -> Point:
@@ -81,7 +87,9 @@ class Point:
         the tests' outcomes too; :meth:`to_json` of the result gives them back)."""
         return cls(value=d["value"], data_cost=d["data_cost"], stop=d["stop"],
                    iterations=d["iterations"], tail=d.get("tail_decrease", 0.0),
-                   first_order=d.get("first_order"), ftol=ftol, atol=atol)
+                   first_order=d.get("first_order"), ftol=ftol, atol=atol,
+                   continued=d.get("continued_iterations", 0),
+                   confirmed_from=d.get("confirmed_from"))
 
 
 @dataclass(frozen=True)

@@ -387,6 +387,7 @@ _RECORD_KEYS = {
     "record_fits", "lip_intervals", "lip_cost_per_record", "lip_over_records", "mean", "std",
     "parameters", "draw", "first", "sloppy", "largest", "smallest", "eigenvalue", "relative",
     "network_share", "direction", "lambda", "continued_cost", "moved", "sizes", "seed",
+    "continued_iterations", "confirmed_from",
     "wall_time_s", "down", "up"}
 
 
@@ -414,3 +415,28 @@ def test_the_record_keys_are_read_and_written_only_in_profiles_result():
     assert not any(f'"{k}"' in figure for k in _RECORD_KEYS)
     assert uses(ROOT / "experiments" / "profiles_result.py") == _RECORD_KEYS
     assert f'"{ident.ENDS[1]}"' not in figure
+
+
+def test_a_rise_is_confirmed_before_it_counts():
+    """A point that a local test left above the level is continued (``confirm``): where the
+    continuation brings it back within the level the walk goes on (to the bound here); where
+    it stays above, the direction rises at it, and the point keeps both costs."""
+    start = ident.Point(0.0, 0.0, "converged", 3, np.zeros(1))
+
+    def fit_at(v, beta):  # a plateau at 1.0 that a longer descent leaves
+        return ident.Point(v, 1.0, "resolved", 2, beta)
+
+    def confirm_to(cost):
+        return lambda p: ident.Point(p.value, cost, "max_iter", p.iterations + 50, p.beta,
+                                     continued=50, confirmed_from=p.data_cost)
+
+    flat = ident.walk(fit_at, start, 1, first_step=1.0, bound=10.0, level=0.5, points=4,
+                      confirm=confirm_to(0.1))
+    assert flat.end == "bound" and all(p.confirmed_from == 1.0 for p in flat.points)
+    risen = ident.walk(fit_at, start, 1, first_step=1.0, bound=10.0, level=0.5, points=4,
+                       refine=1, confirm=confirm_to(0.9))
+    assert risen.end == "rises" and len(risen.points) == 2
+    assert all(p.continued == 50 and p.data_cost == 0.9 for p in risen.points)
+    assert risen.points[0].to_json()["confirmed_from"] == 1.0
+    unconfirmed = ident.walk(fit_at, start, 1, first_step=1.0, bound=10.0, level=0.5, points=4)
+    assert unconfirmed.end == "rises" and unconfirmed.points[0].confirmed_from is None

@@ -70,7 +70,8 @@ class ProfileSettings:
     cost of at most this fraction of delta and its cost fell by no more over its last 10
     iterations (besides the optimizer's relative test, ``pgnn.ftol``);
     check: how many resolved points are continued for ``check_iter`` more iterations to test
-    that resolution (those with the largest predicted decrease; 0: none); points: profile points
+    that resolution (those with the largest predicted decrease; 0: none; besides, every point
+    that rises above delta is continued as long before the rise counts); points: profile points
     per direction at most (the budget); step: first step in units of scale_k (the change of
     theta_k that alone moves the force by its rms); span: how far beyond the hull of theta* and theta_LIP the
     search goes, in units of scale_k; refine: bisections of the step where a profile rises
@@ -247,9 +248,17 @@ def run_direction(task: tuple) -> tuple[str, int, Walk]:
                               beta=model.network_.get_nonlinear(),
                               tail=ident.tail_decrease(model.history_))
 
+    def confirm(point: Point) -> Point:  # a rise counts at the end of a longer descent
+        model = PGNNFeedforward(**dict(fs, max_iter=settings.check_iter),
+                                features=config.features).fit_pinned(
+            data=t.data, theta_lip=t.theta_lip, beta0=point.beta, pinned={t.name: point.value})
+        return ident.point_of(point.value, model.fit_, atol=t.atol,
+                              beta=model.network_.get_nonlinear(),
+                              tail=ident.tail_decrease(model.history_), before=point)
+
     got = ident.walk(fit_at, t.start, t.direction, first_step=settings.step * sc,
                      bound=t.bound, level=t.level, points=settings.points,
-                     refine=settings.refine)
+                     refine=settings.refine, confirm=confirm)
     return t.name, t.direction, got
 
 
@@ -311,7 +320,8 @@ def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int
         # The resolution test trusts a local model: continue the resolved points it trusts
         # least (largest predicted decrease) and see how far their cost still falls.
         resolved = sorted(((name, p) for name, _, w in walks for p in w.points
-                           if p.resolution_test and not p.relative_test),
+                           if p.resolution_test and not p.relative_test
+                           and p.confirmed_from is None),
                           key=lambda item: -item[1].predicted_decrease)[:settings.check]
         checks = map_in_order(run_check, [(config, settings, hidden, data, first.lip, n, p)
                                           for n, p in resolved], workers,
@@ -437,6 +447,16 @@ def to_markdown(sizes: dict[int, SizeRecord]) -> str:
                      f"({max(rest) / rec.delta:.2g} δ)" if rest else "")
                   + ". Ends: rises = the profile rose above δ; bound = flat to the search "
                   f"bound ({ws.span:g} scales beyond θ* and θ_LIP).", ""]
+        confirmed = [p for p in pts if p.confirmed_from is not None]
+        if confirmed:
+            level = rec.best_data_cost + rec.delta
+            fell = [p for p in confirmed if p.data_cost <= level]
+            lines += [f"Points that rose above δ, continued for up to {ws.check_iter} more "
+                      f"iterations before the rise counted: {len(confirmed)}; "
+                      + ", ".join(f"{(p.confirmed_from - rec.best_data_cost) / rec.delta:.2g} δ"
+                                  f" → {(p.data_cost - rec.best_data_cost) / rec.delta:.2g} δ"
+                                  for p in confirmed)
+                      + f" above the best ({len(fell)} fell back within δ).", ""]
         if rec.checks:
             moved = [c.moved for c in rec.checks]
             lines += [f"The resolution test, checked: the {len(moved)} resolved points with the "
