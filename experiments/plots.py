@@ -447,7 +447,9 @@ def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):
     network size, the threshold δ, and the λ = 0 fits at their θ (a fit beyond the grid is
     drawn at its edge as a triangle pointing out; data costs are those of each fit, its data
     term alone). A point that passed a convergence test (the optimizer's relative one or the
-    profile's resolution) is filled; one that passed neither, an upper bound, is hollow."""
+    profile's resolution) is filled; one that passed neither, an upper bound, is hollow; a
+    point continued further (a rise confirmed, or the resolution checked) has a segment to
+    where the longer descent took it (a triangle)."""
     ax = _ax(ax)
     for i, (key, rec) in enumerate(ident.items()):
         e = rec.parameters[name]
@@ -459,6 +461,14 @@ def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):
             sel = [p for p in pts if p.settled == settled]
             ax.plot([p.value for p in sel], [p.data_cost - best for p in sel], "o", ms=3,
                     ls="none", mec=color(i), mfc=color(i) if settled else "white")
+        # Continued points (a rise confirmed, or a resolved point checked): where they were
+        # and where the longer descent took them.
+        moves = [(p.value, p.confirmed_from, p.data_cost) for p in pts
+                 if p.confirmed_from is not None]
+        moves += [(c.value, c.data_cost, c.continued_cost) for c in rec.checks if c.name == name]
+        for v, before, after in moves:
+            ax.plot([v, v], [before - best, after - best], "-", lw=1, color=color(i))
+            ax.plot([v], [after - best], "v", ms=5, ls="none", mec=color(i), mfc="none")
         ax.axhline(rec.delta, color=color(i), ls=":", lw=1, label=f"δ, n_l={key}")
         lo, hi = e.bound
         for f in rec.fits:
@@ -472,6 +482,8 @@ def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):
     ax.plot([], [], "o", ms=3, color="0.3", ls="none", label="converged or resolved")
     ax.plot([], [], "o", ms=3, mec="0.3", mfc="white", ls="none",
             label="neither (upper bound)")
+    ax.plot([], [], "v", ms=5, mec="0.3", mfc="none", ls="none",
+            label="continued (check, or a rise confirmed)")
     ax.plot([], [], "x", color="0.3", ls="none", label="λ = 0 fits (colour: n_l)")
     ax.set_xlabel(f"{name} [{THETA_UNITS[name]}]")
     ax.set_ylabel("data cost − best [N²]")
