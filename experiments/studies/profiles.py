@@ -12,9 +12,16 @@ Per network size (``identifiability.hidden``) and on the config's plant:
    profile over each physical parameter, in both directions
    (:func:`experiments.identifiability.walk`: ``points`` points per direction at most, each of
    ``max_iter`` Levenberg-Marquardt iterations at most, steps ``step * scale_k`` doubling, out to
-   ``span * scale_k`` beyond the hull of theta* and theta_LIP);
-3. the LIP's Newey-West intervals on that record and its spread over the records, beside the
+   ``span * scale_k`` beyond the hull of theta* and theta_LIP); a point stops when converged
+   (the optimizer's relative test) or resolved (predicted decrease and last fall within
+   ``resolution * delta``), and a point above delta is continued ``check_iter`` iterations
+   before the rise counts;
+3. the check of the resolution: the ``check`` resolved points with the largest predicted
+   decrease, continued ``check_iter`` iterations (how far their cost still falls);
+4. the LIP's Newey-West intervals on that record and its spread over the records, beside the
    profile ranges.
+
+The record of each network size is a :class:`experiments.profiles_result.SizeRecord`.
 
 ``clm-sim study CONFIG`` dispatches here for ``kind: identifiability``; ``identifiability.json``,
 ``report.md``, ``config.resolved.yaml`` and ``figures/identifiability.png`` are written into the
