@@ -330,7 +330,8 @@ def test_the_resolution_stop_on_a_linear_problem():
 def test_a_point_records_both_tests_and_is_never_relabelled():
     """The tests are computed from the recorded first-order measure and last fall, whatever
     the stop: a ``max_iter`` point whose predicted decrease and last fall are within the
-    resolution passes that test but keeps its stop; one that passes neither is not settled, and a rise at it is marked."""
+    resolution passes that test but keeps its stop; one that passes neither is not settled,
+    and a rise at it is marked."""
     p = ident.Point(1.0, 0.1, "max_iter", 100, first_order=0.004, ftol=1e-4, atol=5e-4)
     assert p.predicted_decrease == pytest.approx(4e-4)
     assert p.resolution_test and not p.relative_test and p.settled
@@ -392,9 +393,9 @@ _RECORD_KEYS = {
 
 
 def test_the_record_keys_are_read_and_written_only_in_profiles_result():
-    """The study, the walk and the figure read typed fields: no string constant (docstrings
-    aside) in them is one of the file's keys; the scan finds them in profiles_result (so it
-    can find a use)."""
+    """The study, its report, the walk and the figure read typed fields: no string constant
+    (docstrings aside) in them is one of the file's keys; the scan finds them in
+    profiles_result (so it can find a use)."""
     import ast
 
     def uses(path):
@@ -407,7 +408,8 @@ def test_the_record_keys_are_read_and_written_only_in_profiles_result():
                 if isinstance(node, ast.Constant) and isinstance(node.value, str)
                 and id(node) not in docstrings and node.value in _RECORD_KEYS}
 
-    for module in ("experiments/identifiability.py", "experiments/studies/profiles.py"):
+    for module in ("experiments/identifiability.py", "experiments/studies/profiles.py",
+                   "experiments/studies/profiles_report.py"):
         assert uses(ROOT / module) == set(), module
     plots = ROOT / "experiments" / "plots.py"
     src = plots.read_text()
