@@ -28,10 +28,10 @@ import scipy.linalg
 class OptimResult:
     """Best parameters found, their cost, accepted iterations, residual evaluations, why the
     optimizer stopped (``converged``: the first-order test held; ``resolved``: the absolute
-    test held (the Gauss-Newton model predicts a decrease of at most ``atol``); ``max_iter``:
-    the cap;
-    ``stalled``: no step decreased the cost although the test did not hold; ``small_decrease``:
-    the relative decrease fell below ``rtol``), the first-order measure, ``||grad V||`` and the
+    test held (the Gauss-Newton model predicts, and the last iterations show, a decrease of at
+    most ``atol``); ``max_iter``: the cap; ``stalled``: no step decreased the cost although the
+    test did not hold; ``small_decrease``: the relative decrease fell below ``rtol``), the
+    first-order measure, ``||grad V||`` and the
     damping ``mu`` of the last iteration (relative to Marquardt's scaling; a walk that continues
     from ``p`` may start from it)."""
 
