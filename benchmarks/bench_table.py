@@ -7,11 +7,11 @@ PGNN fits, of its closed-loop replays (the simulation) and of the rest of ``eval
 feedforward: the filtered features and the network's force on every reference sample, the peak
 force, the fit records); the LM iterations its fits ran (every start: the draw and, where the
 row uses one, the continuation's two; a start an earlier row ran from the same draw is reused,
-not run) and the fits' stops (and each start's). The identifiability profiles (the config's
-``identifiability:``) are left out; ``--profiles`` adds them as a last line.
+not run) and the fits' stops (and each start's). The identifiability profiles are their own
+study (``clm-sim study experiments/configs/identifiability.yaml``), timed with ``/usr/bin/time``.
 
     python benchmarks/bench_table.py [--config experiments/configs/paper_table.yaml]
-                                     [--rows 2,3] [--seeds 10] [--profiles]
+                                     [--rows 2,3] [--seeds 10]
 
 Every timing is CPU time of this process (``time.process_time``): on a shared machine the
 fair figure. The fits run in-process because the process is pinned to one core (the runner
@@ -43,8 +43,6 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", default="", help="indices of the rows to run (default: all)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per PGNN row (default: "
                     "the config's)")
-    ap.add_argument("--profiles", action="store_true", help="also the identifiability "
-                    "profiles")
     args = ap.parse_args(argv)
     try:  # one core: the fits run in this process (experiments.workers.map_fits)
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
@@ -90,7 +88,7 @@ def main(argv=None) -> int:
     rows = [int(i) for i in args.rows.split(",") if i] or range(len(config.feedforwards))
     print(f"{'row':<74} {'fits':>6} {'replays':>8} {'other':>6} {'iterations':>10} "
           f"{'per it':>7}  stops")
-    total, results = collections.Counter(), []
+    total = collections.Counter()
     for i in rows:
         spec = config.feedforwards[i]
         if args.seeds is not None and spec.kind == "pgnn":
@@ -98,7 +96,6 @@ def main(argv=None) -> int:
         clock.clear()
         t0 = time.process_time()
         res = tb.evaluate(spec, run, lip)
-        results.append(res)
         whole = time.process_time() - t0
         models = [m for m in res.models if isinstance(m, PGNNFeedforward)]
         its = int(clock["run"])
@@ -115,10 +112,6 @@ def main(argv=None) -> int:
         total.update(fit=clock["fit"], replay=clock["replay"], other=other, iterations=its)
     print(f"{'all rows':<74} {total['fit']:6.1f} {total['replay']:8.1f} {total['other']:6.1f} "
           f"{total['iterations']:10d}")
-    if args.profiles and config.identifiability is not None:
-        t0 = time.process_time()
-        tb.identifiability(run, lip, results)
-        print(f"identifiability profiles: {time.process_time() - t0:.1f} s CPU")
     print(f"total {time.process_time() - t_start:.1f} s CPU in this process")
     return 0
 

@@ -27,9 +27,13 @@ import scipy.linalg
 @dataclass(frozen=True)
 class OptimResult:
     """Best parameters found, their cost, accepted iterations, residual evaluations, why the
-    optimizer stopped (``converged``: the first-order test held; ``max_iter``: the cap;
-    ``stalled``: no step decreased the cost although the test did not hold; ``small_decrease``:
-    the relative decrease fell below ``rtol``), the first-order measure and ``||grad V||``."""
+    optimizer stopped (``converged``: the first-order test held; ``resolved``: the absolute
+    test held (the Gauss-Newton model predicts, and the last iterations show, a decrease of at
+    most ``atol``); ``max_iter``: the cap; ``stalled``: no step decreased the cost although the
+    test did not hold; ``small_decrease``: the relative decrease fell below ``rtol``), the
+    first-order measure, ``||grad V||`` and the
+    damping ``mu`` of the last iteration (relative to Marquardt's scaling; a walk that continues
+    from ``p`` may start from it)."""
 
     p: np.ndarray
     cost: float
@@ -38,6 +42,7 @@ class OptimResult:
     stop: str = "max_iter"
     first_order: float = float("nan")
     grad_norm: float = float("nan")
+    mu: float = float("nan")
 
 
 def first_order_measure(r: np.ndarray, J: np.ndarray, normal: np.ndarray | None = None,
@@ -79,13 +84,19 @@ def _symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float = 1e-3,
                         rtol: float = 0.0, ftol: float | None = None,
+                        atol: float | None = None, atol_window: int = 10,
                         callback=None) -> OptimResult:
     """Minimize ``||r(p)||**2``; ``max_iter`` bounds the Jacobian evaluations.
 
     Converged when :func:`first_order_measure` is at most ``ftol`` (the Gauss-Newton model
     predicts less than that relative decrease: a stationary point to that accuracy); ``rtol``
     (off by default) also stops when an accepted step decreases the cost by less than that
-    relative amount, the rule of the earlier fits.
+    relative amount, the rule of the earlier fits. ``atol`` (off by default; the cost's units)
+    also stops, as ``resolved``, when the predicted absolute decrease ``V * first_order`` is at
+    most ``atol`` and the cost fell by at most ``atol`` over the last ``atol_window`` accepted
+    iterations (since the start where there were fewer): the cost is then known to that
+    resolution as far as the local model and the recent pace tell (a caller that states a
+    resolution should check it by continuing some such points).
     """
     p = np.array(p0, dtype=np.float64)
     r, J = fun(p, True)
@@ -93,14 +104,21 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     if callback is not None:
         callback(0, p, cost)
     mu, nu, evals, it = mu0, 2.0, 1, 0
+    recent = [cost]  # the accepted costs (the resolution test's window)
     stop = "max_iter"
     d = np.zeros(len(p))
     while True:
         A = J.T @ J
         g = J.T @ r
-        if ftol is not None and first_order_measure(r, J, A, g) <= ftol:
-            stop = "converged"
-            break
+        if ftol is not None or atol is not None:
+            measure = first_order_measure(r, J, A, g)
+            if ftol is not None and measure <= ftol:
+                stop = "converged"
+                break
+            if (atol is not None and measure * cost <= atol
+                    and recent[max(0, len(recent) - 1 - atol_window)] - cost <= atol):
+                stop = "resolved"
+                break
         if it >= max_iter:
             break
         # Marquardt scaling by the largest column norm seen so far (as MINPACK): a column that
@@ -139,6 +157,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         r, J = fun(p, True)
         evals += 1
         cost = float(r @ r)
+        recent.append(cost)
         if callback is not None:
             callback(it, p, cost)
         if decrease < rtol:
@@ -147,7 +166,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     A, g = J.T @ J, J.T @ r
     return OptimResult(p=p, cost=cost, iterations=it, evaluations=evals, stop=stop,
                        first_order=first_order_measure(r, J, A, g),
-                       grad_norm=float(np.linalg.norm(2.0 * g)))
+                       grad_norm=float(np.linalg.norm(2.0 * g)), mu=float(mu))
 
 
 def adam(fun, p0: np.ndarray, *, max_iter: int = 1000, lr: float = 1e-3, betas=(0.9, 0.999),

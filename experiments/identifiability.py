@@ -10,9 +10,17 @@ from its neighbour's hidden layers (a cold start from one draw scatters by more 
 varies). Steps double (``step * scale_k``, then 2x, 4x, ...; larger where ``points`` steps would
 not reach the search bound): a profile that rises is found within a few points, one that stays
 flat is followed out to the search bound. A direction ends at the first point that rises above
-``V_start + delta`` (``rises``) or at the search bound (``bound``: flat all the way). Every point
-keeps its optimizer stop reason and iterations: a point that did not converge is an upper bound
-on the profile there.
+``V_start + delta`` (``rises``) or at the search bound (``bound``: flat all the way).
+
+Convergence, two tests per point (:class:`experiments.profiles_result.Point`): the optimizer's
+own, relative (the Gauss-Newton model predicts a relative decrease ``first_order <= ftol``), and
+the profile's resolution (it predicts an absolute decrease ``data_cost * first_order`` of at
+most ``resolution * delta``, and the cost fell by no more than that over the last ``TAIL``
+iterations: the point's value is then known to a stated fraction of the threshold it is
+compared with). A point stops at the first that holds (``converged`` or
+``resolved``) or at its iteration cap; a point that passes neither is an upper bound on the
+profile there. The Gauss-Newton prediction is a local model: the study continues the resolved
+points it trusts least and records how far their cost still fell.
 
 The threshold ``delta`` is what varies between training records: the sample standard deviation,
 over dither-seed records of the same experiment, of the best data cost (below that, a record
@@ -30,12 +38,15 @@ network; and per theta direction, what is left of it once the network has absorb
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES
+from experiments.profiles_result import (LipIntervals, ParameterProfile, Point, Sides,
+                                         SloppyDirections, SmallDirection, ThetaDirection,
+                                         ValleyRange, Walk)
 
 ENDS = ("rises", "bound")  # why a direction of the continuation ended
 
@@ -43,23 +54,18 @@ ENDS = ("rises", "bound")  # why a direction of the continuation ended
 TAIL = 10  # iterations over which a fit's last decrease is measured
 
 
-@dataclass(frozen=True)
-class Point:
-    """One profile point: the value held (SI), its data cost (N**2), the optimizer's stop reason
-    and iterations, how much its data cost fell over its last ``TAIL`` iterations (N**2; how
-    far from converged a ``max_iter`` point still is), and the fit's hidden layers (the next
-    point's start)."""
-
-    value: float
-    data_cost: float
-    stop: str
-    iterations: int
-    beta: np.ndarray | None = None
-    tail: float = 0.0
-
-    def to_json(self) -> dict:
-        return {"value": self.value, "data_cost": self.data_cost, "stop": self.stop,
-                "iterations": self.iterations, "tail_decrease": self.tail}
+def point_of(value: float, fit, *, atol: float | None, beta: np.ndarray | None = None,
+             tail: float = 0.0, before: Point | None = None) -> Point:
+    """The profile point of a fit record (:class:`controllers.pgnn.fit_record.FitRecord`) at
+    ``value``, held to its own ``ftol`` and to ``atol`` (N**2); ``before``: the point this fit
+    continued (its iterations are added, and its data cost kept as ``confirmed_from``)."""
+    point = Point(value=float(value), data_cost=fit.data_cost, stop=fit.stop,
+                  iterations=fit.iterations, beta=beta, tail=tail,
+                  first_order=fit.first_order, ftol=fit.ftol, atol=atol)
+    if before is None:
+        return point
+    return replace(point, iterations=before.iterations + fit.iterations,
+                   continued=fit.iterations, confirmed_from=before.data_cost)
 
 
 def tail_decrease(history: list) -> float:
@@ -84,37 +90,47 @@ def search_bounds(start: float, lip: float, scale: float, span: float) -> tuple[
 
 
 def walk(fit_at: Callable[[float, np.ndarray], Point], start: Point, direction: int, *,
-         first_step: float, bound: float, level: float, points: int, refine: int = 0) -> dict:
+         first_step: float, bound: float, level: float, points: int, refine: int = 0,
+         confirm: Callable[[Point], Point] | None = None) -> Walk:
     """Continuation of a profile from ``start`` in ``direction`` (+1 or -1): values
     ``start + direction * h * (1, 3, 7, 15, ...)`` (steps ``h, 2h, 4h, ...``), the last one
     clipped to ``bound``; ``h`` is ``first_step``, or larger where ``points`` such steps would
     not reach ``bound`` (so every direction is decided: it rises or is flat to the bound).
     ``fit_at(value, beta0)`` fits one point from the hidden layers ``beta0`` (the neighbour's).
-    Ends at the first point above ``level`` (``rises``) or at ``bound`` (``bound``; the
-    ``points``-th point is there). A rise is then bracketed ``refine`` times by bisection
-    (each midpoint started from the inside end), so that the crossing is located to
-    ``1 / 2**refine`` of the last step. Returns ``{"points": [Point] (in the order fitted),
-    "end": reason}``."""
+    A point above ``level`` is first handed to ``confirm`` (None: taken as it is), which
+    continues its fit and returns the point it reaches: a rise rests on the point's end state,
+    not on where a local stopping test left it. Ends at the first point still above ``level``
+    (``rises``) or at ``bound`` (``bound``; the ``points``-th point is there). A rise is then
+    bracketed ``refine`` times by bisection (each midpoint started from the inside end,
+    confirmed likewise), so that the crossing is located to ``1 / 2**refine`` of the last
+    step. Returns the :class:`Walk` (points in the order fitted, the end's reason)."""
+
+    def fit(value: float, beta0: np.ndarray) -> Point:
+        point = fit_at(value, beta0)
+        if point.data_cost > level and confirm is not None:
+            point = confirm(point)
+        return point
+
     reach = abs(bound - start.value)
     out, prev, offset = [], start, 0.0
     step = max(first_step, reach / (2.0 ** points - 1.0))
     for i in range(points):
         offset = reach if i == points - 1 else min(offset + step, reach)
         step *= 2.0
-        point = fit_at(start.value + direction * offset, prev.beta)
+        point = fit(start.value + direction * offset, prev.beta)
         out.append(point)
         if point.data_cost > level:
             inside, outside = prev, point
             for _ in range(refine):
-                mid = fit_at(0.5 * (inside.value + outside.value), inside.beta)
+                mid = fit(0.5 * (inside.value + outside.value), inside.beta)
                 out.append(mid)
                 if mid.data_cost > level:
                     outside = mid
                 else:
                     inside = mid
-            return {"points": out, "end": "rises"}
+            return Walk(tuple(out), "rises")
         if offset >= reach:
-            return {"points": out, "end": "bound"}
+            return Walk(tuple(out), "bound")
         prev = point
     raise AssertionError("walk: the last point is at the bound")  # pragma: no cover
 
@@ -126,13 +142,12 @@ def monotone(costs, tol: float = 0.0) -> bool:
 
 
 def valley_range(values, costs, v_best: float, delta: float, center: float | None = None
-                 ) -> dict:
+                 ) -> ValleyRange:
     """The contiguous block of profile ``values`` around ``center`` (a value of the profile:
     where the continuation started; None or outside the level: the lowest point) where
-    ``costs <= v_best + delta``: ``{"range": [low, high], "open": [low_open, high_open],
-    "inside": [first, last value inside]}``; a closed end is where the profile, interpolated
-    linearly between points, crosses ``v_best + delta``; open: the block reaches the last point
-    on that side (the range's end is then that point)."""
+    ``costs <= v_best + delta``, as a :class:`ValleyRange`; a closed end is where the profile,
+    interpolated linearly between points, crosses ``v_best + delta``; open: the block reaches
+    the last point on that side (the range's end is then that point)."""
     values, costs = np.asarray(values, float), np.asarray(costs, float)
     order = np.argsort(values)
     values, costs = values[order], costs[order]
@@ -142,7 +157,7 @@ def valley_range(values, costs, v_best: float, delta: float, center: float | Non
         j = int(np.argmin(np.abs(values - center)))
         i = j if inside[j] else i
     if not inside[i]:  # the profile never comes within delta of the best fit
-        return {"range": None, "open": [False, False]}
+        return ValleyRange(None, (False, False))
     lo = hi = i
     while lo > 0 and inside[lo - 1]:
         lo -= 1
@@ -156,42 +171,36 @@ def valley_range(values, costs, v_best: float, delta: float, center: float | Non
 
     low = float(values[0]) if lo == 0 else edge(lo, lo - 1)
     high = float(values[-1]) if hi == len(values) - 1 else edge(hi, hi + 1)
-    return {"range": [low, high], "open": [lo == 0, hi == len(values) - 1],
-            "inside": [float(values[lo]), float(values[hi])]}
+    return ValleyRange((low, high), (lo == 0, hi == len(values) - 1),
+                       (float(values[lo]), float(values[hi])))
 
 
-def in_range(value: float, entry: dict) -> bool:
-    """Whether ``value`` lies in ``entry["range"]`` (an open side extends to infinity)."""
-    if entry["range"] is None:
-        return False
-    lo, hi = entry["range"]
-    return (entry["open"][0] or value >= lo) and (entry["open"][1] or value <= hi)
+def in_range(value: float, valley: ValleyRange) -> bool:
+    """Whether ``value`` lies in ``valley`` (an open side extends to infinity)."""
+    return valley.contains(value)
 
 
-def parameter_profile(start: Point, down: dict, up: dict, v_best: float, delta: float,
-                      bounds: tuple[float, float]) -> dict:
+def parameter_profile(start: Point, down: Walk, up: Walk, v_best: float, delta: float,
+                      bounds: tuple[float, float]) -> ParameterProfile:
     """The record of one parameter's profile: its points (lowest value first), each direction's
     end and whether its costs rise monotonically away from the start, and the range within
     ``delta`` of ``v_best``; an open side says why it is open (flat to the search ``bound``)."""
-    down_pts = sorted(down["points"], key=lambda p: -p.value)  # nearest the start first
-    up_pts = sorted(up["points"], key=lambda p: p.value)
-    pts = list(reversed(down_pts)) + [start] + up_pts
+    down_pts = sorted(down.points, key=lambda p: -p.value)  # nearest the start first
+    up_pts = sorted(up.points, key=lambda p: p.value)
+    pts = tuple(reversed(down_pts)) + (start,) + tuple(up_pts)
     level = v_best + delta
-    entry = valley_range([p.value for p in pts], [p.data_cost for p in pts], v_best, delta,
-                         center=start.value)
-    entry["profile"] = [p.to_json() for p in pts]
-    entry["start"] = start.value
-    entry["bound"] = list(bounds)
-    # A direction that "rises" at a point that did not converge may not rise: that point is
-    # an upper bound on the profile, so the end says so.
-    entry["ends"] = {side: d["end"] + ("" if d["end"] != "rises" or all(
-        p.stop == "converged" for p in d["points"] if p.data_cost > level) else
-        " (not converged)") for side, d in (("down", down), ("up", up))}
-    entry["monotone"] = {side: monotone([start.data_cost] + [p.data_cost for p in d])
-                         for side, d in (("down", down_pts), ("up", up_pts))}
-    entry["why_open"] = [down["end"] if entry["open"][0] else None,
-                         up["end"] if entry["open"][1] else None]
-    return entry
+    valley = valley_range([p.value for p in pts], [p.data_cost for p in pts], v_best, delta,
+                          center=start.value)
+    # A direction that "rises" at a point that passed neither convergence test may not rise:
+    # that point is an upper bound on the profile, so the end says so.
+    ends = Sides(*(w.end + ("" if w.end != "rises" or all(
+        p.settled for p in w.points if p.data_cost > level) else " (not converged)")
+        for w in (down, up)))
+    mono = Sides(*(monotone([start.data_cost] + [p.data_cost for p in side])
+                   for side in (down_pts, up_pts)))
+    why_open = (down.end if valley.open[0] else None, up.end if valley.open[1] else None)
+    return ParameterProfile(start=start.value, points=pts, bound=tuple(bounds), valley=valley,
+                            ends=ends, monotone=mono, why_open=why_open)
 
 
 def record_threshold(costs: list[float]) -> float:
@@ -202,7 +211,8 @@ def record_threshold(costs: list[float]) -> float:
     return float(np.std(c, ddof=1))
 
 
-def sloppy_directions(model, phi: np.ndarray, target: np.ndarray, count: int = 3) -> dict:
+def sloppy_directions(model, phi: np.ndarray, target: np.ndarray, count: int = 3
+                      ) -> SloppyDirections:
     """The sloppy directions of a fitted PGNN's data cost on ``(phi, target)``: the Gauss-Newton
     matrix ``J'J`` over every parameter (theta, output layer, hidden layers), columns scaled to
     unit norm, so that one unit of a parameter moves the force by 1 N rms and an eigenvalue is
@@ -233,30 +243,28 @@ def sloppy_directions(model, phi: np.ndarray, target: np.ndarray, count: int = 3
     js = jac / norms
     eig, vec = np.linalg.eigh(js.T @ js)
     eig = np.maximum(eig, 0.0)
-    smallest = [{"eigenvalue": float(eig[i]), "relative": float(eig[i] / eig[-1]),
-                 "theta": dict(zip(THETA_NAMES, map(float, vec[:4, i]))),
-                 "network_share": float(np.sum(vec[4:, i] ** 2))}
-                for i in range(min(count, len(eig)))]
+    smallest = tuple(SmallDirection(float(eig[i]), float(eig[i] / eig[-1]),
+                                    dict(zip(THETA_NAMES, map(float, vec[:4, i]))),
+                                    float(np.sum(vec[4:, i] ** 2)))
+                     for i in range(min(count, len(eig))))
     jt, jn = js[:, :4], js[:, 4:]
     u, sv, _ = np.linalg.svd(jn, full_matrices=False)
     u = u[:, sv > sv[0] * 1e-10]
     rest = jt - u @ (u.T @ jt)
     s_eig, s_vec = np.linalg.eigh(rest.T @ rest)
-    return {"largest": float(eig[-1]), "smallest": smallest,
-            "theta": [{"eigenvalue": float(max(s_eig[i], 0.0)),
-                       "direction": dict(zip(THETA_NAMES, map(float, s_vec[:, i])))}
-                      for i in range(4)]}
+    return SloppyDirections(float(eig[-1]), smallest, tuple(
+        ThetaDirection(float(max(s_eig[i], 0.0)), dict(zip(THETA_NAMES, map(float, s_vec[:, i]))))
+        for i in range(4)))
 
 
-def lip_intervals(phi: np.ndarray, target: np.ndarray) -> dict:
+def lip_intervals(phi: np.ndarray, target: np.ndarray) -> LipIntervals:
     """The LIP (least squares of ``target`` on ``phi``'s four columns, named) on the fitting
     samples, with white-noise and Newey-West (autocorrelation-robust) standard errors and the
     residual's lag-1 autocorrelation (:func:`experiments.hac.newey_west`)."""
     from experiments.hac import newey_west
 
     fit = newey_west(phi, target)
-    return {"theta": dict(zip(THETA_NAMES, map(float, fit["theta"]))),
-            "std_white": dict(zip(THETA_NAMES, map(float, fit["std_white"]))),
-            "std_newey_west": dict(zip(THETA_NAMES, map(float, fit["std_newey_west"]))),
-            "lag1_autocorr": fit["lag1_autocorr"], "lags": fit["lags"],
-            "n_samples": int(len(target))}
+    named = {k: dict(zip(THETA_NAMES, map(float, fit[k])))
+             for k in ("theta", "std_white", "std_newey_west")}
+    return LipIntervals(named["theta"], named["std_white"], named["std_newey_west"],
+                        fit["lag1_autocorr"], fit["lags"], int(len(target)))

@@ -27,7 +27,7 @@ from clm_sim.plant import THETA_NAMES
 from experiments.table import THETA_UNITS, series
 
 if TYPE_CHECKING:
-    from experiments.profiles_result import SizeProfiles
+    from experiments.profiles_result import SizeRecord
 
 
 # Okabe & Ito's colour-blind-safe set (yellow left out: unreadable on white), then grey, and
@@ -442,19 +442,33 @@ def plot_origin_scan(delta: float, shifts: np.ndarray, rms: np.ndarray, ax=None)
 
 # ----------------------------------------------------------------------------- identifiability
 
-def plot_profile(ident: dict[str, SizeProfiles], name: str, ax=None):
+def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):
     """The data cost's profile over parameter ``name`` (above the best data cost, N²) per
-    network size, the threshold δ, and the table's λ = 0 and λ = 0.01 fits at their θ (a fit
-    beyond the grid is drawn at its edge as a triangle pointing out; data costs are those of
-    each row's own fit, its data term alone)."""
+    network size, the threshold δ, and the λ = 0 fits at their θ (a fit beyond the grid is
+    drawn at its edge as a triangle pointing out; data costs are those of each fit, its data
+    term alone). A point that passed a convergence test (the optimizer's relative one or the
+    profile's resolution) is filled; one that passed neither, an upper bound, is hollow; a
+    point continued further (a rise confirmed, or the resolution checked) has a segment to
+    where the longer descent took it (a triangle)."""
     ax = _ax(ax)
     for i, (key, rec) in enumerate(ident.items()):
-        e = rec.curves[name]
-        pts = sorted(zip(e.values, e.data_costs), key=lambda p: p[0])
+        e = rec.parameters[name]
+        pts = sorted(e.points, key=lambda p: p.value)
         best = rec.best_data_cost
-        x = [v for v, _ in pts]
-        ax.plot(x, [c - best for _, c in pts], "-o", ms=3, color=color(i),
+        ax.plot([p.value for p in pts], [p.data_cost - best for p in pts], "-", color=color(i),
                 label=f"profile, n_l={key}")
+        for settled in (True, False):
+            sel = [p for p in pts if p.settled == settled]
+            ax.plot([p.value for p in sel], [p.data_cost - best for p in sel], "o", ms=3,
+                    ls="none", mec=color(i), mfc=color(i) if settled else "white")
+        # Continued points (a rise confirmed, or a resolved point checked): where they were
+        # and where the longer descent took them.
+        moves = [(p.value, p.confirmed_from, p.data_cost) for p in pts
+                 if p.confirmed_from is not None]
+        moves += [(c.value, c.data_cost, c.continued_cost) for c in rec.checks if c.name == name]
+        for v, before, after in moves:
+            ax.plot([v, v], [before - best, after - best], "-", lw=1, color=color(i))
+            ax.plot([v], [after - best], "v", ms=5, ls="none", mec=color(i), mfc="none")
         ax.axhline(rec.delta, color=color(i), ls=":", lw=1, label=f"δ, n_l={key}")
         lo, hi = e.bound
         for f in rec.fits:
@@ -465,16 +479,20 @@ def plot_profile(ident: dict[str, SizeProfiles], name: str, ax=None):
                 v, marker = (lo, "<") if v < lo else (hi, ">")
             ax.plot([v], [max(f.data_cost - best, 0.0)], marker, ms=6, ls="none",
                     mec=color(i), mfc="none", alpha=0.7)
+    ax.plot([], [], "o", ms=3, color="0.3", ls="none", label="converged or resolved")
+    ax.plot([], [], "o", ms=3, mec="0.3", mfc="white", ls="none",
+            label="neither (upper bound)")
+    ax.plot([], [], "v", ms=5, mec="0.3", mfc="none", ls="none",
+            label="continued (check, or a rise confirmed)")
     ax.plot([], [], "x", color="0.3", ls="none", label="λ = 0 fits (colour: n_l)")
-    ax.plot([], [], "+", color="0.3", ls="none", label="λ = 0.01 fits")
     ax.set_xlabel(f"{name} [{THETA_UNITS[name]}]")
     ax.set_ylabel("data cost − best [N²]")
     return ax
 
 
-def identifiability_figure(ident: dict[str, SizeProfiles]) -> Figure:
+def identifiability_figure(ident: dict[int, SizeRecord]) -> Figure:
     """One panel per physical parameter: :func:`plot_profile`; ``ident``: per network size n_l,
-    :func:`experiments.profiles_result.sizes_from_json` of the study's record."""
+    the study's :class:`experiments.profiles_result.SizeRecord`."""
     fig = _figure(11.0, 7.0)
     axes = fig.subplots(2, 2).ravel()
     for ax, name in zip(axes, THETA_NAMES):

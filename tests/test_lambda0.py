@@ -106,11 +106,11 @@ def test_decimation_follows_the_sample_rate():
 def test_valley_range_open_when_flat_closed_when_curved():
     values = np.linspace(-1.0, 1.0, 7)
     flat = ident.valley_range(values, np.full(7, 1.0), 1.0, 0.01)
-    assert flat["open"] == [True, True] and flat["range"] == [-1.0, 1.0]
+    assert flat.open == (True, True) and flat.limits == (-1.0, 1.0)
     curved = ident.valley_range(values, 1.0 + values ** 2, 1.0, 0.25)
-    assert curved["open"] == [False, False]
+    assert curved.open == (False, False)
     # linear interpolation between the grid points 0 (cost 1) and 1/3 (cost 1.111...) and 2/3
-    lo, hi = curved["range"]
+    lo, hi = curved.limits
     assert lo == pytest.approx(-hi) and 1 / 3 < hi < 2 / 3
     assert ident.in_range(0.0, curved) and not ident.in_range(0.9, curved)
     assert ident.in_range(1e9, flat)  # an open side extends to infinity
@@ -488,5 +488,5 @@ def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():
     for t in range(1, len(e)):
         e[t] = 0.9 * e[t - 1] + 0.2 * rng.standard_normal()
     li = ident.lip_intervals(data.phi, data.target + e)
-    assert li["lag1_autocorr"] > 0.5  # AR(0.9) plus the white noise of synthetic()
-    assert all(li["std_newey_west"][n] > li["std_white"][n] for n in ("viscous", "stiffness"))
+    assert li.lag1_autocorr > 0.5  # AR(0.9) plus the white noise of synthetic()
+    assert all(li.std_newey_west[n] > li.std_white[n] for n in ("viscous", "stiffness"))

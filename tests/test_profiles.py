@@ -17,7 +17,7 @@ from experiments import identifiability as ident
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "experiments" / "configs" / "identifiability.yaml"
-OPTIMIZER_STOPS = {"converged", "max_iter", "stalled", "theta_moving"}
+OPTIMIZER_STOPS = {"converged", "resolved", "max_iter", "stalled", "theta_moving"}
 
 
 def synthetic(n: int = 1500, seed: int = 0, constant_y: bool = False) -> TrainingData:
@@ -64,20 +64,19 @@ def test_a_known_flat_direction_is_reported_flat_to_the_bound():
     (a warm start never costs more than where it starts) the cost never rises along it."""
     data = synthetic(constant_y=True)
     _, entry, walks = _profile(data, "stiffness", 3, delta=1e-6, span=2.0)
-    assert entry["ends"] == {"down": "bound", "up": "bound"}
-    assert entry["open"] == [True, True] and entry["why_open"] == ["bound", "bound"]
-    assert entry["range"] == pytest.approx(entry["bound"])
+    assert (entry.ends.down, entry.ends.up) == ("bound", "bound")
+    assert entry.valley.open == (True, True) and entry.why_open == ("bound", "bound")
+    assert entry.valley.limits == pytest.approx(entry.bound)
     # The start (an unpinned fit stopped at max_iter) may sit a little above the valley floor
     # that its first pinned neighbours reach; from there on the trade is exact. Tolerance:
     # float64 round-off of the least-squares solve.
-    costs = [p.data_cost for w in walks for p in w["points"]]
+    costs = [p.data_cost for w in walks for p in w.points]
     assert max(costs) - min(costs) <= 1e-9 * min(costs)
-    assert max(costs) <= walks[0]["points"][0].data_cost + 1e-9 * min(costs)
+    assert max(costs) <= walks[0].points[0].data_cost + 1e-9 * min(costs)
     for w in walks:  # each point starts at its neighbour's cost and only descends from there
-        chain = [entry["profile"][len(walks[0]["points"])]["data_cost"]] + [
-            p.data_cost for p in w["points"]]
+        chain = [entry.points[len(walks[0].points)].data_cost] + [p.data_cost for p in w.points]
         assert ident.monotone([-c for c in chain], tol=1e-9 * min(costs))
-        assert all(p.stop in OPTIMIZER_STOPS for p in w["points"])
+        assert all(p.stop in OPTIMIZER_STOPS for p in w.points)
 
 
 def test_a_determined_parameter_closes():
@@ -88,9 +87,9 @@ def test_a_determined_parameter_closes():
     the range the data allow no wider than it)."""
     data = synthetic()
     fit, entry, _ = _profile(data, "mass", 1, delta=0.002, span=1.0, max_iter=100)
-    assert all(end.startswith("rises") for end in entry["ends"].values())
-    assert entry["open"] == [False, False]
-    lo, hi = entry["range"]
+    assert all(end.startswith("rises") for end in (entry.ends.down, entry.ends.up))
+    assert entry.valley.open == (False, False)
+    lo, hi = entry.valley.limits
     assert lo < fit.theta_["mass"] < hi
     # The range is where the interpolated profile crosses the level: inside the first steps.
     sc = ident.scales(data.phi, data.target)["mass"]
@@ -100,10 +99,10 @@ def test_a_determined_parameter_closes():
 def test_every_point_records_its_stop_reason_and_iterations():
     data = synthetic(constant_y=True)
     _, entry, walks = _profile(data, "viscous", 2, delta=1e-3, span=0.5, max_iter=5)
-    for p in entry["profile"]:
-        assert p["stop"] in OPTIMIZER_STOPS and 0 <= p["iterations"] <= 200
-    assert all(w["end"] in ident.ENDS for w in walks)
-    assert sum(len(w["points"]) for w in walks) + 1 == len(entry["profile"])
+    for p in entry.points:
+        assert p.stop in OPTIMIZER_STOPS and 0 <= p.iterations <= 200
+    assert all(w.end in ident.ENDS for w in walks)
+    assert sum(len(w.points) for w in walks) + 1 == len(entry.points)
 
 
 def test_walk_on_a_known_profile():
@@ -117,18 +116,18 @@ def test_walk_on_a_known_profile():
     walks = [ident.walk(fit_at("converged"), start, d, first_step=0.1, bound=1.0 + d * 100.0,
                         level=0.25, points=6, refine=4) for d in (-1, 1)]
     entry = ident.parameter_profile(start, *walks, 0.0, 0.25, (-99.0, 101.0))
-    assert [w["end"] for w in walks] == ["rises", "rises"]
-    assert entry["monotone"] == {"down": True, "up": True}
-    lo, hi = entry["range"]
+    assert [w.end for w in walks] == ["rises", "rises"]
+    assert (entry.monotone.down, entry.monotone.up) == (True, True)
+    lo, hi = entry.valley.limits
     assert lo == pytest.approx(0.5, abs=0.1) and hi == pytest.approx(1.5, abs=0.1)
-    assert entry["open"] == [False, False]
+    assert entry.valley.open == (False, False)
     far = ident.walk(fit_at("max_iter"), start, 1, first_step=1e-6, bound=1e6, level=1e30,
                      points=5)
-    assert far["end"] == "bound" and far["points"][-1].value == 1e6 and len(far["points"]) == 5
+    assert far.end == "bound" and far.points[-1].value == 1e6 and len(far.points) == 5
     rising = ident.walk(fit_at("max_iter"), start, 1, first_step=1.0, bound=10.0, level=0.25,
                         points=5)
     entry = ident.parameter_profile(start, rising, rising, 0.0, 0.25, (-9.0, 10.0))
-    assert entry["ends"]["up"] == "rises (not converged)"
+    assert entry.ends.up == "rises (not converged)"
 
 
 def test_gauss_newton_names_the_flat_theta_direction():
@@ -140,14 +139,14 @@ def test_gauss_newton_names_the_flat_theta_direction():
     model = PGNNFeedforward(hidden=3, max_iter=20, continuation_lam=0.0).fit_data(
         data=data, theta_lip=lip, rng=0)
     gn = ident.sloppy_directions(model, data.phi, data.target, count=2)
-    flat = gn["theta"][0]
+    flat = gn.theta[0]
     # Tolerance: the eigenvalue of an exactly dependent column is round-off (~1e-30 N²); the
     # next theta direction, only nearly absorbable by the linearized network, is many orders
     # above it (~1e-8 N² here).
-    assert flat["eigenvalue"] < 1e-12 * gn["theta"][1]["eigenvalue"]
-    assert abs(flat["direction"]["stiffness"]) == pytest.approx(1.0, abs=1e-6)
-    assert len(gn["smallest"]) == 2
-    assert all(0.0 <= s["network_share"] <= 1.0 + 1e-12 for s in gn["smallest"])
+    assert flat.eigenvalue < 1e-12 * gn.theta[1].eigenvalue
+    assert abs(flat.direction["stiffness"]) == pytest.approx(1.0, abs=1e-6)
+    assert len(gn.smallest) == 2
+    assert all(0.0 <= s.network_share <= 1.0 + 1e-12 for s in gn.smallest)
 
 
 def test_record_threshold_is_the_spread_over_records():
@@ -161,7 +160,7 @@ def test_valley_range_centres_on_the_start():
     around the start when the start is within the level."""
     values, costs = [0.0, 1.0, 2.0, 3.0], [1.0, 1.05, 2.0, 0.98]
     entry = ident.valley_range(values, costs, 0.98, 0.1, center=0.0)
-    assert entry["open"][0] and not entry["open"][1] and entry["range"][1] < 2.0
+    assert entry.open[0] and not entry.open[1] and entry.limits[1] < 2.0
 
 
 # ----------------------------------------------------------------------------- the study config
@@ -204,49 +203,242 @@ def test_run_sends_a_profile_config_to_study(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_study_runs_end_to_end(tmp_path):
-    """A tiny study through the command: two records, n_l = 2, two points per direction; the
-    same result in one process and in two."""
+    """A tiny study through the command: two records, n_l = 3, two points per direction, a
+    coarse resolution (so that points resolve and are checked); the same result in one
+    process and in two; the file reads back into the typed record and writes the same."""
     import json
 
     from experiments.cli import main
+    from experiments.profiles_result import sizes_from_json, sizes_to_json
 
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text("name: tiny\nkind: identifiability\nseed: 1\ntraining: {repeats: 1}\n"
-                   "identifiability: {hidden: [2], records: 2, max_iter: 3, points: 2}\n")
+                   "identifiability: {hidden: [3], records: 2, max_iter: 3, points: 2, "
+                   "resolution: 1000.0, check: 2, check_iter: 4}\n")
     out = tmp_path / "out"
     assert main(["study", str(cfg), "--out", str(out), "--quiet", "--workers", "1"]) == 0
-    rec = json.loads((out / "identifiability.json").read_text())["sizes"]["2"]
+    sizes = json.loads((out / "identifiability.json").read_text())["sizes"]
+    rec = sizes["3"]
     assert rec["delta"] > 0 and len(rec["best_cost_per_record"]) == 2
+    assert rec["atol"] == pytest.approx(1000.0 * rec["delta"], rel=1e-12)
     for e in rec["parameters"].values():
         assert set(e["ends"].values()) <= {"rises", "rises (not converged)", "bound"}
         assert len(e["profile"]) >= 3
-    assert (out / "report.md").read_text().startswith("# What the data determine")
+        for p in e["profile"]:  # both tests recorded, from the recorded numbers
+            assert p["predicted_decrease"] == pytest.approx(p["data_cost"] * p["first_order"])
+            assert p["resolution_test"] == (p["predicted_decrease"] <= rec["atol"]
+                                            and p["tail_decrease"] <= rec["atol"])
+            assert p["relative_test"] == (p["first_order"] <= rec["ftol"])
+            # A point's stop is the optimizer's: "resolved" only where the test held.
+            assert p["stop"] != "resolved" or p["resolution_test"]
+    resolved = [p for e in rec["parameters"].values() for p in e["profile"]
+                if p["resolution_test"] and not p["relative_test"]]
+    assert resolved and 1 <= len(rec["checks"]) <= 2
+    for c in rec["checks"]:  # continued from a resolved point: the cost can only fall
+        assert c["moved"] >= 0.0 and c["predicted_decrease"] <= rec["atol"]
+        assert c["iterations"] <= 4
+    report = (out / "report.md").read_text()
+    assert report.startswith("# What the data determine")
+    assert "resolution test, checked" in report
     assert (out / "figures" / "identifiability.png").is_file()
+    assert sizes_to_json(sizes_from_json(sizes)) == sizes
     # Reproducible: the same bits in two worker processes (every fit is single-threaded).
     again = tmp_path / "again"
     assert main(["study", str(cfg), "--out", str(again), "--quiet", "--workers", "2"]) == 0
-    assert json.loads((again / "identifiability.json").read_text())["sizes"] == json.loads(
-        (out / "identifiability.json").read_text())["sizes"]
+    assert json.loads((again / "identifiability.json").read_text())["sizes"] == sizes
 
 
-def test_the_figure_reads_the_typed_profiles_of_the_record():
-    """The record's keys are read once (profiles_result); the figure draws the fields: the
-    profile sorted by value, above the best data cost, and the fits at their θ."""
+def _size_record(theta: dict, costs: tuple, stops: tuple, delta: float = 0.1):
+    """A hand-made record: per parameter three points at 1.1, 0.9 and 1 times its value."""
+    from experiments.profiles_result import (FirstStop, LipIntervals, MarkedFit, Point,
+                                             RecordFit, Sides, SizeRecord, ValleyRange,
+                                             WalkSettings)
+
+    zero = dict.fromkeys(THETA_NAMES, 0.0)
+    fit = RecordFit(1, 0, 1.0, "max_iter", 3, FirstStop(1.0, "max_iter", 3), 0.0, theta)
+    params = {name: ident.parameter_profile(
+        Point(v, costs[2], stops[2], 1, first_order=0.0, ftol=1e-4, atol=0.05 * delta),
+        ident.Walk((Point(v * 0.9, costs[1], stops[1], 1, first_order=1.0, ftol=1e-4,
+                          atol=0.05 * delta),), "bound"),
+        ident.Walk((Point(v * 1.1, costs[0], stops[0], 1, first_order=1.0, ftol=1e-4,
+                          atol=0.05 * delta),), "bound"), 1.0, delta, (v * 0.5, v * 1.5))
+        for name, v in theta.items()}
+    return SizeRecord(1.0, delta, (1.0, 1.1), (1, 2), fit, dict.fromkeys(THETA_NAMES, 1.0),
+                      WalkSettings(3, 1, 0.25, 4.0, 0, 0, 0.05, 0.05 * delta, 1e-4, 5),
+                      (MarkedFit(0.0, 1.05, theta),), (fit,),
+                      LipIntervals(zero, zero, zero, 0.0, 1, 10), (1.0, 1.0), zero, zero,
+                      params)
+
+
+def test_the_figure_reads_the_typed_record():
+    """The figure draws the record's fields: the profile sorted by value, above the best data
+    cost, points that passed a test filled and the others hollow, and the fits at their θ."""
     from experiments.plots import identifiability_figure
-    from experiments.profiles_result import sizes_from_json
 
     theta = {"mass": 2.0, "viscous": 40.0, "coulomb": 5.0, "stiffness": 100.0}
-    params = {name: {"profile": [{"value": v * 1.1, "data_cost": 1.5, "stop": "converged"},
-                                 {"value": v * 0.9, "data_cost": 1.2, "stop": "converged"},
-                                 {"value": v, "data_cost": 1.0, "stop": "converged"}],
-                     "bound": [v * 0.5, v * 1.5], "range": None}
-              for name, v in theta.items()}
-    record = {"2": {"best_data_cost": 1.0, "delta": 0.1, "parameters": params,
-                    "fits": [{"lambda": 0.0, "data_cost": 1.05, "theta": theta}]}}
-    sizes = sizes_from_json(record)
-    assert sizes["2"].curves["mass"].values == (2.2, 1.8, 2.0)
-    assert sizes["2"].fits[0].lam == 0.0 and sizes["2"].delta == 0.1
-    fig = identifiability_figure(sizes)
+    rec = _size_record(theta, (1.5, 1.2, 1.0), ("max_iter", "max_iter", "converged"))
+    assert rec.parameters["mass"].points[0].value == pytest.approx(1.8)
+    fig = identifiability_figure({2: rec})
     line = fig.axes[0].lines[0]
-    assert list(line.get_xdata()) == [1.8, 2.0, 2.2]
+    assert list(line.get_xdata()) == pytest.approx([1.8, 2.0, 2.2])
     assert list(line.get_ydata()) == pytest.approx([0.2, 0.0, 0.5])
+    filled, hollow = fig.axes[0].lines[1], fig.axes[0].lines[2]
+    assert list(filled.get_xdata()) == pytest.approx([2.0])  # the start: first_order 0
+    assert list(hollow.get_xdata()) == pytest.approx([1.8, 2.2])
+    assert hollow.get_markerfacecolor() == "white"
+
+
+# ----------------------------------------------------------------------------- convergence tests
+
+def test_the_resolution_stop_on_a_linear_problem():
+    """On a linear least-squares problem the Gauss-Newton model is exact: at the start it
+    predicts the whole decrease to the minimum. Given an ``atol`` above that, the optimizer
+    stops at once as ``resolved``; below it, it steps until the rest is within ``atol``;
+    without it, it converges by the relative test."""
+    from controllers import optim
+
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((50, 3)), rng.standard_normal(50)
+    p_min = np.linalg.lstsq(a, b, rcond=None)[0]
+    v_min = float(np.sum((a @ p_min - b) ** 2))
+
+    def fun(p, jacobian):
+        r = a @ p - b
+        return (r, a) if jacobian else r
+
+    p0 = np.ones(3)
+    v0 = float(np.sum((a @ p0 - b) ** 2))
+    gap = v0 - v_min
+    got = optim.levenberg_marquardt(fun, p0, ftol=1e-12, atol=1.01 * gap)
+    assert got.stop == "resolved" and got.iterations == 0
+    # The predicted absolute decrease is the true one (to round-off).
+    assert got.cost * got.first_order == pytest.approx(gap, rel=1e-9)
+    # Below it: damped steps until the (exact) predicted remaining decrease is within atol.
+    got = optim.levenberg_marquardt(fun, p0, ftol=1e-12, atol=0.1 * gap, atol_window=0,
+                                    max_iter=50)
+    assert got.stop == "resolved" and got.iterations >= 1
+    assert got.cost - v_min == pytest.approx(got.cost * got.first_order, rel=1e-6)
+    assert got.cost - v_min <= 0.1 * gap
+    # With its window (the default 10 iterations), a point that has just fallen by more than
+    # atol is not resolved, whatever the model predicts.
+    got = optim.levenberg_marquardt(fun, p0, ftol=1e-12, atol=0.1 * gap, max_iter=50)
+    assert got.stop != "resolved" or got.iterations > 10
+    got = optim.levenberg_marquardt(fun, p0, ftol=1e-12, max_iter=50)
+    assert got.stop == "converged" and got.cost == pytest.approx(v_min, rel=1e-9)
+
+
+def test_a_point_records_both_tests_and_is_never_relabelled():
+    """The tests are computed from the recorded first-order measure and last fall, whatever
+    the stop: a ``max_iter`` point whose predicted decrease and last fall are within the
+    resolution passes that test but keeps its stop; one that passes neither is not settled,
+    and a rise at it is marked."""
+    p = ident.Point(1.0, 0.1, "max_iter", 100, first_order=0.004, ftol=1e-4, atol=5e-4)
+    assert p.predicted_decrease == pytest.approx(4e-4)
+    assert p.resolution_test and not p.relative_test and p.settled
+    d = p.to_json()
+    assert d["stop"] == "max_iter" and d["resolution_test"] and not d["relative_test"]
+    q = ident.Point(1.0, 0.1, "max_iter", 100, first_order=0.006, ftol=1e-4, atol=5e-4)
+    assert not q.settled
+    falling = ident.Point(1.0, 0.1, "max_iter", 100, first_order=0.004, ftol=1e-4, atol=5e-4,
+                          tail=6e-4)  # predicted within, but still falling faster than atol
+    assert not falling.resolution_test
+    unknown = ident.Point(1.0, 0.1, "max_iter", 100)  # no measure: no test passes
+    assert not unknown.settled and unknown.to_json()["predicted_decrease"] is None
+    start = ident.Point(0.0, 0.0, "converged", 3, first_order=0.0, ftol=1e-4, atol=5e-4)
+    for point, end in ((p, "rises"), (q, "rises (not converged)")):
+        risen = ident.Walk((ident.Point(2.0, 1.0, point.stop, 100,
+                                        first_order=point.first_order * 0.1 / 1.0,
+                                        ftol=1e-4, atol=5e-4),), "rises")
+        entry = ident.parameter_profile(start, risen, risen, 0.0, 0.5, (-2.0, 2.0))
+        assert entry.ends.up == end
+
+
+def test_pinned_fit_stops_resolved_within_its_tolerance():
+    """A pinned PGNN fit given an absolute tolerance stops ``resolved`` with a predicted
+    decrease within it (and without it, runs on: the same start, more iterations)."""
+    data = synthetic()
+    lip = dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
+    model = PGNNFeedforward(hidden=3, max_iter=200)
+    beta0 = model.new_network(data, np.random.default_rng(0)).get_nonlinear()
+    free = PGNNFeedforward(hidden=3, max_iter=200).fit_pinned(
+        data=data, theta_lip=lip, beta0=beta0, pinned={"mass": 18.8})
+    one = PGNNFeedforward(hidden=3, max_iter=1).fit_pinned(
+        data=data, theta_lip=lip, beta0=beta0, pinned={"mass": 18.8})
+    # A resolution that the descent reaches after one iteration (and the relative test not).
+    atol = 1.001 * one.fit_.data_cost * one.fit_.first_order
+    assert one.fit_.first_order > one.fit_.ftol
+    got = PGNNFeedforward(hidden=3, max_iter=200).fit_pinned(
+        data=data, theta_lip=lip, beta0=beta0, pinned={"mass": 18.8}, atol=atol)
+    assert got.fit_.stop == "resolved" and got.fit_.iterations <= 1
+    assert got.fit_.data_cost * got.fit_.first_order <= atol
+    assert free.fit_.iterations > 1 and free.fit_.stop != "resolved"
+
+
+# ----------------------------------------------------------------------------- the record's keys
+
+# identifiability.json's keys (theta names, the LIP-interval names that
+# experiments.hac.newey_west returns, and "bound", also a walk's end reason, aside): none is a
+# contract between modules.
+_RECORD_KEYS = {
+    "range", "open", "inside", "profile", "start", "ends", "monotone", "why_open",
+    "value", "data_cost", "stop", "iterations", "tail_decrease", "first_order",
+    "predicted_decrease", "relative_test", "resolution_test", "best_data_cost", "delta",
+    "delta_from", "best_cost_per_record", "seeds", "scale", "points", "step", "span",
+    "refine", "polish", "resolution", "atol", "ftol", "check_iter", "checks", "fits",
+    "record_fits", "lip_intervals", "lip_cost_per_record", "lip_over_records", "mean", "std",
+    "parameters", "draw", "first", "sloppy", "largest", "smallest", "eigenvalue", "relative",
+    "network_share", "direction", "lambda", "continued_cost", "moved", "sizes", "seed",
+    "continued_iterations", "confirmed_from",
+    "wall_time_s", "down", "up"}
+
+
+def test_the_record_keys_are_read_and_written_only_in_profiles_result():
+    """The study, its report, the walk and the figure read typed fields: no string constant
+    (docstrings aside) in them is one of the file's keys; the scan finds them in
+    profiles_result (so it can find a use)."""
+    import ast
+
+    def uses(path):
+        tree = ast.parse(path.read_text(), str(path))
+        docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                      if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef))
+                      and node.body and isinstance(node.body[0], ast.Expr)
+                      and isinstance(node.body[0].value, ast.Constant)}
+        return {node.value for node in ast.walk(tree)
+                if isinstance(node, ast.Constant) and isinstance(node.value, str)
+                and id(node) not in docstrings and node.value in _RECORD_KEYS}
+
+    for module in ("experiments/identifiability.py", "experiments/studies/profiles.py",
+                   "experiments/studies/profiles_report.py"):
+        assert uses(ROOT / module) == set(), module
+    plots = ROOT / "experiments" / "plots.py"
+    src = plots.read_text()
+    figure = src[src.index("def plot_profile("):src.index("def identifiability_figure(")]
+    assert not any(f'"{k}"' in figure for k in _RECORD_KEYS)
+    assert uses(ROOT / "experiments" / "profiles_result.py") == _RECORD_KEYS
+    assert f'"{ident.ENDS[1]}"' not in figure
+
+
+def test_a_rise_is_confirmed_before_it_counts():
+    """A point that a local test left above the level is continued (``confirm``): where the
+    continuation brings it back within the level the walk goes on (to the bound here); where
+    it stays above, the direction rises at it, and the point keeps both costs."""
+    start = ident.Point(0.0, 0.0, "converged", 3, np.zeros(1))
+
+    def fit_at(v, beta):  # a plateau at 1.0 that a longer descent leaves
+        return ident.Point(v, 1.0, "resolved", 2, beta)
+
+    def confirm_to(cost):
+        return lambda p: ident.Point(p.value, cost, "max_iter", p.iterations + 50, p.beta,
+                                     continued=50, confirmed_from=p.data_cost)
+
+    flat = ident.walk(fit_at, start, 1, first_step=1.0, bound=10.0, level=0.5, points=4,
+                      confirm=confirm_to(0.1))
+    assert flat.end == "bound" and all(p.confirmed_from == 1.0 for p in flat.points)
+    risen = ident.walk(fit_at, start, 1, first_step=1.0, bound=10.0, level=0.5, points=4,
+                       refine=1, confirm=confirm_to(0.9))
+    assert risen.end == "rises" and len(risen.points) == 2
+    assert all(p.continued == 50 and p.data_cost == 0.9 for p in risen.points)
+    assert risen.points[0].to_json()["confirmed_from"] == 1.0
+    unconfirmed = ident.walk(fit_at, start, 1, first_step=1.0, bound=10.0, level=0.5, points=4)
+    assert unconfirmed.end == "rises" and unconfirmed.points[0].confirmed_from is None

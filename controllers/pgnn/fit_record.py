@@ -101,7 +101,7 @@ class FitRecord:
     """How one PGNN fit stopped and what it cost.
 
     stop: ``converged``, ``theta_moving`` (the cost test held while theta_phy still travelled),
-    ``max_iter`` or ``stalled``; cost_stop: the optimizer's own verdict before the theta test;
+    ``max_iter`` or ``stalled`` (a pinned fit given an absolute tolerance also ``resolved``); cost_stop: the optimizer's own verdict before the theta test;
     iterations: of the kept start; data_cost, reg_cost: the training cost's data term and the sum
     of its other terms (N**2); grad_norm, first_order: the optimizer's last gradient norm and
     first-order measure (:func:`controllers.optim.first_order_measure`); ftol, max_iter: the

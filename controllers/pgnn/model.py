@@ -329,10 +329,13 @@ class PGNNFeedforward:
         return self
 
     def fit_pinned(self, *, data: TrainingData, theta_lip: dict[str, float],
-                   beta0: np.ndarray, pinned: dict[str, float]) -> PGNNFeedforward:
+                   beta0: np.ndarray, pinned: dict[str, float],
+                   atol: float | None = None) -> PGNNFeedforward:
         """Fit with the physical parameters ``pinned`` (name -> value, SI units) held fixed and
         everything else trained (varpro from hidden layers ``beta0``, this model's cost with
-        theta_phy's pinned entries removed): one point of the cost's profile over them."""
+        theta_phy's pinned entries removed): one point of the cost's profile over them.
+        ``atol`` (N**2): also stop, as ``resolved``, where the Gauss-Newton model predicts an
+        absolute decrease of at most this (:func:`controllers.optim.levenberg_marquardt`)."""
         self._check()
         if self.optimizer != "varpro" or self.training == "sequential":
             raise UserError("fit_pinned: needs optimizer varpro and a trained theta_phy")
@@ -354,7 +357,7 @@ class PGNNFeedforward:
                                        theta=dict(zip(THETA_NAMES, map(float, theta)))))
 
             res = optim.levenberg_marquardt(cost, net.get_nonlinear(), max_iter=self.max_iter,
-                                            ftol=self.ftol, callback=record)
+                                            ftol=self.ftol, atol=atol, callback=record)
             theta, w, b = cost.linear(res.p)
             net.set_nonlinear(res.p)
             net.set_linear(theta, w, b)
