@@ -21,6 +21,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from controllers.pid import PIDController, design_pid
 from experiments.config import ExperimentConfig, FeedforwardSpec, load_config, resolved
 from experiments.results import (BeyondRange, ReferenceMetrics, RowResult, SeedFit, SeedResult,
                                  theta_drift)
+
+if TYPE_CHECKING:  # torch is imported only for a PGNN
+    from controllers.pgnn.starts import StartCache
 
 # Purposes of the child random streams; the numbers are part of the reproducibility contract.
 STREAM_TRAINING_DITHER = 0
@@ -79,7 +83,7 @@ class Testbed:
         self.progress = progress or _silent
         # (run seed, network seed) -> the optimizations fits of that draw ran
         # (a controllers.pgnn.starts.StartCache: PGNNFeedforward.fit_data's ``reuse``)
-        self._starts: dict[tuple[int, int], object] = {}
+        self._starts: dict[tuple[int, int], StartCache] = {}
 
     def __repr__(self) -> str:
         c = self.config

@@ -162,6 +162,9 @@ class PGNNFeedforward:
             raise TypeError(f"PGNNFeedforward: unknown setting(s) {', '.join(unknown)}; the "
                             f"options are {', '.join(sorted(_OPTIONS))}")
         settings = PGNNSettings() if settings is None else settings
+        if not isinstance(settings, PGNNSettings):
+            raise TypeError(f"PGNNFeedforward: settings must be a PGNNSettings, got "
+                            f"{type(settings).__name__}")
         self.hidden, self.training, self.lam = hidden, training, lam
         self.settings = replace(settings, **options) if options else settings
         self.features = FeatureMap() if features is None else features
@@ -174,17 +177,16 @@ class PGNNFeedforward:
         return (f"PGNNFeedforward(hidden={self.hidden!r}, training={self.training!r}, "
                 f"lam={self.lam!r}, settings=PGNNSettings({changed}))")
 
+    def _values(self) -> dict:
+        """Every setting by its Python name: the model's own and its options."""
+        return {"hidden": self.hidden, "training": self.training, "lam": self.lam,
+                **{f.name: getattr(self.settings, f.name) for f in fields(self.settings)}}
+
     def _settings(self) -> dict:
         """The settings as a model file names them (lambda spelled out where a file does), in
         the order of ``CONSTRAINTS``."""
-        values = {**self._row(), **{f.name: getattr(self.settings, f.name)
-                                    for f in fields(self.settings)}}
-        values["hidden"] = list(self.widths())
+        values = {**self._values(), "hidden": list(self.widths())}
         return {_FILE_KEYS.get(k, k): values[k] for k in CONSTRAINTS}
-
-    def _row(self) -> dict:
-        """The settings that are the model's own (not ``PGNNSettings``'): a table row's keys."""
-        return {"hidden": self.hidden, "training": self.training, "lam": self.lam}
 
     def widths(self) -> tuple[int, ...]:
         """Widths of the hidden layers."""
@@ -200,8 +202,7 @@ class PGNNFeedforward:
 
     def _check(self) -> None:
         """The settings against the one table (``controllers.pgnn_settings.CONSTRAINTS``)."""
-        check_settings({**self._row(), **{f.name: getattr(self.settings, f.name)
-                                          for f in fields(self.settings)}})
+        check_settings(self._values())
 
     # -- the training problem ---------------------------------------------------------------
     def _weights(self, lam_diag: np.ndarray | None = None) -> Weights:
