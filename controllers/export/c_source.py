@@ -143,6 +143,14 @@ _NETWORK_AVX2_CALLS = runtime("network_avx2_calls.c")
 
 _NETWORK_PORTABLE_CALLS = runtime("network_portable_calls.c")
 
+# The network's functions, portable and with AVX2: templates of the layer loops, whose sizes
+# and count are the model's (one block per hidden layer, one output sum per instant).
+_NETWORK = template("network.c")
+_NETWORK_LAYER = template("network_layer.c")
+_NETWORK_AVX2 = template("network_avx2.c")
+_NETWORK_AVX2_LAYER = template("network_avx2_layer.c")
+_NETWORK_AVX2_OUTPUT = template("network_avx2_output.c")
+
 
 def _pad4(n: int) -> int:
     return (n + 3) // 4 * 4
@@ -184,7 +192,7 @@ def _network_avx2_function(net, widths, name: str, count: int) -> str:
     act = _ACT_AVX2[net.activation]
     hidden = "".join(f"    double h{li + 1}[{count}][{_pad4(widths[li + 1])}];\n"
                      for li in range(last))
-    body = []
+    layers = []
     for li in range(last):
         n_in, n_pad = widths[li], _pad4(widths[li + 1])
         start = "".join(f"        __m256d x{b} = _mm256_loadu_pd(B{li}P + o);\n" for b in inst)
@@ -193,37 +201,14 @@ def _network_avx2_function(net, widths, name: str, count: int) -> str:
         store = "".join(f"        _mm256_storeu_pd(h{li + 1}[{b}] + o, "
                         f"{act.format(x=f'x{b}')});\n"
                         for b in inst)
-        body.append(f"""\
-    for (o = 0; o < {n_pad}; o += 4) {{
-{start}        for (j = 0; j < {n_in}; ++j) {{
-            const __m256d w = _mm256_loadu_pd(W{li}T[j] + o);
-{fma}        }}
-{store}    }}
-""")
+        layers.append(_NETWORK_AVX2_LAYER.substitute(n_pad=n_pad, n_in=n_in, layer=li,
+                                                     start=start, fma=fma, store=store))
     args = ", ".join(f"const double f{b}[4]" for b in inst) + ", double out[]"
     norm = "".join(f"        h0[{b}][i] = (f{b}[i] - IN_MEAN[i]) / IN_STD[i];\n" for b in inst)
-    outs = "".join(f"""\
-    acc = zero;
-    for (o = 0; o < {_pad4(widths[-1])}; o += 4)
-        acc = _mm256_fmadd_pd(_mm256_loadu_pd(OUT_WP + o), _mm256_loadu_pd(h{last}[{b}] + o), acc);
-    _mm256_storeu_pd(lane, acc);
-    out[{b}] = OUT_B + ((lane[0] + lane[1]) + (lane[2] + lane[3]));
-""" for b in inst)
-    return f"""
-/* network() with AVX2 and FMA at {count} instant(s): out[b] from f<b>. */
-__attribute__((target("avx2,fma")))
-static void {name}({args})
-{{
-    const __m256d one = _mm256_set1_pd(1.0), two = _mm256_set1_pd(2.0);
-    const __m256d zero = _mm256_setzero_pd();
-    __m256d acc;
-    double h0[{count}][4], lane[4];
-{hidden}    int i, j, o;
-    (void)one; (void)two;
-    for (i = 0; i < 4; ++i) {{
-{norm}    }}
-{"".join(body)}{outs}}}
-"""
+    outputs = "".join(_NETWORK_AVX2_OUTPUT.substitute(n_pad=_pad4(widths[-1]), last=last, b=b)
+                      for b in inst)
+    return _NETWORK_AVX2.substitute(count=count, name=name, args=args, hidden=hidden, norm=norm,
+                                    layers="".join(layers), outputs=outputs)
 
 
 def _network_source(wf: WindowFeedforward) -> str:
@@ -248,36 +233,13 @@ def _network_source(wf: WindowFeedforward) -> str:
         widths.append(w.shape[0])
     tables.append(f"static const clm_ff_real OUT_W[{len(net.out_w)}] = {c_array(net.out_w)};\n")
     tables.append(f"static const clm_ff_real OUT_B = {c_real(net.out_b)};\n")
-    layers = []
-    for li in range(len(net.layers)):
-        a, b = widths[li], widths[li + 1]
-        layers.append(f"""\
-    {{
-        clm_ff_real h{li + 1}[{b}];
-        for (o = 0; o < {b}; ++o) {{
-            clm_ff_real x = B{li}[o];
-            for (j = 0; j < {a}; ++j)
-                x += W{li}[o][j] * h{li}[j];
-            h{li + 1}[o] = {activation_c(net.activation)};
-        }}
-""")
-    last = len(net.layers)
-    body = "".join(layers)
-    closing = "    }\n" * len(net.layers)
-    network = "\n" + "\n".join(tables) + f"""
-/* Network force (N) of the (filtered) features f = [a, v, sign v, y]. */
-static clm_ff_real network(const clm_ff_real f[4])
-{{
-    clm_ff_real h0[4];
-    clm_ff_real out = OUT_B;
-    int i, o, j;
-    for (i = 0; i < 4; ++i)
-        h0[i] = (f[i] - IN_MEAN[i]) / IN_STD[i];
-{body}        for (i = 0; i < {widths[-1]}; ++i)
-            out += OUT_W[i] * h{last}[i];
-{closing}    return out;
-}}
-"""
+    layers = "".join(
+        _NETWORK_LAYER.substitute(layer=li, next=li + 1, n_in=widths[li], n_out=widths[li + 1],
+                                  activation=activation_c(net.activation))
+        for li in range(len(net.layers)))
+    network = "\n" + "\n".join(tables) + _NETWORK.substitute(
+        layers=layers, n_last=widths[-1], last=len(net.layers),
+        closing="    }\n" * len(net.layers))
     if m == 0:
         return network + _RAW_FEATURES
     return (_AVX2_DETECT + network + _network_avx2(net) + _FILTERED_FEATURES
