@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from controllers.pgnn import PGNNFeedforward, training_data
+from controllers.pgnn_settings import PGNNSettings
 from experiments.testbed import STREAM_NETWORK, Testbed, stream
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,10 +53,10 @@ def main(argv=None):
     lip = tb.fit_lip(run)
     base = {"hidden": args.hidden, "weight_decay": args.weight_decay, "max_iter": args.max_iter}
     data = training_data(tb.config.features, y=run.y, u=run.u, ts=run.ts,
-                         decimation=PGNNFeedforward().decimation)
+                         decimation=PGNNSettings().decimation)
     print(f"data: {len(data.target)} samples; n_l = {args.hidden}, weight decay "
           f"{args.weight_decay:g}, cap {args.max_iter} iterations, ftol "
-          f"{PGNNFeedforward().ftol:g}; CPU seconds per fit")
+          f"{PGNNSettings().ftol:g}; CPU seconds per fit")
     for lam in (0.0, 0.01):
         res = {"varpro": [], "lm": []}
         for s in range(args.seeds):

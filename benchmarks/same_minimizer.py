@@ -43,8 +43,9 @@ _FITS = textwrap.dedent("""
         rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=tuple(spawn)))
         c0 = time.process_time()
         old = {"continuation_lam": "continuation_lambda", "lam_diag": "lambda_diag"}  # < 11-26
-        own = PGNNFeedforward.__dataclass_fields__
-        settings = {(k if k in own else old.get(k, k)): v for k, v in settings.items()}
+        own = getattr(PGNNFeedforward, "__dataclass_fields__", None)  # a dataclass < 11-26
+        if own is not None:
+            settings = {(k if k in own else old.get(k, k)): v for k, v in settings.items()}
         m = PGNNFeedforward(**settings).fit_data(data=data, theta_lip=lip, rng=rng)
         f = m.fit_ if isinstance(m.fit_, dict) else m.fit_.to_json()  # a dict before 2026-11-26
         out.append({"cpu_s": time.process_time() - c0, "stop": f["stop"],

@@ -3,9 +3,11 @@
 ``CONSTRAINTS`` is the one table of what each setting may be (type, range or choices) and the key
 a config file gives it under; :func:`check_settings` applies it, with the rules that tie two
 settings together. The config schema (``PGNNSettings`` below and ``experiments.config``'s
-``FeedforwardSpec``, through ``__post_init__``) and :class:`controllers.pgnn.PGNNFeedforward` (in
-``fit``) all check through it. ``PGNNSettings`` holds the defaults of the ``pgnn:`` options; the
-row keys ``hidden``, ``training`` and ``lambda`` have none (a config must give them).
+``FeedforwardSpec``, through ``__post_init__``) and :class:`controllers.pgnn.PGNNFeedforward`
+(when built and in ``fit``) all check through it. ``PGNNSettings`` is the one declaration of the
+``pgnn:`` options and their defaults: a config's ``pgnn:`` is one, and a model holds one
+(``PGNNFeedforward(settings=PGNNSettings(...))``). The row keys ``hidden``, ``training`` and
+``lambda`` are the model's own arguments; a config has no defaults for them (it must give them).
 """
 
 from __future__ import annotations

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -184,9 +183,10 @@ class FeedforwardSpec:
                    pgnn=PGNNSettings(**(settings or {})))
 
     def pgnn_settings(self) -> dict:
-        """The keyword arguments of ``controllers.pgnn.PGNNFeedforward`` for this row."""
+        """The keyword arguments of ``controllers.pgnn.PGNNFeedforward`` for this row: its
+        ``hidden``, ``training``, ``lam`` and ``settings`` (the ``pgnn:`` options)."""
         return {"hidden": self.hidden, "training": self.training, "lam": self.lam or 0.0,
-                **dataclasses.asdict(self.pgnn)}
+                "settings": self.pgnn}
 
     def label(self) -> str:
         if self.name:

@@ -170,13 +170,12 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
             preds = [[lip.predict(r.phi) for r in records]]
             thetas, fits, models = [theta_lip], None, [None]
         else:
-            settings = spec.pgnn_settings()
-            step = decimation_for(train.ts, settings["decimation"])
+            step = decimation_for(train.ts, spec.pgnn.decimation)
             data = TrainingData(np.ascontiguousarray(train.phi[train.inside][::step]),
                                 train.target[train.inside][::step].copy())
             progress(f"  training {spec.label()}: {spec.seeds} seeds on {len(data.target)} "
                      f"samples (decimation {step})")
-            models = workers.map_fits([(settings, config.features, data, theta_lip,
+            models = workers.map_fits([(spec.pgnn_settings(), config.features, data, theta_lip,
                                         stream(config.seed, STREAM_NETWORK, s))
                                        for s in range(spec.seeds)])
             preds = [[r.phi @ np.array([m.theta_[k] for k in THETA_NAMES]) + m.network(r.phi)

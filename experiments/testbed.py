@@ -21,6 +21,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from controllers.pid import PIDController, design_pid
 from experiments.config import ExperimentConfig, FeedforwardSpec, load_config, resolved
 from experiments.results import (BeyondRange, ReferenceMetrics, RowResult, SeedFit, SeedResult,
                                  theta_drift)
+
+if TYPE_CHECKING:  # torch is imported only for a PGNN
+    from controllers.pgnn.starts import StartCache
 
 # Purposes of the child random streams; the numbers are part of the reproducibility contract.
 STREAM_TRAINING_DITHER = 0
@@ -77,9 +81,9 @@ class Testbed:
     def __init__(self, config: ExperimentConfig | None = None, *, progress=None):
         self.config = ExperimentConfig() if config is None else config
         self.progress = progress or _silent
-        # (run seed, network seed) -> the optimizations fits of that draw ran, by their key
-        # (controllers.pgnn.PGNNFeedforward.fit_data's ``reuse``)
-        self._runs: dict[tuple[int, int], dict] = {}
+        # (run seed, network seed) -> the optimizations fits of that draw ran
+        # (a controllers.pgnn.starts.StartCache: PGNNFeedforward.fit_data's ``reuse``)
+        self._starts: dict[tuple[int, int], StartCache] = {}
 
     def __repr__(self) -> str:
         c = self.config
@@ -180,32 +184,31 @@ class Testbed:
         several; every fit is single-threaded, so the pool never changes a result), with a
         progress line per finished fit."""
         from controllers.pgnn import training_data  # torch is imported only for a PGNN
+        from controllers.pgnn.starts import StartCache
         from experiments import workers as parallel
 
         run_seed = run.meta.get("seed", self.config.seed)
-        settings = spec.pgnn_settings()
         data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
-                             decimation=settings["decimation"])
+                             decimation=spec.pgnn.decimation)
         # The optimizations earlier rows ran from the same draws (a continuation row's starts
-        # are the fits of its lambda = 0 and lambda = 0.01 rows): taken, not run again.
-        runs = self._runs
-        payloads = [(settings, self.config.features, data, dict(lip.theta_),
-                     stream(run_seed, STREAM_NETWORK, s), runs.get((run_seed, s), {}))
+        # are the fits of its lambda = 0 and lambda = 0.01 rows): taken, not run again; a long
+        # study keeps the latest only.
+        payloads = [(spec.pgnn_settings(), self.config.features, data, dict(lip.theta_),
+                     stream(run_seed, STREAM_NETWORK, s),
+                     self._starts.setdefault((run_seed, s), StartCache(kept=RUNS_KEPT)))
                     for s in indices]
         done = []
 
-        def report(model):
+        def report(fitted):
+            model, _ = fitted
             done.append(model)
             self.progress(f"  {spec.label()}: fit {len(done)}/{len(payloads)} done "
                           f"({model.fit_.stop}, {model.fit_.iterations} it)")
 
-        models = parallel.map_fits(payloads, on_done=report)
-        for s, model in zip(indices, models):
-            seen = runs.setdefault((run_seed, s), {})
-            seen.update(model.__dict__.pop("runs_", {}))
-            for key in list(seen)[:-RUNS_KEPT]:  # a long study: the latest only
-                del seen[key]
-        return models
+        fitted = parallel.map_fits(payloads, fn=parallel.fit_pgnn_reusing, on_done=report)
+        for s, (_, starts) in zip(indices, fitted):  # a pool's worker filled its own copy
+            self._starts[(run_seed, s)] = starts
+        return [model for model, _ in fitted]
 
     def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:
         """The fitted models of one table row: one per seed; ``[None]`` for feedback only."""

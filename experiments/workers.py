@@ -237,16 +237,25 @@ def stop_fits() -> None:
 
 
 def fit_pgnn(payload: tuple):
-    """One PGNN fit: ``(settings, features, data, theta_lip, seed_sequence[, reuse])`` -> fitted
-    model (``reuse``: see :meth:`controllers.pgnn.PGNNFeedforward.fit_data`)."""
+    """One PGNN fit: ``(settings, features, data, theta_lip, seed_sequence)`` -> fitted model
+    (``settings``: the keyword arguments of :class:`controllers.pgnn.PGNNFeedforward`)."""
+    return fit_pgnn_reusing((*payload, None))[0]
+
+
+def fit_pgnn_reusing(payload: tuple):
+    """One PGNN fit that reuses and adds to a start cache: ``(settings, features, data,
+    theta_lip, seed_sequence, starts)`` -> ``(fitted model, starts)`` (``starts``: a
+    :class:`controllers.pgnn.starts.StartCache`, see
+    :meth:`controllers.pgnn.PGNNFeedforward.fit_data`; returned because a pool's worker fills
+    its own copy)."""
     import numpy as np
 
     from controllers.pgnn import PGNNFeedforward
 
-    settings, features, data, theta_lip, seq, *reuse = payload
+    settings, features, data, theta_lip, seq, starts = payload
     model = PGNNFeedforward(**settings, features=features)
-    return model.fit_data(data=data, theta_lip=theta_lip, rng=np.random.default_rng(seq),
-                          reuse=reuse[0] if reuse else None)
+    model.fit_data(data=data, theta_lip=theta_lip, rng=np.random.default_rng(seq), reuse=starts)
+    return model, starts
 
 
 def fit_pinned(payload: tuple):

@@ -138,22 +138,31 @@ def test_a_progress_line_per_pgnn_fit():
 
 
 def test_pgnn_settings_declared_once():
-    """One table: the model's settings are its keys, the config's pgnn: options a subset, the
-    activations the network's, and the config, the model and the settings refuse alike."""
+    """One table: the model's own settings (a row's hidden, training, lambda) and the options of
+    ``PGNNSettings`` (the config's pgnn:, declared there only) are its keys, the activations the
+    network's, and the config, the model and the settings refuse alike."""
     import dataclasses
+    import inspect
 
     from controllers.pgnn import PGNNFeedforward
     from controllers.pgnn.network import ACTIVATIONS
     from controllers.pgnn_settings import ACTIVATION_NAMES, CONSTRAINTS, PGNNSettings
     from experiments.config import FeedforwardSpec
 
-    model_fields = {f.name for f in dataclasses.fields(PGNNFeedforward)} - {"features"}
-    assert model_fields == set(CONSTRAINTS) == set(PGNNFeedforward.SETTINGS)
-    assert {f.name for f in dataclasses.fields(PGNNSettings)} <= set(CONSTRAINTS)
-    assert set(ACTIVATION_NAMES) == set(ACTIVATIONS)
-    defaults = PGNNSettings()
-    assert all(getattr(PGNNFeedforward(), k) == getattr(defaults, k)
-               for k in dataclasses.asdict(defaults))
+    options = {f.name for f in dataclasses.fields(PGNNSettings)}
+    params = inspect.signature(PGNNFeedforward).parameters
+    own = {k for k, v in params.items() if v.kind is v.KEYWORD_ONLY} - {"settings", "features"}
+    assert own == {"hidden", "training", "lam"} and not own & options
+    assert own | options == set(CONSTRAINTS)
+    model = PGNNFeedforward()
+    assert set(vars(model)) == own | {"settings", "features"}  # no option is an attribute
+    assert model.settings == PGNNSettings() and set(ACTIVATION_NAMES) == set(ACTIVATIONS)
+    # An option by name replaces that of settings=; the others are settings='s.
+    base = PGNNSettings(max_iter=7, weight_decay=1e-5)
+    assert PGNNFeedforward(settings=base, max_iter=3).settings == dataclasses.replace(
+        base, max_iter=3)
+    with pytest.raises(TypeError, match="unknown setting.*max_iters"):
+        PGNNFeedforward(max_iters=3)
     y, u = _sine_record(seconds=1.0)
     for bad, key in ((dict(max_iter=0), "pgnn.max_iter"), (dict(ftol=1.0), "pgnn.ftol"),
                      (dict(activation="elu"), "pgnn.activation"),
@@ -172,7 +181,13 @@ def test_pgnn_settings_declared_once():
         with pytest.raises(UserError, match=key):
             FeedforwardSpec(kind="pgnn", **spec)
         with pytest.raises(UserError, match=key):
-            PGNNFeedforward(**spec)._check()
+            PGNNFeedforward(**spec)
+        model = PGNNFeedforward(hidden=4, training="sequential")
+        for name, value in bad.items():  # set after construction: fit checks again
+            setattr(model, name, value)
+        with pytest.raises(UserError, match=key):
+            model.fit(y=y, u=u, ts=TS, theta_lip=dict.fromkeys(
+                ("mass", "viscous", "coulomb", "stiffness"), 1.0), rng=0)
 
 
 def test_pgnn_fit_needs_a_seed_and_keeps_its_rate(tmp_path):

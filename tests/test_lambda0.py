@@ -52,12 +52,12 @@ def test_paper_cost_rows_reach_the_fit_without_weight_decay_or_continuation():
         settings = {**spec.pgnn_settings(), "hidden": 3, "max_iter": 3}
         model = PGNNFeedforward(**settings)
         assert not model._continues() and model._weights().weight_decay == 0
-        assert model.init == "optimized"  # the lemma's least-squares start
+        assert model.settings.init == "optimized"  # the lemma's least-squares start
         lip = dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
         model.fit_data(data=data, theta_lip=lip, rng=np.random.default_rng(0))
         assert [s.start for s in model.fit_.starts] == ["draw"]
         assert model.fit_.continuation_lam == 0.0
-        assert model.cost_["weight_decay"] == 0.0
+        assert model.cost_.weight_decay == 0.0
         assert (model.fit_.reg_cost == 0.0) == (spec.lam == 0)  # only the pull to theta_LIP
     weight_decay_rows = [s for s in config.feedforwards if s.kind == "pgnn"
                          and s.pgnn.weight_decay > 0]
@@ -301,7 +301,7 @@ def test_paper_cost_lambda0_predicts_its_training_record_at_its_training_cost(pa
     from controllers.pgnn_settings import decimation_for
 
     tb, run, _, model = paper_cost_fit
-    step = decimation_for(run.ts, model.decimation)
+    step = decimation_for(run.ts, model.settings.decimation)
     data = training_data(tb.config.features, y=run.y, u=run.u, ts=run.ts, decimation=step)
     keep = tb.config.features.fit_slice(len(run.y))
     pred = model.predict(y=run.y)[keep][::step]

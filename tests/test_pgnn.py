@@ -123,7 +123,7 @@ def test_regularized_pgnn_learns_parasitic_force_and_keeps_theta(data):
     # 1 %: the penalty 0.01*dtheta**2 must stay below the data-term gain (a few N**2).
     np.testing.assert_allclose(got[:3], theta[:3], rtol=0.01)
     # The sine (3 N amplitude, 4.5 N**2 power) is learnable; noise floor 0.04 N**2.
-    assert model.cost_["data"] < 0.1 * lip_cost
+    assert model.cost_.data < 0.1 * lip_cost
     # theta_LIP itself is close to the truth: the sine hides no bias in mass, viscous, coulomb.
     np.testing.assert_allclose(theta[:3], THETA_TRUE[:3], rtol=0.05)
     costs = [h.cost for h in model.history_]
@@ -243,9 +243,9 @@ def test_fit_converges_and_records_how(data, hidden, activation):
                                                    rng=np.random.default_rng(0))
     f = model.fit_
     assert f.stop == "converged", f
-    assert f.first_order <= model.ftol and f.iterations <= model.max_iter
-    assert f.data_cost == pytest.approx(model.cost_["data"])
-    assert f.reg_cost == pytest.approx(model.cost_["deviation"] + model.cost_["weight_decay"])
+    assert f.first_order <= model.settings.ftol and f.iterations <= model.settings.max_iter
+    assert f.data_cost == pytest.approx(model.cost_.data)
+    assert f.reg_cost == pytest.approx(model.cost_.deviation + model.cost_.weight_decay)
     lip_cost = float(np.mean((data.target - data.phi @ theta) ** 2))
     assert f.data_cost < 0.1 * lip_cost  # the 3 N sine is learned (noise floor 0.04 N**2)
 
@@ -262,7 +262,7 @@ def test_restarts_keep_the_lowest_training_cost(data):
         data=data, theta_lip=theta, rng=np.random.default_rng(5))
     costs = [s.cost for s in model.fit_.starts]
     assert len(costs) == 3 and len(set(costs)) == 3  # three different draws
-    assert sum(model.cost_.values()) == pytest.approx(min(costs), rel=1e-12)
+    assert model.cost_.total == pytest.approx(min(costs), rel=1e-12)
 
 
 def test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw(data):
@@ -278,8 +278,8 @@ def test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw(data):
                                                        rng=np.random.default_rng(seed))
         assert [s.start for s in free.fit_.starts] == ["draw", "continuation"]
         assert [s.start for s in reg.fit_.starts] == ["draw"]  # theta is pulled: no need
-        bound = reg.cost_["data"] + reg.cost_["weight_decay"]
-        assert sum(free.cost_.values()) <= bound * (1 + 1e-9), (seed, free.fit_, reg.cost_)
+        bound = reg.cost_.data + reg.cost_.weight_decay
+        assert free.cost_.total <= bound * (1 + 1e-9), (seed, free.fit_, reg.cost_)
 
 
 def test_orthogonal_projection_keeps_theta_lip(data):
@@ -304,7 +304,7 @@ def test_weight_decay_shrinks_the_weights(data):
             data=data, theta_lip=theta, rng=np.random.default_rng(3))
         norms.append(sum(float((v**2).sum()) for k, v in m.network_.state_dict().items()
                          if k.endswith("weight")))
-        assert (m.cost_["weight_decay"] > 0) == (alpha > 0)
+        assert (m.cost_.weight_decay > 0) == (alpha > 0)
     assert norms[1] < 0.5 * norms[0]
 
 

@@ -45,7 +45,7 @@ def test_fit_record_is_frozen_and_round_trips_through_its_json(fitted):
     assert set(f.to_json()["theta_path"][0]) == {"iteration", "data_cost", *THETA_NAMES}
     assert f.iterations_total == sum(s.iterations for s in f.starts)
     assert f.restarts == len(f.starts) >= 1
-    assert f.data_cost == fitted.cost_["data"]
+    assert f.data_cost == fitted.cost_.data
 
 
 def test_a_pinned_fit_records_what_it_held(data, fitted):
@@ -78,7 +78,7 @@ def test_history_is_typed_and_the_file_keeps_its_keys(fitted, tmp_path):
     h = fitted.history_
     assert all(isinstance(e, Iterate) for e in h) and len(h) >= 2
     assert [e.iteration for e in h] == list(range(len(h)))
-    assert h[-1].data == pytest.approx(fitted.cost_["data"])
+    assert h[-1].data == pytest.approx(fitted.cost_.data)
     fitted.save(tmp_path / "m")
     doc = json.loads((tmp_path / "m.json").read_text())
     assert list(doc["history"][0]) == ["iteration", "cost", "data", "deviation", "pinn",
@@ -136,3 +136,84 @@ def test_figures_take_results_and_never_run_a_model():
                  if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)}
         ran = calls & {"predict", "predict_parts", "feedforward", "network", "fit", "fit_data"}
         assert not ran, f"{path.name} calls {sorted(ran)}"
+
+
+def test_cost_terms_are_typed_and_the_file_keeps_its_keys(fitted, tmp_path):
+    from controllers.pgnn.cost import TERMS, CostTerms
+
+    c = fitted.cost_
+    assert isinstance(c, CostTerms) and list(c.to_json()) == list(TERMS)
+    assert c.total == pytest.approx(c.data + c.regularization, rel=1e-15)
+    assert fitted.fit_.reg_cost == c.regularization  # one sum, in one order
+    assert CostTerms.from_json({"data": 1.5}) == CostTerms(1.5)  # an older file: the rest 0
+    fitted.save(tmp_path / "m")
+    doc = json.loads((tmp_path / "m.json").read_text())
+    assert doc["cost"] == c.to_json() and PGNNFeedforward.load(tmp_path / "m").cost_ == c
+    for bad, key in (([1.0], "cost"), ({"data": "x"}, "cost.data"),
+                     ({"data": 1.0, "pinn": True}, "cost.pinn")):
+        (tmp_path / "m.json").write_text(json.dumps({**doc, "cost": bad}))
+        with pytest.raises(UserError, match=f"cannot read PGNN model .{key}: expected"):
+            PGNNFeedforward.load(tmp_path / "m")
+
+
+def test_a_model_holds_its_options_in_settings_and_its_file_names_them_as_before(data,
+                                                                                tmp_path):
+    from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings
+
+    model = PGNNFeedforward(hidden=[3, 2], lam=0.01, settings=PGNNSettings(
+        max_iter=2, lam_diag={"mass": 0.5}, continuation_lam=0.0, validation_fraction=0.2))
+    model.fit_data(data=data, theta_lip=_lip(data), rng=1).save(tmp_path / "m")
+    settings = json.loads((tmp_path / "m.json").read_text())["settings"]
+    # The file's keys: every setting, in the table's order, lambda spelled out where it was.
+    assert list(settings) == [{"lam_diag": "lambda_diag", "continuation_lam":
+                               "continuation_lambda"}.get(k, k) for k in CONSTRAINTS]
+    assert settings["hidden"] == [3, 2] and settings["lambda_diag"] == {"mass": 0.5}
+    back = PGNNFeedforward.load(tmp_path / "m")
+    assert back.settings == model.settings and back.widths() == (3, 2) and back.lam == 0.01
+
+
+def test_a_start_cache_gives_a_later_fit_its_outcome_without_running_it(data, monkeypatch):
+    """A fit that finds its start in the cache runs no optimization and has the same bits; the
+    cache is passed in (the model keeps no private copy of it), and copies in and out."""
+    from controllers import optim
+    from controllers.pgnn.starts import StartCache
+
+    cache, lip = StartCache(), _lip(data)
+    first = PGNNFeedforward(hidden=3, max_iter=4).fit_data(data=data, theta_lip=lip, rng=5,
+                                                           reuse=cache)
+    # lambda = 0 with a continuation: the draw, the lambda = 0.01 fit from it and the
+    # continuation from that solution.
+    assert [s.start for s in first.fit_.starts] == ["draw", "continuation"]
+    assert len(cache) == 3 and set(vars(first)) == set(vars(PGNNFeedforward())) | {
+        "network_", "theta_", "theta_lip_", "history_", "best_iteration_", "cost_",
+        "n_samples_", "ts_", "fit_"}
+    ran, lm = [], optim.levenberg_marquardt
+    monkeypatch.setattr(optim, "levenberg_marquardt", lambda *a, **k: ran.append(1) or lm(*a, **k))
+    again = PGNNFeedforward(hidden=3, max_iter=4).fit_data(data=data, theta_lip=lip, rng=5,
+                                                           reuse=cache)
+    assert ran == [] and again.fit_ == first.fit_ and again.history_ == first.history_
+    assert again.network_ is not first.network_
+    for k, v in again.network_.state_dict().items():
+        assert np.array_equal(v.numpy(), first.network_.state_dict()[k].numpy()), k
+    again.network_.mlp.out.bias.data += 1.0  # the cache holds its own copy
+    third = PGNNFeedforward(hidden=3, max_iter=4).fit_data(data=data, theta_lip=lip, rng=5,
+                                                           reuse=cache)
+    assert ran == [] and third.theta_ == first.theta_
+    assert np.array_equal(third.network_.mlp.out.bias.detach().numpy(),
+                          first.network_.mlp.out.bias.detach().numpy())
+    other = PGNNFeedforward(hidden=3, max_iter=4).fit_data(data=data, theta_lip=lip, rng=6,
+                                                           reuse=cache)
+    assert ran and len(cache) == 6 and other.theta_ != first.theta_
+
+
+def test_a_start_cache_keeps_the_latest():
+    from controllers.pgnn.starts import StartCache
+
+    cache = StartCache(kept=2)
+    for key in "abc":
+        cache.keep(key, {"outcome": key})
+    cache.keep(None, {"outcome": "random"})  # an outcome of the random stream is never held
+    assert len(cache) == 2 and "a" not in cache and cache.take("c") == {"outcome": "c"}
+    assert cache.take(None) is None and cache.take("a") is None
+    with pytest.raises(ValueError, match="kept"):
+        StartCache(kept=0)

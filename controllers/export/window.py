@@ -282,7 +282,7 @@ def from_pgnn(model, ts: float, source: str, tol: float = DEFAULT_TOL) -> Window
         input_std=mlp.input_std.detach().numpy().copy(),
         layers=tuple((layer.weight.detach().numpy().copy(), layer.bias.detach().numpy().copy())
                      for layer in mlp.hidden),
-        activation=model.activation,
+        activation=model.settings.activation,
         out_w=mlp.out.weight.detach().numpy()[0].copy(),
         out_b=float(mlp.out.bias.detach().numpy()[0]))
     cutoff = features.regression_lowpass_hz

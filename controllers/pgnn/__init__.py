@@ -1,7 +1,8 @@
 """Physics-guided neural network feedforward: the model and its identification
-(:mod:`controllers.pgnn.model`), the torch module (:mod:`controllers.pgnn.network`), the
-training cost (:mod:`controllers.pgnn.cost`) and how a fit went
-(:mod:`controllers.pgnn.fit_record`)."""
+(:mod:`controllers.pgnn.model`; its settings are :class:`controllers.pgnn_settings.PGNNSettings`),
+the torch module (:mod:`controllers.pgnn.network`), the training cost and its terms
+(:mod:`controllers.pgnn.cost`), how a fit went (:mod:`controllers.pgnn.fit_record`) and the
+optimizations that later fits reuse (:mod:`controllers.pgnn.starts`)."""
 
 from controllers.pgnn.fit_record import FitRecord
 from controllers.pgnn.model import (

@@ -23,14 +23,57 @@ two should carry what.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from clm_sim.errors import UserError
 from controllers.pgnn.network import PGNNNetwork
 
 TERMS = ("data", "deviation", "pinn", "orthogonal", "weight_decay")
+
+
+@dataclass(frozen=True)
+class CostTerms:
+    """The terms of the training cost at one point (N**2 each; see the module docstring): what
+    a fitted PGNN keeps as ``cost_``. A model file stores them under ``"cost"`` through
+    :meth:`to_json` (the term names are its keys)."""
+
+    data: float
+    deviation: float = 0.0
+    pinn: float = 0.0
+    orthogonal: float = 0.0
+    weight_decay: float = 0.0
+
+    @property
+    def regularization(self) -> float:
+        """Every term but the data term (N**2)."""
+        return float(sum((self.deviation, self.pinn, self.orthogonal, self.weight_decay)))
+
+    @property
+    def total(self) -> float:
+        """The training cost: the sum of the terms (N**2)."""
+        return float(sum((self.data, self.deviation, self.pinn, self.orthogonal,
+                          self.weight_decay)))
+
+    def to_json(self) -> dict:
+        return {"data": self.data, "deviation": self.deviation, "pinn": self.pinn,
+                "orthogonal": self.orthogonal, "weight_decay": self.weight_decay}
+
+    @classmethod
+    def from_json(cls, d) -> CostTerms:
+        """A model file's ``cost`` (a term missing from an older file: 0)."""
+        if not isinstance(d, dict):
+            raise UserError(f"cost: expected a mapping of the cost terms, got {type(d).__name__}")
+        values = {}
+        for name in TERMS:
+            v = d.get(name, 0.0)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise UserError(f"cost.{name}: expected a finite number, got {v!r}")
+            values[name] = float(v)
+        return cls(**values)
 
 
 @dataclass(frozen=True)
@@ -184,7 +227,7 @@ class SeparableCost:
     def _decay_rows(self, beta):
         return np.sqrt(self.w.weight_decay) * beta[self.decayed]
 
-    def terms(self, beta: np.ndarray) -> dict[str, float]:
+    def terms(self, beta: np.ndarray) -> CostTerms:
         """Each cost term (N**2) at ``beta`` and its best linear parameters."""
         sol = self._solve(beta)
         out = dict.fromkeys(TERMS, 0.0)
@@ -194,7 +237,20 @@ class SeparableCost:
         if self.w.weight_decay > 0:
             d = self._decay_rows(beta)
             out["weight_decay"] += float(d @ d)
-        return out
+        return CostTerms(**out)
+
+    def full_terms(self, p: np.ndarray) -> CostTerms:
+        """Each cost term (N**2) at full parameters ``p = (x, beta)`` (no elimination: the
+        optimizers lm and adam)."""
+        r = self.full(p, False)
+        beta = p[self.n_linear:]
+        blocks = self._system(self.net.hidden_outputs(beta, self.z))
+        out, i = dict.fromkeys(TERMS, 0.0), 0
+        for name, A, _ in blocks:
+            out[name] += float(r[i:i + len(A)] @ r[i:i + len(A)])
+            i += len(A)
+        out["weight_decay"] += float(r[i:] @ r[i:])
+        return CostTerms(**out)
 
     def __call__(self, beta: np.ndarray, jacobian: bool):
         sol = self._solve(beta)

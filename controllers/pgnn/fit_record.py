@@ -12,9 +12,13 @@ its keys.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
+
+if TYPE_CHECKING:  # the cost module imports torch; a record is read without it
+    from controllers.pgnn.cost import CostTerms
 
 
 @dataclass(frozen=True)
@@ -34,6 +38,14 @@ class Iterate:
     weight_decay: float
     theta: dict[str, float]
     validation: float | None = None
+
+    @classmethod
+    def at(cls, iteration: int, cost: float, terms: CostTerms, theta: dict[str, float],
+           validation: float | None = None) -> Iterate:
+        """The iterate of cost ``cost`` made of ``terms`` (N**2)."""
+        return cls(iteration, cost, data=terms.data, deviation=terms.deviation, pinn=terms.pinn,
+                   orthogonal=terms.orthogonal, weight_decay=terms.weight_decay, theta=theta,
+                   validation=validation)
 
     def to_json(self) -> dict:
         out = {"iteration": self.iteration, "cost": self.cost, "data": self.data,

@@ -57,10 +57,9 @@ data.
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,14 +71,15 @@ from clm_sim.modelfile import mapping, number, read_json, regular_file, sample_t
 from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
-from controllers.pgnn.cost import TERMS, SeparableCost, Weights
+from controllers.pgnn.cost import CostTerms, SeparableCost, Weights
 from controllers.pgnn.fit_record import FitRecord, Iterate, Start, ThetaPoint
 from controllers.pgnn.network import PGNNNetwork
+from controllers.pgnn.starts import StartCache, StartOutcome
 from clm_sim.schema import build
 from controllers.pgnn_settings import (CONSTRAINTS, LAMBDA_KEYS, PGNNSettings, check_settings,
                                        checked_widths, decimation_for, parameter_count)
 
-_DEFAULTS = PGNNSettings()  # the one declaration of the defaults
+_OPTIONS = frozenset(f.name for f in fields(PGNNSettings))  # a model's options, by name
 # A model file's settings keys are the Python names but where it spells lambda out.
 _FILE_KEYS = {v: k for k, v in LAMBDA_KEYS.items() if k != "lambda"}
 
@@ -137,44 +137,56 @@ def lemma_condition(data: TrainingData, h: np.ndarray, theta_lip, lam_diag=None,
     return bool(np.any(np.abs(g) > rtol * np.maximum(ref, 1e-300)))
 
 
-@dataclass
 class PGNNFeedforward:
     """A PGNN feedforward; ``fit`` learns ``theta_`` (named, SI units), ``network_`` (the torch
     module), ``fit_`` (how the fit stopped: a :class:`controllers.pgnn.fit_record.FitRecord`),
-    ``history_`` and ``ts_`` (s, the sample time of its data); ``predict``/``feedforward`` use
-    them (at that sample time only); ``save``/``load`` keep them. Settings: see
-    :class:`controllers.pgnn_settings.PGNNSettings` (hidden: widths of the hidden layers, an int
-    for one layer; training: simultaneous, sequential or pinn; lam: weight of the distance to
-    theta_LIP; features: the preprocessing shared with the LIP).
+    ``cost_`` (its cost terms: a :class:`controllers.pgnn.cost.CostTerms`), ``history_`` and
+    ``ts_`` (s, the sample time of its data); ``predict``/``feedforward`` use them (at that
+    sample time only); ``save``/``load`` keep them.
+
+    Settings: ``hidden`` (widths of the hidden layers, an int for one layer), ``training``
+    (simultaneous, sequential or pinn), ``lam`` (weight of the distance to theta_LIP), the
+    optimizer's and the cost's options ``settings`` (a
+    :class:`controllers.pgnn_settings.PGNNSettings`, where each is declared once with its
+    default) and ``features`` (the preprocessing shared with the LIP). Options may also be given
+    by name (``PGNNFeedforward(hidden=8, max_iter=50)``): they replace those of ``settings``.
+    Every setting is checked here (``controllers.pgnn_settings.CONSTRAINTS``), and again by
+    ``fit``.
     """
 
-    hidden: int | tuple[int, ...] = 16
-    training: str = "simultaneous"
-    lam: float = 0.0
-    lam_diag: dict[str, float] | None = None
-    pinn_weight: float = _DEFAULTS.pinn_weight
-    orthogonal_weight: float = _DEFAULTS.orthogonal_weight
-    weight_decay: float = _DEFAULTS.weight_decay
-    activation: str = _DEFAULTS.activation
-    init: str = _DEFAULTS.init
-    optimizer: str = _DEFAULTS.optimizer
-    max_iter: int = _DEFAULTS.max_iter
-    ftol: float = _DEFAULTS.ftol
-    restarts: int = _DEFAULTS.restarts
-    continuation_lam: float = _DEFAULTS.continuation_lam
-    adam_lr: float = _DEFAULTS.adam_lr
-    validation_fraction: float = _DEFAULTS.validation_fraction
-    decimation: int | None = _DEFAULTS.decimation
-    theta_ftol: float = _DEFAULTS.theta_ftol
-    features: FeatureMap = field(default_factory=FeatureMap)
+    def __init__(self, *, hidden: int | tuple[int, ...] = 16, training: str = "simultaneous",
+                 lam: float = 0.0, settings: PGNNSettings | None = None,
+                 features: FeatureMap | None = None, **options):
+        unknown = sorted(set(options) - _OPTIONS)
+        if unknown:
+            raise TypeError(f"PGNNFeedforward: unknown setting(s) {', '.join(unknown)}; the "
+                            f"options are {', '.join(sorted(_OPTIONS))}")
+        settings = PGNNSettings() if settings is None else settings
+        if not isinstance(settings, PGNNSettings):
+            raise TypeError(f"PGNNFeedforward: settings must be a PGNNSettings, got "
+                            f"{type(settings).__name__}")
+        self.hidden, self.training, self.lam = hidden, training, lam
+        self.settings = replace(settings, **options) if options else settings
+        self.features = FeatureMap() if features is None else features
+        self._check()
 
-    SETTINGS = tuple(CONSTRAINTS)  # every field but features (tests/test_api.py checks)
+    def __repr__(self) -> str:
+        changed = ", ".join(f"{f.name}={getattr(self.settings, f.name)!r}"
+                            for f in fields(self.settings)
+                            if getattr(self.settings, f.name) != f.default)
+        return (f"PGNNFeedforward(hidden={self.hidden!r}, training={self.training!r}, "
+                f"lam={self.lam!r}, settings=PGNNSettings({changed}))")
+
+    def _values(self) -> dict:
+        """Every setting by its Python name: the model's own and its options."""
+        return {"hidden": self.hidden, "training": self.training, "lam": self.lam,
+                **{f.name: getattr(self.settings, f.name) for f in fields(self.settings)}}
 
     def _settings(self) -> dict:
-        """The settings as a model file names them (lambda spelled out where a file does)."""
-        out = {_FILE_KEYS.get(k, k): getattr(self, k) for k in self.SETTINGS}
-        out["hidden"] = list(self.widths())
-        return out
+        """The settings as a model file names them (lambda spelled out where a file does), in
+        the order of ``CONSTRAINTS``."""
+        values = {**self._values(), "hidden": list(self.widths())}
+        return {_FILE_KEYS.get(k, k): values[k] for k in CONSTRAINTS}
 
     def widths(self) -> tuple[int, ...]:
         """Widths of the hidden layers."""
@@ -185,21 +197,21 @@ class PGNNFeedforward:
     def lam_matrix_diag(self) -> np.ndarray:
         """Diagonal of Lambda, in the order of ``THETA_NAMES``."""
         diag = {k: float(self.lam) for k in THETA_NAMES}
-        diag.update({k: float(v) for k, v in (self.lam_diag or {}).items()})
+        diag.update({k: float(v) for k, v in (self.settings.lam_diag or {}).items()})
         return np.array([diag[k] for k in THETA_NAMES])
 
     def _check(self) -> None:
         """The settings against the one table (``controllers.pgnn_settings.CONSTRAINTS``)."""
-        check_settings({k: getattr(self, k) for k in self.SETTINGS})
+        check_settings(self._values())
 
     # -- the training problem ---------------------------------------------------------------
     def _weights(self, lam_diag: np.ndarray | None = None) -> Weights:
         simultaneous = self.training != "sequential"
         if lam_diag is None:
             lam_diag = self.lam_matrix_diag() if simultaneous else np.zeros(4)
-        return Weights(lam_diag=lam_diag,
-                       pinn=self.pinn_weight if self.training == "pinn" else 0.0,
-                       orthogonal=self.orthogonal_weight, weight_decay=self.weight_decay)
+        s = self.settings
+        return Weights(lam_diag=lam_diag, pinn=s.pinn_weight if self.training == "pinn" else 0.0,
+                       orthogonal=s.orthogonal_weight, weight_decay=s.weight_decay)
 
     def new_network(self, data: TrainingData, rng: np.random.Generator | None,
                     beta: np.ndarray | None = None) -> PGNNNetwork:
@@ -207,7 +219,7 @@ class PGNNFeedforward:
         weights of std ``1/sqrt(fan_in)`` and biases of std 1 keep the neurons spread over their
         range rather than saturated or linear (inputs have unit variance). ``beta``: the hidden
         layers given instead of drawn."""
-        net = PGNNNetwork(hidden=self.widths(), activation=self.activation)
+        net = PGNNNetwork(hidden=self.widths(), activation=self.settings.activation)
         mean = data.phi.mean(axis=0)
         std = data.phi.std(axis=0)
         std[std == 0] = 1.0
@@ -235,16 +247,17 @@ class PGNNFeedforward:
         theta_phy toward theta_LIP, so every regularized solution is feasible and the lambda = 0
         optimum costs no more than it; a descent from there finds such a point, which a descent
         from the draw alone need not (the cost is flat along the physics/network trade-off)."""
-        return (self.continuation_lam > 0 and self.optimizer == "varpro"
-                and self.training == "simultaneous" and self.orthogonal_weight == 0
+        s = self.settings
+        return (s.continuation_lam > 0 and s.optimizer == "varpro"
+                and self.training == "simultaneous" and s.orthogonal_weight == 0
                 and not np.any(self.lam_matrix_diag()))
 
     def initial_point(self, cost: SeparableCost, theta_lip, rng: np.random.Generator):
-        """Starting parameters for ``self.optimizer``: ``beta`` (varpro) or ``(x, beta)``."""
+        """Starting parameters for the optimizer: ``beta`` (varpro) or ``(x, beta)``."""
         beta = cost.net.get_nonlinear()
-        if self.optimizer == "varpro":
+        if self.settings.optimizer == "varpro":
             return beta
-        if self.init == "optimized":
+        if self.settings.init == "optimized":
             x = cost._solve(beta)["x"]
         else:
             resid_std = float(np.std(cost.t - cost.lip_pred))
@@ -260,72 +273,71 @@ class PGNNFeedforward:
         at ``ts`` (s); ``theta_lip`` is the LIP fitted with the same ``features``; ``rng`` (a
         ``numpy.random.Generator`` or an integer seed; required) draws the network."""
         rng = _generator(rng)
-        data = training_data(self.features, y=y, u=u, ts=ts, decimation=self.decimation)
+        data = training_data(self.features, y=y, u=u, ts=ts,
+                             decimation=self.settings.decimation)
         return self.fit_data(data=data, theta_lip=theta_lip, rng=rng)
 
     def fit_data(self, *, data: TrainingData, theta_lip: dict[str, float],
                  rng: np.random.Generator | int | None = None,
-                 reuse: dict | None = None) -> PGNNFeedforward:
+                 reuse: StartCache | None = None) -> PGNNFeedforward:
         """Identify from prepared :class:`TrainingData` (see :func:`training_data`).
 
-        ``reuse``: optimizations other fits ran already (their ``runs_``: a start's key ->
-        its outcome). A start of this fit with the same key (same data, draw, cost weights and
-        optimizer settings: :meth:`_start_key`) takes that outcome instead of running again,
-        bit for bit what it would compute (the optimizer is deterministic). A table's
-        continuation row starts from the draws of its lambda = 0 row and the solutions of its
-        lambda = 0.01 row. ``runs_`` holds this fit's own starts for the next fits."""
+        ``reuse``: the optimizations other fits ran already
+        (:class:`controllers.pgnn.starts.StartCache`). A start of this fit with the same key
+        (same data, draw, cost weights and optimizer settings: :meth:`_start_key`) takes that
+        outcome instead of running again, bit for bit what it would compute (the optimizer is
+        deterministic); the starts this fit runs are added to it, for the next fits."""
         self._check()
         rng = _generator(rng)
         theta_lip_v = _as_theta(theta_lip)
-        fit, held_out = data.split(self.validation_fraction)
-        best, starts, runs = None, [], {}
+        opt = self.settings
+        fit, held_out = data.split(opt.validation_fraction)
+        cache = StartCache() if reuse is None else reuse
+        best, starts = None, []
 
-        def optimize(beta0, weights=None):
+        def optimize(beta0, weights=None) -> StartOutcome:
             key = self._start_key(fit, held_out, theta_lip_v, beta0, weights)
-            if key is not None and key in (reuse or {}):
-                runs[key] = got = copy.deepcopy(reuse[key])  # shares nothing with its source
-            else:
+            got = cache.take(key)
+            if got is None:
                 got = self._one_start(fit, held_out, theta_lip_v, rng, beta0, weights)
-                if key is not None:  # a copy: the fitted network may become this model's
-                    runs[key] = copy.deepcopy({k: v for k, v in got.items() if k != "cost"})
+                cache.keep(key, got)
             return got
 
         with single_threaded():
-            for _ in range(self.restarts):
+            for _ in range(opt.restarts):
                 beta0 = self.new_network(fit, rng).get_nonlinear()
                 tries = [("draw", optimize(beta0))]
                 if self._continues():
-                    lam_c = np.full(4, float(self.continuation_lam))
+                    lam_c = np.full(4, float(opt.continuation_lam))
                     pre = optimize(beta0, self._weights(lam_c))
-                    tries.append(("continuation", optimize(pre["net"].get_nonlinear())))
+                    tries.append(("continuation", optimize(pre.net.get_nonlinear())))
                 for start, got in tries:
-                    starts.append(Start(start, got["result"].cost, got["result"].stop,
-                                        got["result"].iterations))
-                    if best is None or got["result"].cost < best["result"].cost:
-                        best = dict(got, start=start)
-        res = best["result"]
-        moved = theta_movement(best["history"], fit)
+                    starts.append(Start(start, got.result.cost, got.result.stop,
+                                        got.result.iterations))
+                    if best is None or got.result.cost < best[1].result.cost:
+                        best = (start, got)
+        kept_start, best = best
+        res = best.result
+        moved = theta_movement(best.history, fit)
         stop = res.stop
-        if stop == "converged" and self.training != "sequential" and moved > self.theta_ftol:
+        if stop == "converged" and self.training != "sequential" and moved > opt.theta_ftol:
             stop = "theta_moving"
-        self.network_ = best["net"]
+        self.network_ = best.net
         self.theta_ = dict(zip(THETA_NAMES, map(float, self.network_.theta.detach().numpy())))
         self.theta_lip_ = dict(zip(THETA_NAMES, map(float, theta_lip_v)))
-        self.history_ = best["history"]
-        self.best_iteration_ = int(best["best_iteration"])
-        self.cost_ = best["terms"]
+        self.history_ = best.history
+        self.best_iteration_ = int(best.best_iteration)
+        self.cost_ = best.terms
         self.n_samples_ = len(fit.target)
         self.ts_ = data.ts
-        self.runs_ = runs
         self.fit_ = FitRecord(
             stop=stop, cost_stop=res.stop, iterations=res.iterations,
             iterations_total=int(sum(s.iterations for s in starts)), theta_moved=moved,
-            theta_ftol=self.theta_ftol, theta_path=theta_path(best["history"]),
-            continuation_lam=(float(self.continuation_lam) if self._continues() else 0.0),
-            data_cost=self.cost_["data"],
-            reg_cost=float(sum(v for k, v in self.cost_.items() if k != "data")),
-            grad_norm=res.grad_norm, first_order=res.first_order, ftol=self.ftol,
-            max_iter=self.max_iter, start=best["start"], starts=tuple(starts))
+            theta_ftol=opt.theta_ftol, theta_path=theta_path(best.history),
+            continuation_lam=(float(opt.continuation_lam) if self._continues() else 0.0),
+            data_cost=self.cost_.data, reg_cost=self.cost_.regularization,
+            grad_norm=res.grad_norm, first_order=res.first_order, ftol=opt.ftol,
+            max_iter=opt.max_iter, start=kept_start, starts=tuple(starts))
         return self
 
     def fit_pinned(self, *, data: TrainingData, theta_lip: dict[str, float],
@@ -337,7 +349,7 @@ class PGNNFeedforward:
         ``atol`` (N**2): also stop, as ``resolved``, where the Gauss-Newton model predicts an
         absolute decrease of at most this (:func:`controllers.optim.levenberg_marquardt`)."""
         self._check()
-        if self.optimizer != "varpro" or self.training == "sequential":
+        if self.settings.optimizer != "varpro" or self.training == "sequential":
             raise UserError("fit_pinned: needs optimizer varpro and a trained theta_phy")
         unknown = set(pinned) - set(THETA_NAMES)
         if unknown:
@@ -353,11 +365,12 @@ class PGNNFeedforward:
 
             def record(it, p, value):
                 theta, _, _ = cost.linear(p)
-                history.append(Iterate(it, value, **cost.terms(p),
-                                       theta=dict(zip(THETA_NAMES, map(float, theta)))))
+                history.append(Iterate.at(it, value, cost.terms(p),
+                                          theta=dict(zip(THETA_NAMES, map(float, theta)))))
 
-            res = optim.levenberg_marquardt(cost, net.get_nonlinear(), max_iter=self.max_iter,
-                                            ftol=self.ftol, atol=atol, callback=record)
+            res = optim.levenberg_marquardt(cost, net.get_nonlinear(),
+                                            max_iter=self.settings.max_iter,
+                                            ftol=self.settings.ftol, atol=atol, callback=record)
             theta, w, b = cost.linear(res.p)
             net.set_nonlinear(res.p)
             net.set_linear(theta, w, b)
@@ -369,10 +382,9 @@ class PGNNFeedforward:
         self.n_samples_ = len(data.target)
         self.fit_ = FitRecord(
             stop=res.stop, cost_stop=res.stop, iterations=res.iterations,
-            data_cost=terms["data"], pinned=dict(pinned),
-            reg_cost=float(sum(v for k, v in terms.items() if k != "data")),
-            first_order=res.first_order, grad_norm=res.grad_norm, ftol=self.ftol,
-            max_iter=self.max_iter)
+            data_cost=terms.data, pinned=dict(pinned), reg_cost=terms.regularization,
+            first_order=res.first_order, grad_norm=res.grad_norm, ftol=self.settings.ftol,
+            max_iter=self.settings.max_iter)
         return self
 
     def _start_key(self, fit: TrainingData, held_out, theta_lip, beta0: np.ndarray,
@@ -380,7 +392,7 @@ class PGNNFeedforward:
         """What decides the outcome of one optimization (:meth:`_one_start`), as a digest: the
         data, theta_LIP, the start, the cost's weights and the settings the optimizer reads.
         None where the outcome also depends on the random stream (a random initialization)."""
-        if self.optimizer != "varpro":
+        if self.settings.optimizer != "varpro":
             return None
         w = weights or self._weights()
         h = hashlib.sha256()
@@ -389,19 +401,20 @@ class PGNNFeedforward:
                      np.zeros(0) if none else held_out.target, theta_lip, beta0, w.lam_diag):
             h.update(np.ascontiguousarray(part, dtype=np.float64).tobytes())
             h.update(b"|")
+        s = self.settings
         h.update(repr((w.pinn, w.orthogonal, w.weight_decay, self.training, self.widths(),
-                       self.activation, self.max_iter, self.ftol, self.init)).encode())
+                       s.activation, s.max_iter, s.ftol, s.init)).encode())
         return h.hexdigest()
 
     def _one_start(self, fit: TrainingData, held_out, theta_lip, rng, beta0: np.ndarray,
-                   weights: Weights | None = None) -> dict:
+                   weights: Weights | None = None) -> StartOutcome:
         """One optimization from hidden layers ``beta0`` (of the cost with ``weights``, default
         the model's own)."""
         net = self.new_network(fit, None, beta0)
         cost = self.training_cost(fit, theta_lip, net, weights)
         check = None if held_out is None else self.training_cost(held_out, theta_lip, net,
                                                                  weights)
-        varpro = self.optimizer == "varpro"
+        varpro = self.settings.optimizer == "varpro"
         p0 = self.initial_point(cost, theta_lip, rng)
         history, best = [], {"score": np.inf}
 
@@ -413,10 +426,8 @@ class PGNNFeedforward:
             theta = x[:4] if cost.n_theta else theta_lip.copy()
             return beta, (theta, x[cost.n_theta:-1], float(x[-1]))
 
-        def terms(p):
-            if varpro:
-                return cost.terms(p)
-            return _full_terms(cost, p)
+        def terms(p) -> CostTerms:
+            return cost.terms(p) if varpro else cost.full_terms(p)
 
         def record(it, p, value):
             beta, (theta, w, b) = unpack(p)
@@ -426,26 +437,25 @@ class PGNNFeedforward:
                 net.set_linear(theta, w, b)
                 pred = _predict(net, held_out)
                 validation = float(np.mean((held_out.target - pred) ** 2))
-            history.append(Iterate(it, value, **terms(p),
-                                   theta=dict(zip(THETA_NAMES, map(float, theta))),
-                                   validation=validation))
+            history.append(Iterate.at(it, value, terms(p),
+                                      theta=dict(zip(THETA_NAMES, map(float, theta))),
+                                      validation=validation))
             score = value if validation is None else validation
             if score < best["score"]:
                 best.update(score=score, p=p.copy(), iteration=it)
 
         fun = cost if varpro else cost.full
-        if self.optimizer == "adam":
-            result = optim.adam(fun, p0, max_iter=self.max_iter, lr=self.adam_lr,
-                                callback=record)
+        s = self.settings
+        if s.optimizer == "adam":
+            result = optim.adam(fun, p0, max_iter=s.max_iter, lr=s.adam_lr, callback=record)
         else:
-            result = optim.levenberg_marquardt(fun, p0, max_iter=self.max_iter, ftol=self.ftol,
+            result = optim.levenberg_marquardt(fun, p0, max_iter=s.max_iter, ftol=s.ftol,
                                                callback=record)
         beta, (theta, w, b) = unpack(best["p"])
         net.set_nonlinear(beta)
         net.set_linear(theta, w, b)
-        final_terms = terms(best["p"])
-        return {"net": net, "cost": cost, "result": result, "history": history,
-                "best_iteration": best["iteration"], "terms": final_terms}
+        return StartOutcome(net=net, result=result, history=history,
+                            best_iteration=best["iteration"], terms=terms(best["p"]))
 
     # -- use ----------------------------------------------------------------------------------
     def _check_fitted(self):
@@ -509,7 +519,8 @@ class PGNNFeedforward:
                 "features": {k: getattr(self.features, k) for k in (
                     "regression_lowpass_hz", "position_lowpass_hz", "lowpass_order",
                     "edge_samples")},
-                "theta": self.theta_, "theta_lip": self.theta_lip_, "cost": self.cost_,
+                "theta": self.theta_, "theta_lip": self.theta_lip_,
+                "cost": None if self.cost_ is None else self.cost_.to_json(),
                 "fit": self.fit_.to_json(), "best_iteration": self.best_iteration_,
                 "n_samples": self.n_samples_, "history": (None if self.history_ is None
                                                         else [h.to_json() for h in self.history_])}
@@ -532,7 +543,7 @@ class PGNNFeedforward:
             python = {v: k for k, v in _FILE_KEYS.items()}
             settings = {python.get(k, k): v for k, v in
                         mapping(info.get("settings"), "settings").items()
-                        if python.get(k, k) in cls.SETTINGS}
+                        if python.get(k, k) in CONSTRAINTS}
             settings["hidden"] = checked_widths(settings.get("hidden"), "settings.hidden")
             check_settings(settings)
             features = build(FeatureMap, mapping(info.get("features"), "features"), "features")
@@ -540,6 +551,8 @@ class PGNNFeedforward:
             theta = {k: number(theta.get(k), f"theta.{k}") for k in THETA_NAMES}
             ts = sample_time(info.get("ts"))
             fit = FitRecord.from_json(info.get("fit"))
+            cost = info.get("cost")
+            cost = None if cost is None else CostTerms.from_json(cost)
             history = info.get("history")
             if history is not None:
                 if not isinstance(history, list):
@@ -555,7 +568,7 @@ class PGNNFeedforward:
         try:
             state = torch.load(pt, weights_only=True)
             model = cls(**settings, features=features)
-            net = PGNNNetwork(hidden=model.widths(), activation=model.activation)
+            net = PGNNNetwork(hidden=model.widths(), activation=model.settings.activation)
             net.load_state_dict(state)
         except UserError:
             raise
@@ -573,7 +586,7 @@ class PGNNFeedforward:
         model.theta_lip_ = info.get("theta_lip")
         model.history_ = history
         model.best_iteration_ = info.get("best_iteration")
-        model.cost_ = info.get("cost")
+        model.cost_ = cost
         model.fit_ = fit
         model.n_samples_ = info.get("n_samples")
         model.ts_ = ts  # older files: unknown
@@ -622,16 +635,3 @@ def _predict(net: PGNNNetwork, data: TrainingData) -> np.ndarray:
     with torch.no_grad():
         z = torch.from_numpy(np.ascontiguousarray(data.phi))
         return net(z, z).numpy()
-
-
-def _full_terms(cost: SeparableCost, p: np.ndarray) -> dict[str, float]:
-    """Cost terms at full parameters ``p = (x, beta)`` (optimizers lm and adam)."""
-    r = cost.full(p, False)
-    beta = p[cost.n_linear:]
-    blocks = cost._system(cost.net.hidden_outputs(beta, cost.z))
-    out, i = dict.fromkeys(TERMS, 0.0), 0
-    for name, A, _ in blocks:
-        out[name] += float(r[i:i + len(A)] @ r[i:i + len(A)])
-        i += len(A)
-    out["weight_decay"] += float(r[i:] @ r[i:])
-    return out

@@ -220,8 +220,8 @@ def _summarize(config, study, lip, refs, models, mae, runs, truth,
         trained = Trained(
             theta_phy_per_seed=tuple(m.theta_ for m in ms),
             theta_phy={k: float(np.mean([m.theta_[k] for m in ms])) for k in THETA_NAMES},
-            cost=Costs(*(float(np.mean([m.cost_[t] for m in ms]))
-                         for t in ("data", "deviation"))),
+            cost=Costs(data=float(np.mean([m.cost_.data for m in ms])),
+                       deviation=float(np.mean([m.cost_.deviation for m in ms]))),
             iterations=tuple(len(m.history_) - 1 for m in ms), parts=parts)
         variants[key] = Variant(
             mae={r: Spread(float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0,
