@@ -77,7 +77,7 @@ SLOW = {
                     "test_identify_reads_renamed_columns_in_mm_like_the_si_record": 5},
     "test_paper_table_page.py": {
         "test_a_fresh_run_of_the_first_seeds_reproduces_the_stored_run_seed_by_seed": 70},  # CPU
-    "test_pgnn.py": {"test_fit_converges_and_records_how": 72,
+    "test_pgnn.py": {"test_fit_converges_and_records_how": 36,
                      "test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw": 23,
                      "test_optimized_init_never_costs_more_than_lip": 17,
                      "test_regularized_pgnn_learns_parasitic_force_and_keeps_theta": 12,
@@ -109,6 +109,7 @@ def _seconds(item) -> float:
     return names.get(item.originalname, names.get("*", 0))
 
 
+@pytest.hookimpl(tryfirst=True)  # the slow marks before `-m` selects on them
 def pytest_collection_modifyitems(config, items):
     for item in items:
         names = SLOW.get(item.path.name, ())
@@ -116,9 +117,9 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.slow)
     # Longest first (the slow tier, its measured tests by their time, then the rest in file
     # order): pytest-xdist hands tests out in this order, so on two workers the long ones start
-    # early and share out evenly instead of one of them ending the run alone. Fixtures that
-    # tests of several files or both tiers share are session-scoped, so the order computes none
-    # of them twice in one process.
+    # early and share out evenly instead of one of them ending the run alone. The fixtures that a
+    # test pulled forward shares with tests left in place are session-scoped, so that leaving
+    # its module does not make a worker build them twice.
     items.sort(key=lambda item: (item.get_closest_marker("slow") is None, -_seconds(item)))
 
 
