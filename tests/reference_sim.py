@@ -100,6 +100,11 @@ def _rk45(rhs, t, y, t_end, rtol, atol, event):
     """Integrate ``y' = rhs(t, y)`` (3 states) from ``t`` to ``t_end``, the first step the whole
     interval; stop at the first zero of ``event(t, y)`` crossed downwards (None: no event).
     Returns ``(t, y, stopped)``."""
+    c2, c3, c4, c5, c6 = _C[1:]
+    (a21,), (a31, a32), (a41, a42, a43), (a51, a52, a53, a54), (a61, a62, a63, a64, a65) = _A[1:]
+    b1, b2, b3, b4, b5, b6 = _B
+    e1, e2, e3, e4, e5, e6, e7 = _E
+    R3 = range(3)
     f = rhs(t, y)
     h_abs = t_end - t
     g = event(t, y) if event else None
@@ -113,16 +118,24 @@ def _rk45(rhs, t, y, t_end, rtol, atol, event):
             t_new = min(t + h_abs, t_end)
             h = t_new - t
             h_abs = abs(h)
-            K = [f]
-            for c, a in zip(_C[1:], _A[1:]):
-                dy = [sum(k[i] * w for k, w in zip(K, a)) * h for i in range(3)]
-                K.append(rhs(t + c * h, [y[i] + dy[i] for i in range(3)]))
-            y_new = [y[i] + h * sum(k[i] * w for k, w in zip(K, _B)) for i in range(3)]
-            f_new = rhs(t + h, y_new)
-            K.append(f_new)
+            # The stages written out (the sums in the tableau's order, left to right).
+            k1 = f
+            k2 = rhs(t + c2 * h, [y[i] + (k1[i] * a21) * h for i in R3])
+            k3 = rhs(t + c3 * h, [y[i] + (k1[i] * a31 + k2[i] * a32) * h for i in R3])
+            k4 = rhs(t + c4 * h, [y[i] + (k1[i] * a41 + k2[i] * a42 + k3[i] * a43) * h
+                                  for i in R3])
+            k5 = rhs(t + c5 * h, [y[i] + (k1[i] * a51 + k2[i] * a52 + k3[i] * a53
+                                          + k4[i] * a54) * h for i in R3])
+            k6 = rhs(t + c6 * h, [y[i] + (k1[i] * a61 + k2[i] * a62 + k3[i] * a63
+                                          + k4[i] * a64 + k5[i] * a65) * h for i in R3])
+            y_new = [y[i] + h * (k1[i] * b1 + k2[i] * b2 + k3[i] * b3 + k4[i] * b4
+                                 + k5[i] * b5 + k6[i] * b6) for i in R3]
+            f_new = k7 = rhs(t + h, y_new)
+            K = (k1, k2, k3, k4, k5, k6, k7)
             err = 0.0
-            for i in range(3):
-                e = sum(k[i] * w for k, w in zip(K, _E)) * h
+            for i in R3:
+                e = (k1[i] * e1 + k2[i] * e2 + k3[i] * e3 + k4[i] * e4 + k5[i] * e5
+                     + k6[i] * e6 + k7[i] * e7) * h
                 err += (e / (atol + max(abs(y[i]), abs(y_new[i])) * rtol)) ** 2
             error_norm = math.sqrt(err) / math.sqrt(3)
             if error_norm < 1:
