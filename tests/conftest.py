@@ -95,8 +95,9 @@ SLOW = {
                           "test_hidden_effect_is_named_first_with_its_parameters": 5},
     "test_foreign_records.py": {"*": 15},  # 6-27 s per record
     "test_loop.py": {"test_runner_is_deterministic": 19},
-    "test_reproducibility.py": {"test_a_users_kernel_choice_wins_and_native_opts_out": 17,
-                                "test_pinning_before_the_libraries_load_gives_their_avx2_kernels": 8},
+    "test_reproducibility.py": {
+        "test_a_users_kernel_choice_wins_and_native_opts_out": 17,
+        "test_pinning_before_the_libraries_load_gives_their_avx2_kernels": 8},
     "test_bad_input.py": {"test_real_process_prints_one_line_and_exits_2": 14},
     "test_plots.py": {"test_importing_plots_chooses_no_backend": 6},
     "test_lip.py": {"test_identify_cli_recovers_independent_record": 5},  # setup
