@@ -24,7 +24,6 @@ import pytest
 from clm_sim.numerics import environment
 from experiments import agreement, table
 from experiments.config import load_config
-from experiments.runner import run_task
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "results" / "paper_table.md"
@@ -126,6 +125,8 @@ def test_a_fresh_run_of_the_first_seeds_reproduces_the_stored_run_seed_by_seed(s
     """Every row of the shipped config, its first ``SEEDS`` network seeds, run afresh through the
     runner (the same training run, LIP, fits, start reuse between rows and replays as
     ``clm-sim run``): each seed's numbers are the stored run's."""
+    from experiments.runner import run_task  # torch: only where fits run
+
     config = load_config(CONFIG)
     subset = tuple(dataclasses.replace(s, seeds=min(s.seeds, SEEDS))
                    for s in config.feedforwards)
