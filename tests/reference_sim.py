@@ -3,11 +3,12 @@
 Nothing here imports ``clm_sim``'s kernel, plant, controllers or references: the diagnosis must
 hold on records that clm-sim's own integrator did not make.
 
-* Plant: ``m*dv/dt = u - fv*v - F_c - F_lugre - F_pos(x)``, integrated per sample by
-  ``scipy.integrate.solve_ivp`` (RK45, tight tolerances) with the input held. Coulomb friction
-  is handled *event-driven*: a sliding phase runs with a fixed direction until the velocity
-  crosses zero (a terminal event); there the stage sticks for the rest of the sample if the net
-  force is inside the breakaway band (``coulomb``), else slides on in the force's direction.
+* Plant: ``m*dv/dt = u - fv*v - F_c - F_lugre - F_pos(x)``, integrated per sample by scipy's
+  RK45 (Dormand-Prince 5(4), tight tolerances; written out on floats, or
+  ``scipy.integrate.solve_ivp`` itself with ``integrator="solve_ivp"``) with the input held.
+  Coulomb friction is handled *event-driven*: a sliding phase runs with a fixed direction until
+  the velocity crosses zero (a terminal event); there the stage sticks for the rest of the
+  sample if the net force is inside the breakaway band (``coulomb``), else slides on in the force's direction.
 * A low-speed friction curve on top of Coulomb,
   ``sign(v)*stribeck_peak*exp(-(v/stribeck_velocity)**2)``; a negative peak is a dip (friction
   rising to Coulomb with speed); breakaway ``coulomb + peak``.
