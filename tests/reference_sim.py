@@ -8,7 +8,8 @@ hold on records that clm-sim's own integrator did not make.
   ``scipy.integrate.solve_ivp`` itself with ``integrator="solve_ivp"``) with the input held.
   Coulomb friction is handled *event-driven*: a sliding phase runs with a fixed direction until
   the velocity crosses zero (a terminal event); there the stage sticks for the rest of the
-  sample if the net force is inside the breakaway band (``coulomb``), else slides on in the force's direction.
+  sample if the net force is inside the breakaway band (``coulomb``), else slides on in the
+  force's direction.
 * A low-speed friction curve on top of Coulomb,
   ``sign(v)*stribeck_peak*exp(-(v/stribeck_velocity)**2)``; a negative peak is a dip (friction
   rising to Coulomb with speed); breakaway ``coulomb + peak``.
