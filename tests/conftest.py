@@ -124,6 +124,22 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: (item.get_closest_marker("slow") is None, -_seconds(item)))
 
 
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """With ``-n`` (pytest-xdist's ``load``), hand the tests out one at a time in collection order.
+
+    ``load`` starts each worker on a block of the collection (a quarter of its share): with the
+    longest tests first, one worker would get all of them. xdist's group scheduler, where every
+    test without an ``xdist_group`` mark is a unit of its own, gives each worker its next test
+    when it has at most two left: the longest start first and the two workers end together.
+    Another ``--dist`` is left as asked."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadGroupScheduling
+
+    return LoadGroupScheduling(config, log)
+
+
 def _hypothesis_profiles() -> None:
     """The hostile-input properties' profiles (HYPOTHESIS_PROFILE=long for a deeper search);
     where hypothesis is not installed those tests skip themselves."""
