@@ -67,44 +67,77 @@ def default_training_run(default_pid, r1, r1_dither):
 # The slow tier, measured (`pytest -m "not slow" --durations=60` on the 2-core machine): tests of
 # which one case takes more than about a second of CPU — end-to-end CLI runs, subprocesses that
 # import torch, PGNN fits to convergence, the foreign-record diagnoses. Kept here, in one list
-# with the measurement that put each test in it, rather than as marks scattered over the files;
-# tests marked `@pytest.mark.slow` in their file count too. CI runs both tiers.
+# with the measurement that put each test in it (seconds of one case, wall time on the shared
+# machine: a ranking, not a figure), rather than as marks scattered over the files; tests marked
+# `@pytest.mark.slow` in their file count too. CI runs both tiers.
 SLOW = {
-    "test_cli.py": {"test_study_trains_every_seed_it_reports",  # 99 s wall, shared machine
-                    "test_sigterm_during_run_cleans_up_like_ctrl_c",  # 19 s
-                    "test_lip_json_of_identify_is_a_diagnose_model",  # 10 s
-                    "test_identify_reads_renamed_columns_in_mm_like_the_si_record"},  # 5 s
-    "test_pgnn.py": {"test_fit_converges_and_records_how",  # 72 s
-                     "test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw",  # 23 s
-                     "test_optimized_init_never_costs_more_than_lip",  # 17 s
-                     "test_regularized_pgnn_learns_parasitic_force_and_keeps_theta",  # 12 s
-                     "test_jacobian_matches_finite_differences",  # 8 s per case
-                     "test_result_does_not_depend_on_the_callers_thread_count",  # 8 s
-                     "test_orthogonal_projection_keeps_theta_lip"},  # 5 s
-    "test_sweep.py": {"test_sweep_killed_by_sigkill_resumes_without_recomputing",  # 49 s
-                      "test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes",  # 41 s
-                      "test_dask_local_cluster_gives_the_local_results",  # 21 s
-                      "test_failed_tasks_are_recorded_and_the_others_finish"},  # 21 s setup
-    "test_diagnosis.py": {"test_emps_out_of_sample_gain",  # 43 s
-                          "test_cli_writes_json_and_report",  # 16 s
-                          "test_model_effect_the_data_lacks_is_not_supported",  # 5 s
-                          "test_default_plant_cable_carrier_is_cable_slab_not_cogging",  # 5 s
-                          "test_hidden_effect_is_named_first_with_its_parameters"},  # 5 s
-    "test_foreign_records.py": {"*"},  # 6-27 s per record
-    "test_loop.py": {"test_runner_is_deterministic"},  # 19 s
-    "test_reproducibility.py": {"test_a_users_kernel_choice_wins_and_native_opts_out",  # 17 s
-                                "test_pinning_before_the_libraries_load_gives_their_avx2_kernels"},
-    "test_bad_input.py": {"test_real_process_prints_one_line_and_exits_2"},  # 14 s per case
-    "test_plots.py": {"test_importing_plots_chooses_no_backend"},  # 6 s
-    "test_lip.py": {"test_identify_cli_recovers_independent_record"},  # 5 s setup
+    "test_cli.py": {"test_study_trains_every_seed_it_reports": 26,  # CPU, 5 LM iterations a fit
+                    "test_sigterm_during_run_cleans_up_like_ctrl_c": 19,
+                    "test_lip_json_of_identify_is_a_diagnose_model": 10,
+                    "test_identify_reads_renamed_columns_in_mm_like_the_si_record": 5},
+    "test_paper_table_page.py": {
+        "test_a_fresh_run_of_the_first_seeds_reproduces_the_stored_run_seed_by_seed": 70},  # CPU
+    "test_pgnn.py": {"test_fit_converges_and_records_how": 36,
+                     "test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw": 23,
+                     "test_optimized_init_never_costs_more_than_lip": 17,
+                     "test_regularized_pgnn_learns_parasitic_force_and_keeps_theta": 12,
+                     "test_jacobian_matches_finite_differences": 8,
+                     "test_result_does_not_depend_on_the_callers_thread_count": 8,
+                     "test_orthogonal_projection_keeps_theta_lip": 5},
+    "test_sweep.py": {"test_sweep_killed_by_sigkill_resumes_without_recomputing": 49,
+                      "test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes": 41,
+                      "test_dask_local_cluster_gives_the_local_results": 21,
+                      "test_failed_tasks_are_recorded_and_the_others_finish": 21},  # setup
+    "test_diagnosis.py": {"test_emps_out_of_sample_gain": 43,
+                          "test_cli_writes_json_and_report": 16,
+                          "test_model_effect_the_data_lacks_is_not_supported": 5,
+                          "test_default_plant_cable_carrier_is_cable_slab_not_cogging": 5,
+                          "test_hidden_effect_is_named_first_with_its_parameters": 5},
+    "test_foreign_records.py": {"*": 5},  # 1-15 s of CPU per record (was 6-27 s wall)
+    "test_loop.py": {"test_runner_is_deterministic": 19},
+    "test_reproducibility.py": {
+        "test_a_users_kernel_choice_wins_and_native_opts_out": 17,
+        "test_pinning_before_the_libraries_load_gives_their_avx2_kernels": 8},
+    "test_bad_input.py": {"test_real_process_prints_one_line_and_exits_2": 14},
+    "test_plots.py": {"test_importing_plots_chooses_no_backend": 6},
+    "test_lip.py": {"test_identify_cli_recovers_independent_record": 5},  # setup
 }
 
 
+def _seconds(item) -> float:
+    """The measured seconds of ``item``'s test in :data:`SLOW` (0 where it is not listed)."""
+    names = SLOW.get(item.path.name, {})
+    return names.get(item.originalname, names.get("*", 0))
+
+
+@pytest.hookimpl(tryfirst=True)  # the slow marks before `-m` selects on them
 def pytest_collection_modifyitems(config, items):
     for item in items:
         names = SLOW.get(item.path.name, ())
         if "*" in names or item.originalname in names:
             item.add_marker(pytest.mark.slow)
+    # Longest first (the slow tier, its measured tests by their time, then the rest in file
+    # order): pytest-xdist hands tests out in this order, so on two workers the long ones start
+    # early and share out evenly instead of one of them ending the run alone. The fixtures that a
+    # test pulled forward shares with tests left in place are session-scoped, so that leaving
+    # its module does not make a worker build them twice.
+    items.sort(key=lambda item: (item.get_closest_marker("slow") is None, -_seconds(item)))
+
+
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """With ``-n`` (pytest-xdist's ``load``), hand the tests out one at a time in collection order.
+
+    ``load`` starts each worker on a block of the collection (a quarter of its share): with the
+    longest tests first, one worker would get all of them. xdist's group scheduler, where every
+    test without an ``xdist_group`` mark is a unit of its own, gives each worker its next test
+    when it has at most two left: the longest start first and the two workers end together.
+    Another ``--dist`` is left as asked."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadGroupScheduling
+
+    return LoadGroupScheduling(config, log)
 
 
 def _hypothesis_profiles() -> None:

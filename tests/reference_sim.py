@@ -3,11 +3,13 @@
 Nothing here imports ``clm_sim``'s kernel, plant, controllers or references: the diagnosis must
 hold on records that clm-sim's own integrator did not make.
 
-* Plant: ``m*dv/dt = u - fv*v - F_c - F_lugre - F_pos(x)``, integrated per sample by
-  ``scipy.integrate.solve_ivp`` (RK45, tight tolerances) with the input held. Coulomb friction
-  is handled *event-driven*: a sliding phase runs with a fixed direction until the velocity
-  crosses zero (a terminal event); there the stage sticks for the rest of the sample if the net
-  force is inside the breakaway band (``coulomb``), else slides on in the force's direction.
+* Plant: ``m*dv/dt = u - fv*v - F_c - F_lugre - F_pos(x)``, integrated per sample by scipy's
+  RK45 (Dormand-Prince 5(4), tight tolerances; written out on floats, or
+  ``scipy.integrate.solve_ivp`` itself with ``integrator="solve_ivp"``) with the input held.
+  Coulomb friction is handled *event-driven*: a sliding phase runs with a fixed direction until
+  the velocity crosses zero (a terminal event); there the stage sticks for the rest of the
+  sample if the net force is inside the breakaway band (``coulomb``), else slides on in the
+  force's direction.
 * A low-speed friction curve on top of Coulomb,
   ``sign(v)*stribeck_peak*exp(-(v/stribeck_velocity)**2)``; a negative peak is a dip (friction
   rising to Coulomb with speed); breakaway ``coulomb + peak``.
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.integrate
+import scipy.optimize
 
 
 @dataclass(frozen=True)
@@ -81,8 +84,92 @@ def _lugre(stage: Stage, v: float, z: float) -> tuple[float, float]:
     return stage.lugre_sigma0 * z + stage.lugre_sigma1 * dz, dz
 
 
-def advance(stage: Stage, st: PlantState, u: float, ts: float) -> None:
-    """Advance ``st`` over one sample with the input ``u`` (N) held."""
+# Dormand-Prince 5(4) with scipy's RK45 coefficients and step-size rule (Hairer, Norsett, Wanner,
+# Sec. II.4; scipy.integrate.RK45), written out on Python floats for the three states: a call of
+# ``solve_ivp`` per sample spent most of its time on numpy's per-array overhead for arrays of
+# three. ``advance(..., integrator="solve_ivp")`` keeps the scipy call, which
+# tests/test_foreign_records.py compares with this one.
+_C = tuple(float(c) for c in scipy.integrate.RK45.C)
+_A = tuple(tuple(float(a) for a in row[:i]) for i, row in enumerate(scipy.integrate.RK45.A))
+_B = tuple(float(b) for b in scipy.integrate.RK45.B)
+_E = tuple(float(e) for e in scipy.integrate.RK45.E)
+_P = tuple(tuple(float(p) for p in row) for row in scipy.integrate.RK45.P)
+_SAFETY, _MIN_FACTOR, _MAX_FACTOR, _EXPONENT = 0.9, 0.2, 10.0, -1 / 5
+_EPS = float(np.finfo(float).eps)
+
+
+def _rk45(rhs, t, y, t_end, rtol, atol, event):
+    """Integrate ``y' = rhs(t, y)`` (3 states) from ``t`` to ``t_end``, the first step the whole
+    interval; stop at the first zero of ``event(t, y)`` crossed downwards (None: no event).
+    Returns ``(t, y, stopped)``."""
+    c2, c3, c4, c5, c6 = _C[1:]
+    (a21,), (a31, a32), (a41, a42, a43), (a51, a52, a53, a54), (a61, a62, a63, a64, a65) = _A[1:]
+    b1, b2, b3, b4, b5, b6 = _B
+    e1, e2, e3, e4, e5, e6, e7 = _E
+    R3 = range(3)
+    f = rhs(t, y)
+    h_abs = t_end - t
+    g = event(t, y) if event else None
+    while t < t_end:
+        min_step = 10 * abs(math.nextafter(t, math.inf) - t)
+        h_abs = max(h_abs, min_step)
+        rejected = False
+        while True:
+            if h_abs < min_step:
+                raise RuntimeError("step size too small")
+            t_new = min(t + h_abs, t_end)
+            h = t_new - t
+            h_abs = abs(h)
+            # The stages written out (the sums in the tableau's order, left to right).
+            k1 = f
+            k2 = rhs(t + c2 * h, [y[i] + (k1[i] * a21) * h for i in R3])
+            k3 = rhs(t + c3 * h, [y[i] + (k1[i] * a31 + k2[i] * a32) * h for i in R3])
+            k4 = rhs(t + c4 * h, [y[i] + (k1[i] * a41 + k2[i] * a42 + k3[i] * a43) * h
+                                  for i in R3])
+            k5 = rhs(t + c5 * h, [y[i] + (k1[i] * a51 + k2[i] * a52 + k3[i] * a53
+                                          + k4[i] * a54) * h for i in R3])
+            k6 = rhs(t + c6 * h, [y[i] + (k1[i] * a61 + k2[i] * a62 + k3[i] * a63
+                                          + k4[i] * a64 + k5[i] * a65) * h for i in R3])
+            y_new = [y[i] + h * (k1[i] * b1 + k2[i] * b2 + k3[i] * b3 + k4[i] * b4
+                                 + k5[i] * b5 + k6[i] * b6) for i in R3]
+            f_new = k7 = rhs(t + h, y_new)
+            K = (k1, k2, k3, k4, k5, k6, k7)
+            err = 0.0
+            for i in R3:
+                e = (k1[i] * e1 + k2[i] * e2 + k3[i] * e3 + k4[i] * e4 + k5[i] * e5
+                     + k6[i] * e6 + k7[i] * e7) * h
+                err += (e / (atol + max(abs(y[i]), abs(y_new[i])) * rtol)) ** 2
+            error_norm = math.sqrt(err) / math.sqrt(3)
+            if error_norm < 1:
+                factor = _MAX_FACTOR if error_norm == 0 else min(
+                    _MAX_FACTOR, _SAFETY * error_norm ** _EXPONENT)
+                h_abs *= min(1.0, factor) if rejected else factor
+                break
+            h_abs *= max(_MIN_FACTOR, _SAFETY * error_norm ** _EXPONENT)
+            rejected = True
+        t_old, y_old, t, y, f = t, y, t_new, y_new, f_new
+        if event:
+            g_new = event(t, y)
+            if g >= 0 and g_new <= 0:  # crossed downwards: the root on the dense output
+                Q = [[sum(k[i] * p[j] for k, p in zip(K, _P)) for j in range(4)]
+                     for i in range(3)]
+
+                def dense(tt, t_old=t_old, y_old=y_old, h=h, Q=Q):
+                    x = (tt - t_old) / h
+                    p = (x, x * x, x * x * x, x * x * x * x)
+                    return [y_old[i] + h * sum(q * pp for q, pp in zip(Q[i], p))
+                            for i in range(3)]
+                root = scipy.optimize.brentq(lambda tt: event(tt, dense(tt)), t_old, t,
+                                             xtol=4 * _EPS, rtol=4 * _EPS)
+                return root, dense(root), True
+            g = g_new
+    return t, y, False
+
+
+def advance(stage: Stage, st: PlantState, u: float, ts: float, *,
+            integrator: str = "rk45") -> None:
+    """Advance ``st`` over one sample with the input ``u`` (N) held (``integrator``: ``rk45``,
+    the Dormand-Prince pair above, or ``solve_ivp``, scipy's RK45 through its driver)."""
     t = 0.0
     guard = 0
     while t < ts and guard < 50:
@@ -114,15 +201,19 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float) -> None:
                  + abs(stage.cable) + abs(stage.cogging) + 2 * stage.lugre_level
                  + stage.lugre_sigma1 * 2 * abs(st.v)) / stage.mass
         watch = stage.coulomb > 0 and s != 0.0 and abs(st.v) <= 2 * bound * (ts - t)
-        sol = scipy.integrate.solve_ivp(rhs, (t, ts), [st.x, st.v, st.z], method="RK45",
-                                        rtol=1e-9, atol=1e-13, first_step=ts - t,
-                                        events=crossing if watch else None)
-        st.x, st.v, st.z = (float(q) for q in sol.y[:, -1])
-        if sol.status == 1:  # stopped at the velocity zero crossing
-            t = float(sol.t_events[0][0])
-            st.v = 0.0
+        if integrator == "solve_ivp":
+            sol = scipy.integrate.solve_ivp(rhs, (t, ts), [st.x, st.v, st.z], method="RK45",
+                                            rtol=1e-9, atol=1e-13, first_step=ts - t,
+                                            events=crossing if watch else None)
+            end, y, stopped = (float(sol.t_events[0][0]) if sol.status == 1 else ts,
+                               sol.y[:, -1], sol.status == 1)
         else:
-            t = ts
+            end, y, stopped = _rk45(rhs, t, [st.x, st.v, st.z], ts, 1e-9, 1e-13,
+                                    crossing if watch else None)
+        st.x, st.v, st.z = (float(q) for q in y)
+        t = end
+        if stopped:  # stopped at the velocity zero crossing
+            st.v = 0.0
 
 
 @dataclass(frozen=True)
@@ -225,7 +316,7 @@ class Record:
 
 
 def run_loop(stage: Stage, controller, r: np.ndarray, ts: float, *, resolution: float,
-             dither_std: float = 0.0, seed: int = 0) -> Record:
+             dither_std: float = 0.0, seed: int = 0, integrator: str = "rk45") -> Record:
     """Closed loop over ``r`` (m): encoder (truncating, ``resolution`` m), controller, held
     input plus white Gaussian dither (``dither_std`` N), plant advanced by :func:`advance`."""
     rng = np.random.default_rng(seed)
@@ -239,5 +330,5 @@ def run_loop(stage: Stage, controller, r: np.ndarray, ts: float, *, resolution: 
         next(ctrl)
         uk = ctrl.send((float(r[k]), yk)) + dither[k]
         y[k], u[k], x[k] = yk, uk, st.x
-        advance(stage, st, uk, ts)
+        advance(stage, st, uk, ts, integrator=integrator)
     return Record(np.arange(n) * ts, np.asarray(r, float), y, u, x)

@@ -320,8 +320,9 @@ def test_study_refuses_a_config_without_study_section(tmp_path, capsys):
 
 def test_study_trains_every_seed_it_reports(tmp_path, capsys):
     cfg = tmp_path / "study.yaml"
+    # Five LM iterations: the test is about which seeds the summary reports, not the fits.
     cfg.write_text(SMALL + "study:\n  lambdas: [0, 0.01]\n  hidden: 4\n  seeds: 2\n"
-                   "  outside: [r2]\n")
+                   "  outside: [r2]\n  pgnn: {max_iter: 5}\n")
     code, _, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 0, err
     summary = json.loads((tmp_path / "out" / "study.json").read_text())
@@ -521,7 +522,7 @@ def test_signal_during_sweep_ends_workers_and_keeps_finished_tasks(sig, tmp_path
 # data that look wrong but may be right: one warning line each, the command goes on
 # --------------------------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def small_training_run(tmp_path_factory):
     from experiments.testbed import Testbed
 

@@ -354,7 +354,7 @@ feedforwards:
 """
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def run_folder(tmp_path_factory):
     """A small clm-sim run with a LIP and an n_l = 16 PGNN (its params/ as the command
     saves them)."""

@@ -133,7 +133,7 @@ def _tiny(data):
     fm["cases"] = {k: fm["cases"][k] for k in ("none", "cable_carrier")}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def tiny(tmp_path_factory):
     folder = tmp_path_factory.mktemp("failure_map")
     path = _write(folder, _tiny)

@@ -156,7 +156,7 @@ def test_generated_task_files_are_used_only_when_they_are_the_task(damage, cut):
         assert got == results[key] or (got is None and len(said) == 1), (got, said)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def record_file(tmp_path_factory):
     """A 4 s record of r1 at 10 kHz under the PID alone, with the training dither."""
     from clm_sim.record import save_npz

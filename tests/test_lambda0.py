@@ -252,7 +252,7 @@ def test_record_lip_has_an_offset_column():
     assert abs(no_offset[3] - 20.0) > 1.0  # what the offset column prevents
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def paper_cost_fit():
     """The default testbed's training run (seed 1), its LIP, and the lambda = 0 fit with the
     paper's cost (no weight decay, no continuation) of network draw 3: a draw whose theta_phy
