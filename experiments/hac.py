@@ -12,7 +12,22 @@ Bartlett weights ``1 - l / (lags + 1)``, which keeps the estimate positive semi-
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+
+
+@dataclass(frozen=True)
+class NeweyWest:
+    """A least-squares fit with its standard errors: ``theta`` (p,), ``std_white`` and
+    ``std_newey_west`` (p,, units of the coefficients), the residuals' lag-1 autocorrelation and
+    the Bartlett lags used."""
+
+    theta: np.ndarray
+    std_white: np.ndarray
+    std_newey_west: np.ndarray
+    lag1_autocorr: float
+    lags: int
 
 
 def default_lags(n: int) -> int:
@@ -20,7 +35,7 @@ def default_lags(n: int) -> int:
     return int(np.floor(4 * (n / 100.0) ** (2.0 / 9.0)))
 
 
-def newey_west(cols: np.ndarray, target: np.ndarray, lags: int | None = None) -> dict:
+def newey_west(cols: np.ndarray, target: np.ndarray, lags: int | None = None) -> NeweyWest:
     """Least squares of ``target`` (N,) on ``cols`` (N, p) with white-noise and Newey-West
     standard errors (units of the coefficients), the residuals' lag-1 autocorrelation and the
     lags used (``None``: :func:`default_lags`)."""
@@ -39,5 +54,4 @@ def newey_west(cols: np.ndarray, target: np.ndarray, lags: int | None = None) ->
         meat += (1 - lag / (lags + 1)) * (gamma + gamma.T)
     hac = np.sqrt(np.diag(bread @ meat @ bread) * n / (n - p))
     rho1 = float(np.corrcoef(e[1:], e[:-1])[0, 1]) if n > 2 else 0.0
-    return {"theta": theta, "std_white": white, "std_newey_west": hac, "lag1_autocorr": rho1,
-            "lags": lags}
+    return NeweyWest(theta, white, hac, rho1, lags)

@@ -264,7 +264,8 @@ def lip_intervals(phi: np.ndarray, target: np.ndarray) -> LipIntervals:
     from experiments.hac import newey_west
 
     fit = newey_west(phi, target)
-    named = {k: dict(zip(THETA_NAMES, map(float, fit[k])))
-             for k in ("theta", "std_white", "std_newey_west")}
-    return LipIntervals(named["theta"], named["std_white"], named["std_newey_west"],
-                        fit["lag1_autocorr"], fit["lags"], int(len(target)))
+    def named(values):
+        return dict(zip(THETA_NAMES, map(float, values)))
+
+    return LipIntervals(named(fit.theta), named(fit.std_white), named(fit.std_newey_west),
+                        fit.lag1_autocorr, fit.lags, int(len(target)))

@@ -474,9 +474,9 @@ def test_newey_west_widens_with_autocorrelated_residuals():
     ar = newey_west(ones, e, lags=60)
     # Tolerances: the Bartlett estimate at 60 lags is biased low by ~ 1/60 of the long-run
     # variance's tail and has a sampling error of a few per cent at n = 20000.
-    assert white["std_newey_west"][0] / white["std_white"][0] == pytest.approx(1.0, abs=0.15)
-    assert ar["std_newey_west"][0] / ar["std_white"][0] == pytest.approx(3.0, rel=0.15)
-    assert ar["lag1_autocorr"] == pytest.approx(0.8, abs=0.02)
+    assert white.std_newey_west[0] / white.std_white[0] == pytest.approx(1.0, abs=0.15)
+    assert ar.std_newey_west[0] / ar.std_white[0] == pytest.approx(3.0, rel=0.15)
+    assert ar.lag1_autocorr == pytest.approx(0.8, abs=0.02)
 
 
 def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():

@@ -151,8 +151,8 @@ def explain_drift(train: Run, test: Run, base: Plant, simulate, *, estimation: R
     x_test = np.column_stack([s.cols for s in _steps_on(res_test, steps)])
     on_test = np.linalg.lstsq(x_test, res_test.z, rcond=None)[0]
     coefficients = tuple(
-        Coefficient(n, float(nw["theta"][i]), float(nw["std_white"][i]),
-                    float(nw["std_newey_west"][i]),
+        Coefficient(n, float(nw.theta[i]), float(nw.std_white[i]),
+                    float(nw.std_newey_west[i]),
                     tuple(float(c[i]) for c in per_block), float(on_test[i]))
         for i, n in enumerate(names))
 
@@ -171,7 +171,7 @@ def explain_drift(train: Run, test: Run, base: Plant, simulate, *, estimation: R
     traces = (("extended model", simulate(full, test)),
               (f"with the test fit's {best}", simulate(_take(full, fitted_on_test, best), test)),
               ("all terms fitted on the test record", simulate(fitted_on_test, test)))
-    return Drift(coefficients, float(nw["lag1_autocorr"]), int(nw["lags"]), tuple(ablation),
+    return Drift(coefficients, float(nw.lag1_autocorr), int(nw.lags), tuple(ablation),
                  tuple(swaps), traces[2][1].score.rmse, traces)
 
 
