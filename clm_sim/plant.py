@@ -52,7 +52,8 @@ def default_effects() -> tuple[Effect, ...]:
 class Plant:
     """Motor parameters in SI units and the encoder that reads it.
 
-    mass: kg; viscous: N*s/m; coulomb: N; stiffness: N/m; effects: parasitic forces;
+    mass: kg; viscous: N*s/m; coulomb: N; stiffness: N/m; effects: parasitic forces (left out:
+    the default stage's, :func:`default_effects`; ``effects=()`` for the rigid body alone);
     encoder_resolution: m per count (0 = ideal position); substeps: integration sub-steps per
     sample (halving the sub-step must move the trajectory by less than one count; tested).
     """
