@@ -101,6 +101,9 @@ SLOW = {
     "test_bad_input.py": {"test_real_process_prints_one_line_and_exits_2": 14},
     "test_plots.py": {"test_importing_plots_chooses_no_backend": 6},
     "test_lip.py": {"test_identify_cli_recovers_independent_record": 5},  # setup
+    # the tiny study (`build_once`: one build for both workers), 20 s of setup; its other tests
+    # come later in the slow tier and find it built
+    "test_failure_map.py": {"test_tiny_grid_runs_and_every_cell_is_paired": 20},
 }
 
 
