@@ -86,7 +86,7 @@ SLOW = {
                      "test_orthogonal_projection_keeps_theta_lip": 5},
     "test_sweep.py": {"test_sweep_killed_by_sigkill_resumes_without_recomputing": 49,
                       "test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes": 41,
-                      "test_dask_local_cluster_gives_the_local_results": 21,
+                      "test_dask_local_cluster_gives_the_local_results": 8,  # call; shared setup
                       "test_failed_tasks_are_recorded_and_the_others_finish": 21},  # setup
     "test_diagnosis.py": {"test_emps_out_of_sample_gain": 43,
                           "test_cli_writes_json_and_report": 16,
