@@ -104,6 +104,8 @@ SLOW = {
     # the tiny study (`build_once`: one build for both workers), 20 s of setup; its other tests
     # come later in the slow tier and find it built
     "test_failure_map.py": {"test_tiny_grid_runs_and_every_cell_is_paired": 20},
+    # two tiny studies; was 47 s before its phases shared one worker pool
+    "test_profiles.py": {"test_study_runs_end_to_end": 13},
 }
 
 
