@@ -3,8 +3,9 @@
 Every worker is a fresh ``spawn`` process that starts single-threaded (BLAS, OpenMP, numba,
 torch: :func:`single_threaded_children`) and exits with its parent even when the parent is
 killed (:func:`watch_parent`). Two users: :func:`run_local` maps a function over task payloads in
-completion order (sweeps, the failure map), and :func:`map_fits` runs the PGNN fits of one table
-row on a pool kept for the process.
+completion order (sweeps, the studies; a study of several phases maps them on one
+:func:`local_pool`), and :func:`map_fits` runs the PGNN fits of one table row on a pool kept
+for the process.
 
 PGNN fits of independent seeds on worker processes, one thread each.
 
