@@ -3,8 +3,9 @@
 Every worker is a fresh ``spawn`` process that starts single-threaded (BLAS, OpenMP, numba,
 torch: :func:`single_threaded_children`) and exits with its parent even when the parent is
 killed (:func:`watch_parent`). Two users: :func:`run_local` maps a function over task payloads in
-completion order (sweeps, the failure map), and :func:`map_fits` runs the PGNN fits of one table
-row on a pool kept for the process.
+completion order (sweeps, the studies; a study of several phases maps them on one
+:func:`local_pool`), and :func:`map_fits` runs the PGNN fits of one table row on a pool kept
+for the process.
 
 PGNN fits of independent seeds on worker processes, one thread each.
 
@@ -25,7 +26,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, as_completed, wait
 
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
@@ -146,40 +147,21 @@ def watch_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, daemon=True, name="clm-sim-parent-watch").start()
 
 
-def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[int, object]]:
-    """Run ``fn(payload)`` in ``workers`` fresh processes (``spawn``: no state inherited from
-    the parent, same behaviour on Linux, macOS and Windows)."""
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
-    if not payloads:
-        return
+@contextlib.contextmanager
+def local_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    """A pool of ``workers`` fresh processes (``spawn``: no state inherited from the parent, same
+    behaviour on Linux, macOS and Windows) for one or several :func:`run_local` maps in a row: a
+    study of several phases starts its workers (each imports torch: seconds) once, not once a
+    phase. The block's end shuts it down; an exception (Ctrl-C, a failed task) kills its workers
+    at once instead of waiting for running tasks."""
     ctx = multiprocessing.get_context("spawn")
     with _spawning():
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                    initializer=watch_parent, initargs=(os.getpid(),))
     _POOLS.add(pool)
     try:
-        with _spawning():
-            # Keep at most two tasks per worker queued: an interrupted sweep then has little
-            # submitted-but-unstarted work to cancel, and memory stays bounded on huge grids.
-            pending = {}
-            todo = iter(enumerate(payloads))
-            for _ in range(2 * workers):
-                item = next(todo, None)
-                if item is None:
-                    break
-                pending[pool.submit(fn, item[1])] = item[0]
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                index = pending.pop(fut)
-                yield index, fut.result()
-                item = next(todo, None)
-                if item is not None:
-                    with _spawning():
-                        pending[pool.submit(fn, item[1])] = item[0]
+        yield pool
     except BaseException:
-        # Interrupted or broken: stop the workers now instead of waiting for running tasks.
         stop(pool)
         raise
     finally:
@@ -187,14 +169,47 @@ def run_local(fn: Callable, payloads: Sequence, workers: int) -> Iterator[tuple[
     pool.shutdown(wait=True)
 
 
+def run_local(fn: Callable, payloads: Sequence, workers: int,
+              pool: ProcessPoolExecutor | None = None) -> Iterator[tuple[int, object]]:
+    """Run ``fn(payload)`` in ``workers`` fresh processes (:func:`local_pool`), or on ``pool``
+    (one of :func:`local_pool`, left running), yielding ``(index, result)`` as each finishes."""
+    if not payloads:
+        return
+    if pool is None:
+        with local_pool(workers) as pool:
+            yield from run_local(fn, payloads, workers, pool)
+        return
+    with _spawning():
+        # Keep at most two tasks per worker queued: an interrupted sweep then has little
+        # submitted-but-unstarted work to cancel, and memory stays bounded on huge grids.
+        pending = {}
+        todo = iter(enumerate(payloads))
+        for _ in range(2 * workers):
+            item = next(todo, None)
+            if item is None:
+                break
+            pending[pool.submit(fn, item[1])] = item[0]
+    while pending:
+        done, _ = wait(pending, return_when=FIRST_COMPLETED)
+        for fut in done:
+            index = pending.pop(fut)
+            yield index, fut.result()
+            item = next(todo, None)
+            if item is not None:
+                with _spawning():
+                    pending[pool.submit(fn, item[1])] = item[0]
+
+
 def map_in_order(fn: Callable, payloads: Sequence, workers: int,
-                 done: Callable[[int, int, object], None] | None = None) -> list:
+                 done: Callable[[int, int, object], None] | None = None,
+                 pool: ProcessPoolExecutor | None = None) -> list:
     """``fn`` over ``payloads`` in this process (``workers`` <= 1) or in ``workers`` fresh ones
-    (:func:`run_local`), the results in payload order, so they never depend on ``workers``;
-    ``done(count, index, result)`` as each one finishes (for progress lines)."""
+    (:func:`run_local`, on ``pool`` where one is given), the results in payload order, so they
+    never depend on ``workers``; ``done(count, index, result)`` as each one finishes (for
+    progress lines)."""
     results: list = [None] * len(payloads)
     it = ((i, fn(p)) for i, p in enumerate(payloads)) if workers <= 1 else \
-        run_local(fn, payloads, min(workers, len(payloads)))
+        run_local(fn, payloads, min(workers, len(payloads)), pool)
     for count, (index, result) in enumerate(it, 1):
         results[index] = result
         if done is not None:

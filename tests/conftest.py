@@ -86,7 +86,7 @@ SLOW = {
                      "test_orthogonal_projection_keeps_theta_lip": 5},
     "test_sweep.py": {"test_sweep_killed_by_sigkill_resumes_without_recomputing": 49,
                       "test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes": 41,
-                      "test_dask_local_cluster_gives_the_local_results": 21,
+                      "test_dask_local_cluster_gives_the_local_results": 8,  # call; shared setup
                       "test_failed_tasks_are_recorded_and_the_others_finish": 21},  # setup
     "test_diagnosis.py": {"test_emps_out_of_sample_gain": 43,
                           "test_cli_writes_json_and_report": 16,
@@ -101,6 +101,11 @@ SLOW = {
     "test_bad_input.py": {"test_real_process_prints_one_line_and_exits_2": 14},
     "test_plots.py": {"test_importing_plots_chooses_no_backend": 6},
     "test_lip.py": {"test_identify_cli_recovers_independent_record": 5},  # setup
+    # the tiny study (`build_once`: one build for both workers), 20 s of setup; its other tests
+    # come later in the slow tier and find it built
+    "test_failure_map.py": {"test_tiny_grid_runs_and_every_cell_is_paired": 20},
+    # two tiny studies; was 47 s before its phases shared one worker pool
+    "test_profiles.py": {"test_study_runs_end_to_end": 13},
 }
 
 

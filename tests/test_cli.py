@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from build_once import build_once
 from small_config import SMALL_CONFIG
 
 from clm_sim.record import load_record, save_npz
@@ -123,11 +124,16 @@ def test_identify_refuses_a_record_without_motion(tmp_path, capsys):
 # End to end: the shipped baseline config
 # --------------------------------------------------------------------------------------------
 
+def _run_baseline(folder: Path) -> dict:
+    out = folder / "lip_baseline"
+    return {"code": main(["run", str(BASELINE), "--out", str(out), "--quiet"]), "out": str(out)}
+
+
 @pytest.fixture(scope="session")
 def baseline(tmp_path_factory):
-    out = tmp_path_factory.mktemp("baseline") / "lip_baseline"
-    code = main(["run", str(BASELINE), "--out", str(out), "--quiet"])
-    return code, out
+    """The baseline run, once (over xdist's workers too: its tests only read it)."""
+    built = build_once(tmp_path_factory, "baseline", _run_baseline)
+    return built["code"], Path(built["out"])
 
 
 def check_table_schema(doc: dict, refs=("r1", "r2")) -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from build_once import build_once
 
 from clm_sim.effects import (
     CableSlab,
@@ -358,11 +359,15 @@ feedforwards:
 def run_folder(tmp_path_factory):
     """A small clm-sim run with a LIP and an n_l = 16 PGNN (its params/ as the command
     saves them)."""
-    tmp = tmp_path_factory.mktemp("run")
+    return Path(build_once(tmp_path_factory, "run_folder", _run_for_export))
+
+
+def _run_for_export(tmp: Path) -> str:
+    """The run of :func:`run_folder`, once (over xdist's workers too: its tests only read it)."""
     cfg = tmp / "export.yaml"
     cfg.write_text(RUN_CONFIG)
     assert main(["run", str(cfg), "--out", str(tmp / "res"), "--quiet"]) == 0
-    return tmp / "res"
+    return str(tmp / "res")
 
 
 OWN_HARNESS = r"""

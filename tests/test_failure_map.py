@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from build_once import build_once
 from scipy import stats
 
 from clm_sim.errors import UserError
@@ -133,14 +134,20 @@ def _tiny(data):
     fm["cases"] = {k: fm["cases"][k] for k in ("none", "cable_carrier")}
 
 
-@pytest.fixture(scope="session")
-def tiny(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("failure_map")
+def _run_tiny(folder: Path) -> dict:
     path = _write(folder, _tiny)
     out = folder / "out"
     code = cli(["study", str(path), "--out", str(out), "--quiet", "--workers", "2"])
-    return code, out, json.loads((out / "failure_map.json").read_text()), \
-        (out / "report.md").read_text(), path
+    return {"code": code, "out": str(out), "config": str(path)}
+
+
+@pytest.fixture(scope="session")
+def tiny(tmp_path_factory):
+    """The tiny study, run once for the session (once over xdist's workers: it reads only)."""
+    built = build_once(tmp_path_factory, "failure_map", _run_tiny)
+    out = Path(built["out"])
+    return built["code"], out, json.loads((out / "failure_map.json").read_text()), \
+        (out / "report.md").read_text(), Path(built["config"])
 
 
 @pytest.mark.slow

@@ -10,14 +10,17 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import pytest
+from build_once import build_once
 from small_config import SMALL_CONFIG
 
 from clm_sim.errors import UserError
@@ -25,7 +28,7 @@ from clm_sim.outdir import atomic_write
 from experiments import table
 from experiments.sweeps.grid import MAX_TASKS, load_sweep, parse_path, set_path
 from experiments.sweeps.store import ResultStore, code_version, result_sources, task_key
-from experiments.sweeps.run import execute, run_sweep
+from experiments.sweeps.run import Outcome, execute, run_sweep
 from experiments.sweeps.run import markdown as sweep_markdown
 from experiments.table import series
 
@@ -229,14 +232,18 @@ def test_row_that_the_swept_key_cannot_change_is_one_flat_series():
 
 # ----------------------------------------------------------------------------- running sweeps
 
+def _run_failing(tmp: Path) -> dict:
+    out = tmp / "out"
+    outcome = run_sweep(load_sweep(_write(tmp, FAILING_GRID)), out, workers=2, quiet=True)
+    return {"config": str(tmp / "sweep.yaml"), "out": str(out), "outcome": asdict(outcome)}
+
+
 @pytest.fixture(scope="session")
 def failing_sweep(tmp_path_factory):
-    """The four-task sweep with two unstable designs, run once on two local workers."""
-    tmp = tmp_path_factory.mktemp("failing")
-    sweep = load_sweep(_write(tmp, FAILING_GRID))
-    out = tmp / "out"
-    outcome = run_sweep(sweep, out, workers=2, quiet=True)
-    return sweep, out, outcome
+    """The four-task sweep with two unstable designs, run once on two local workers (once over
+    xdist's workers: its tests only read its folder)."""
+    built = build_once(tmp_path_factory, "failing_sweep", _run_failing)
+    return load_sweep(Path(built["config"])), Path(built["out"]), Outcome(**built["outcome"])
 
 
 def test_failed_tasks_are_recorded_and_the_others_finish(failing_sweep):
@@ -255,8 +262,9 @@ def test_failed_tasks_are_recorded_and_the_others_finish(failing_sweep):
     assert len(list((out / "tasks").glob("*.json"))) == 4
 
 
-def test_rerun_skips_finished_and_failed_tasks(failing_sweep):
-    sweep, out, first = failing_sweep
+def test_rerun_skips_finished_and_failed_tasks(failing_sweep, tmp_path):
+    sweep, stored, first = failing_sweep
+    out = shutil.copytree(stored, tmp_path / "out")  # the stored folder is shared: read only
     before = (out / "table.json").read_bytes()
     again = run_sweep(sweep, out, workers=2, quiet=True)
     assert (again.computed, again.reused) == (0, 4)

@@ -30,6 +30,7 @@ output folder. The fits run in ``--workers`` processes; the result does not depe
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -292,11 +293,21 @@ def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int
             progress=None) -> dict[int, SizeRecord]:
     """Every record, then every profile direction, then the checks (in ``workers`` processes
     when > 1); the result does not depend on ``workers``."""
+    from experiments.workers import local_pool, map_in_order
+
+    # One pool for all phases: its workers import torch once, not once a phase.
+    with local_pool(workers) if workers > 1 else contextlib.nullcontext() as pool:
+        return _compute(config, settings, workers, pool, progress or (lambda message: None))
+
+
+def _compute(config: ExperimentConfig, settings: ProfileSettings, workers: int, pool,
+             progress) -> dict[int, SizeRecord]:
+    """:func:`compute` on ``pool`` (``None``: in this process)."""
     from experiments.workers import map_in_order
 
-    progress = progress or (lambda message: None)
     tasks = [(config, settings, i) for i in range(settings.records)]
-    records = map_in_order(run_record, tasks, workers, lambda done, i, r: progress(
+    records = map_in_order(run_record, tasks, workers, pool=pool,
+                           done=lambda done, i, r: progress(
         f"record {done}/{len(tasks)} (seed {r.seed}): " + "; ".join(
             f"n_l={h}: " + ", ".join(f"{f.row.data_cost:.5f} N² ({f.row.stop})" for f in fits)
             for h, fits in r.fits.items())))
@@ -321,7 +332,8 @@ def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int
         progress(f"n_l={hidden}: δ = {delta:.3g} N² over {len(records)} records; profiling "
                  f"from the best fit ({best.row.data_cost:.5f} N², {best.row.stop}) in "
                  f"{len(directions)} directions")
-        walks = map_in_order(run_direction, directions, workers, lambda done, i, w: progress(
+        walks = map_in_order(run_direction, directions, workers, pool=pool,
+                             done=lambda done, i, w: progress(
             f"  n_l={hidden} {w[0]} {'+' if w[1] > 0 else '-'}: {w[2].end} after "
             f"{len(w[2].points)} points, {sum(p.settled for p in w[2].points)} converged or "
             "resolved"))
@@ -332,8 +344,8 @@ def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int
                            and p.confirmed_from is None),
                           key=lambda item: -item[1].predicted_decrease)[:settings.check]
         checks = map_in_order(run_check, [(config, settings, hidden, data, first.lip, n, p)
-                                          for n, p in resolved], workers,
-                              lambda done, i, c: progress(
+                                          for n, p in resolved], workers, pool=pool,
+                              done=lambda done, i, c: progress(
                                   f"  n_l={hidden} check {done}/{len(resolved)}: {c.name} "
                                   f"fell {c.moved:.2g} N² in {c.iterations} more iterations"))
         out[hidden] = summarize(settings, records, hidden, walks, delta, sc, tuple(checks))
