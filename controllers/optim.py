@@ -94,7 +94,8 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     relative amount, the rule of the earlier fits. ``atol`` (off by default; the cost's units)
     also stops, as ``resolved``, when the predicted absolute decrease ``V * first_order`` is at
     most ``atol`` and the cost fell by at most ``atol`` over the last ``atol_window`` accepted
-    iterations (since the start where there were fewer): the cost is then known to that
+    iterations (so never before ``atol_window`` iterations: a point is not resolved on the
+    prediction alone; ``atol_window=0`` is the prediction alone): the cost is then known to that
     resolution as far as the local model and the recent pace tell (a caller that states a
     resolution should check it by continuing some such points).
     """
@@ -115,8 +116,8 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
             if ftol is not None and measure <= ftol:
                 stop = "converged"
                 break
-            if (atol is not None and measure * cost <= atol
-                    and recent[max(0, len(recent) - 1 - atol_window)] - cost <= atol):
+            if (atol is not None and measure * cost <= atol and len(recent) > atol_window
+                    and recent[-1 - atol_window] - cost <= atol):
                 stop = "resolved"
                 break
         if it >= max_iter:

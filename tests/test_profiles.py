@@ -292,8 +292,8 @@ def test_the_figure_reads_the_typed_record():
 
 def test_the_resolution_stop_on_a_linear_problem():
     """On a linear least-squares problem the Gauss-Newton model is exact: at the start it
-    predicts the whole decrease to the minimum. Given an ``atol`` above that, the optimizer
-    stops at once as ``resolved``; below it, it steps until the rest is within ``atol``;
+    predicts the whole decrease to the minimum. Given an ``atol`` above that and no window, the
+    optimizer stops at once as ``resolved`` (with the window it steps first); below it, it steps until the rest is within ``atol``;
     without it, it converges by the relative test."""
     from controllers import optim
 
@@ -309,8 +309,13 @@ def test_the_resolution_stop_on_a_linear_problem():
     p0 = np.ones(3)
     v0 = float(np.sum((a @ p0 - b) ** 2))
     gap = v0 - v_min
-    got = optim.levenberg_marquardt(fun, p0, ftol=1e-12, atol=1.01 * gap)
+    got = optim.levenberg_marquardt(fun, p0, ftol=1e-12, atol=1.01 * gap, atol_window=0)
     assert got.stop == "resolved" and got.iterations == 0
+    # With its window (the default 10 iterations) the prediction alone never resolves a point:
+    # it steps first (and here converges by the relative test on the way).
+    windowed = optim.levenberg_marquardt(fun, p0, ftol=1e-12, atol=1.01 * gap, max_iter=50)
+    assert windowed.iterations >= 1
+    assert windowed.stop == "converged" or windowed.iterations >= 10
     # The predicted absolute decrease is the true one (to round-off).
     assert got.cost * got.first_order == pytest.approx(gap, rel=1e-9)
     # Below it: damped steps until the (exact) predicted remaining decrease is within atol.
@@ -354,24 +359,28 @@ def test_a_point_records_both_tests_and_is_never_relabelled():
 
 
 def test_pinned_fit_stops_resolved_within_its_tolerance():
-    """A pinned PGNN fit given an absolute tolerance stops ``resolved`` with a predicted
-    decrease within it (and without it, runs on: the same start, more iterations)."""
+    """A pinned PGNN fit given an absolute tolerance stops ``resolved`` once the predicted
+    decrease and the fall over its last 10 iterations are within it, never before its tenth
+    iteration (and without it, runs on: the same start, more iterations)."""
     data = synthetic()
     lip = dict(zip(THETA_NAMES, np.linalg.lstsq(data.phi, data.target, rcond=None)[0]))
     model = PGNNFeedforward(hidden=3, max_iter=200)
     beta0 = model.new_network(data, np.random.default_rng(0)).get_nonlinear()
-    free = PGNNFeedforward(hidden=3, max_iter=200).fit_pinned(
-        data=data, theta_lip=lip, beta0=beta0, pinned={"mass": 18.8})
-    one = PGNNFeedforward(hidden=3, max_iter=1).fit_pinned(
-        data=data, theta_lip=lip, beta0=beta0, pinned={"mass": 18.8})
-    # A resolution that the descent reaches after one iteration (and the relative test not).
-    atol = 1.001 * one.fit_.data_cost * one.fit_.first_order
-    assert one.fit_.first_order > one.fit_.ftol
-    got = PGNNFeedforward(hidden=3, max_iter=200).fit_pinned(
-        data=data, theta_lip=lip, beta0=beta0, pinned={"mass": 18.8}, atol=atol)
-    assert got.fit_.stop == "resolved" and got.fit_.iterations <= 1
-    assert got.fit_.data_cost * got.fit_.first_order <= atol
-    assert free.fit_.iterations > 1 and free.fit_.stop != "resolved"
+
+    def pinned(max_iter, atol=None):
+        return PGNNFeedforward(hidden=3, max_iter=max_iter).fit_pinned(
+            data=data, theta_lip=lip, beta0=beta0, pinned={"mass": 18.8}, atol=atol)
+
+    free, ten = pinned(200).fit_, pinned(10)
+    start_cost = ten.history_[0].cost
+    # A resolution that the descent reaches at its tenth iteration (and the relative test not).
+    assert ten.fit_.first_order > ten.fit_.ftol
+    fall = start_cost - ten.fit_.data_cost
+    atol = 1.001 * max(ten.fit_.data_cost * ten.fit_.first_order, fall)
+    got = pinned(200, atol).fit_
+    assert got.stop == "resolved" and got.iterations == 10
+    assert got.data_cost * got.first_order <= atol
+    assert free.iterations > 10 and free.stop != "resolved"
 
 
 # ----------------------------------------------------------------------------- the record's keys
