@@ -94,14 +94,20 @@ STAGES = {
 NOT_IDENTIFIABLE = {("lugre", "dwell1"), ("lugre", "coarse1")}
 
 
-def _record(stage: ref.Stage, *, ts, res, ctrl="pid", dwell=0.1, dither=20.0, long=False, seed=1,
-            omega=2 * math.pi * 15, repeat=2):
+def simulate_cell(stage: ref.Stage, *, ts, res, ctrl="pid", dwell=0.1, dither=20.0, long=False,
+                  seed=1, omega=2 * math.pi * 15, repeat=2, samples=None):
+    """The reference simulator's record of ``stage`` in a cell of :data:`CELLS` (its keys as
+    keywords; ``samples``: only the first ones), and the controller that ran it."""
     pairs = LONG if long else SHORT
     moves = [m for d, v in pairs for m in ((d, v), (0.0, v))] * (1 if long else repeat)
-    r = ref.trapezoid_reference(ts, moves=moves, dwell=dwell)
+    r = ref.trapezoid_reference(ts, moves=moves, dwell=dwell)[:samples]
     law = ref.PID(stage.mass, stage.viscous, omega, ts) if ctrl == "pid" else \
         ref.Cascade(60.0, 4700.0, ts)
-    rec = ref.run_loop(stage, law, r, ts, resolution=res, dither_std=dither, seed=seed)
+    return ref.run_loop(stage, law, r, ts, resolution=res, dither_std=dither, seed=seed), law
+
+
+def _record(stage: ref.Stage, *, res, **cell):
+    rec, law = simulate_cell(stage, res=res, **cell)
     b, a, rb = law.law()
     n = max(len(b), len(a))
     pad = lambda x: np.concatenate([np.asarray(x, float), np.zeros(n - len(x))])  # noqa: E731
