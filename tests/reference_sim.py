@@ -4,8 +4,10 @@ Nothing here imports ``clm_sim``'s kernel, plant, controllers or references: the
 hold on records that clm-sim's own integrator did not make.
 
 * Plant: ``m*dv/dt = u - fv*v - F_c - F_lugre - F_pos(x)``, integrated per sample by scipy's
-  RK45 (Dormand-Prince 5(4), tight tolerances; written out on floats, or
-  ``scipy.integrate.solve_ivp`` itself with ``integrator="solve_ivp"``) with the input held.
+  RK45 (Dormand-Prince 5(4), tight tolerances; written out on three scalar states and compiled
+  by numba, or ``scipy.integrate.solve_ivp`` itself with ``integrator="solve_ivp"``) with the
+  input held. The stick/slip logic, the event's root (brentq on the dense output, as scipy
+  finds events) and the controllers run in Python.
   Coulomb friction is handled *event-driven*: a sliding phase runs with a fixed direction until
   the velocity crosses zero (a terminal event); there the stage sticks for the rest of the
   sample if the net force is inside the breakaway band (``coulomb``), else slides on in the
@@ -27,9 +29,12 @@ hold on records that clm-sim's own integrator did not make.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.integrate
 import scipy.optimize
@@ -85,10 +90,13 @@ def _lugre(stage: Stage, v: float, z: float) -> tuple[float, float]:
 
 
 # Dormand-Prince 5(4) with scipy's RK45 coefficients and step-size rule (Hairer, Norsett, Wanner,
-# Sec. II.4; scipy.integrate.RK45), written out on Python floats for the three states: a call of
-# ``solve_ivp`` per sample spent most of its time on numpy's per-array overhead for arrays of
-# three. ``advance(..., integrator="solve_ivp")`` keeps the scipy call, which
-# tests/test_foreign_records.py compares with this one.
+# Sec. II.4; scipy.integrate.RK45), written out on the three states: a call of ``solve_ivp`` per
+# sample spent most of its time on numpy's per-array overhead for arrays of three, and the same
+# arithmetic on Python floats most of it on the interpreter (6 times the CPU of the compiled
+# loop; its records are the same bits, benchmarks/bench_reference_sim.py checks that).
+# ``advance(..., integrator="solve_ivp")`` keeps the scipy call, which
+# tests/test_foreign_records.py compares with this one. Numba freezes these tuples into the
+# compiled code (and its cache): they are constants of scipy's RK45.
 _C = tuple(float(c) for c in scipy.integrate.RK45.C)
 _A = tuple(tuple(float(a) for a in row[:i]) for i, row in enumerate(scipy.integrate.RK45.A))
 _B = tuple(float(b) for b in scipy.integrate.RK45.B)
@@ -96,29 +104,68 @@ _E = tuple(float(e) for e in scipy.integrate.RK45.E)
 _P = tuple(tuple(float(p) for p in row) for row in scipy.integrate.RK45.P)
 _SAFETY, _MIN_FACTOR, _MAX_FACTOR, _EXPONENT = 0.9, 0.2, 10.0, -1 / 5
 _EPS = float(np.finfo(float).eps)
-
-
 _SQRT3 = math.sqrt(3)
 
 
-def _rk45(rhs, t, x, v, z, t_end, rtol, atol, s):
-    """Integrate ``x' = v, (v', z') = rhs(x, v, z)`` from ``t`` to ``t_end``, the first step the
-    whole interval; with ``s`` (+1 or -1; 0: no event) stop where ``v*s`` first crosses zero
-    downwards. Returns ``(t, x, v, z, stopped)``.
+@functools.lru_cache(maxsize=64)
+def _constants(stage: Stage) -> np.ndarray:
+    """The stage's constants for the compiled law, in the order of its fields."""
+    return np.array(dataclasses.astuple(stage), dtype=np.float64)
 
-    The three states are scalars and every sum is written out in the tableau's order, left to
-    right: the same floating-point operations, in the same order, as scipy's RK45 on a vector
-    (written once on lists of three, which cost three times the CPU in list building)."""
+
+def _law(stage: Stage, s: float, u: float, x: float, v: float, z: float) -> tuple[float, float]:
+    """``(dv/dt, dz/dt)`` of ``stage`` sliding in direction ``s`` under the input ``u`` (N)."""
+    f, dz = _lugre(stage, v, z)
+    fc = stage.sliding_friction(v, s)
+    return (u - stage.viscous * v - fc - f - stage.position_force(x)) / stage.mass, dz
+
+
+@numba.njit(cache=True, nogil=True)
+def _derivatives(c, s, u, two, x, v, z):
+    """:func:`_law` compiled (the stage's constants ``c`` from :func:`_constants`): the same
+    operations in the same order, so the same bits (tests/test_foreign_records.py checks).
+    ``two`` is 2.0, passed at run time so that ``** two`` stays a call of the C library's
+    ``pow``, as Python's ``** 2`` is (it differs from ``x*x`` in the last bit about once in a
+    thousand arguments)."""
+    mass, viscous, coulomb, level, sigma0, sigma1 = c[0], c[1], c[2], c[3], c[4], c[5]
+    cable, cable_width, cable_center, cogging, period, phase = c[6], c[7], c[8], c[9], c[10], c[11]
+    offset, peak, stribeck_velocity = c[12], c[13], c[14]
+    if level:
+        dz = v - sigma0 * abs(v) * z / level
+        f = sigma0 * z + sigma1 * dz
+    else:
+        f = dz = 0.0
+    fc = s * (coulomb + peak * math.exp(-((v / stribeck_velocity) ** two)))
+    pos = offset
+    if cable:
+        pos += cable * math.tanh((x - cable_center) / cable_width)
+    if cogging:
+        pos += cogging * math.sin(2 * math.pi * x / period + phase)
+    return (u - viscous * v - fc - f - pos) / mass, dz
+
+
+@numba.njit(cache=True, nogil=True)
+def _rk45(c, s, u, t, x, v, z, t_end, rtol, atol, watch, two, exponent, K):
+    """Integrate ``x' = v, (v', z') = _derivatives(...)`` from ``t`` to ``t_end``, the first step
+    the whole interval; with ``watch`` (+1 or -1; 0: no event) stop at the end of the step in
+    which ``v*watch`` first crosses zero downwards, with that step's seven stages in ``K``
+    (7 x 3) for the dense output. Returns ``(t, x, v, z, crossed, t_old, x_old, v_old, z_old,
+    h)``.
+
+    Every sum is written out in the tableau's order, left to right: the same floating-point
+    operations, in the same order, as scipy's RK45 on a vector; compiled without fast-math, so
+    none is contracted or reordered."""
     c2, c3, c4, c5, c6 = _C[1:]
     (a21,), (a31, a32), (a41, a42, a43), (a51, a52, a53, a54), (a61, a62, a63, a64, a65) = _A[1:]
     b1, b2, b3, b4, b5, b6 = _B
     e1, e2, e3, e4, e5, e6, e7 = _E
     fx = v
-    fv, fz = rhs(x, v, z)
+    fv, fz = _derivatives(c, s, u, two, x, v, z)
     h_abs = t_end - t
-    g = v * s + 1e-300 if s else None  # > 0 while moving in direction s
+    g = v * watch + 1e-300  # > 0 while moving in direction watch
+    t_old, x_old, v_old, z_old, h = t, x, v, z, 0.0
     while t < t_end:
-        min_step = 10 * abs(math.nextafter(t, math.inf) - t)
+        min_step = 10 * abs(np.nextafter(t, np.inf) - t)
         h_abs = max(h_abs, min_step)
         rejected = False
         while True:
@@ -130,90 +177,73 @@ def _rk45(rhs, t, x, v, z, t_end, rtol, atol, s):
             # The stages; dx/dt is the velocity of the stage's own state.
             k1x, k1v, k1z = fx, fv, fz
             k2x = v + (k1v * a21) * h
-            k2v, k2z = rhs(x + (k1x * a21) * h, k2x, z + (k1z * a21) * h)
+            k2v, k2z = _derivatives(c, s, u, two, x + (k1x * a21) * h, k2x, z + (k1z * a21) * h)
             k3x = v + (k1v * a31 + k2v * a32) * h
-            k3v, k3z = rhs(x + (k1x * a31 + k2x * a32) * h, k3x,
-                           z + (k1z * a31 + k2z * a32) * h)
+            k3v, k3z = _derivatives(c, s, u, two, x + (k1x * a31 + k2x * a32) * h, k3x,
+                                    z + (k1z * a31 + k2z * a32) * h)
             k4x = v + (k1v * a41 + k2v * a42 + k3v * a43) * h
-            k4v, k4z = rhs(x + (k1x * a41 + k2x * a42 + k3x * a43) * h, k4x,
-                           z + (k1z * a41 + k2z * a42 + k3z * a43) * h)
+            k4v, k4z = _derivatives(c, s, u, two, x + (k1x * a41 + k2x * a42 + k3x * a43) * h,
+                                    k4x, z + (k1z * a41 + k2z * a42 + k3z * a43) * h)
             k5x = v + (k1v * a51 + k2v * a52 + k3v * a53 + k4v * a54) * h
-            k5v, k5z = rhs(x + (k1x * a51 + k2x * a52 + k3x * a53 + k4x * a54) * h, k5x,
-                           z + (k1z * a51 + k2z * a52 + k3z * a53 + k4z * a54) * h)
+            k5v, k5z = _derivatives(c, s, u, two, x + (k1x * a51 + k2x * a52 + k3x * a53
+                                                       + k4x * a54) * h, k5x,
+                                    z + (k1z * a51 + k2z * a52 + k3z * a53 + k4z * a54) * h)
             k6x = v + (k1v * a61 + k2v * a62 + k3v * a63 + k4v * a64 + k5v * a65) * h
-            k6v, k6z = rhs(x + (k1x * a61 + k2x * a62 + k3x * a63 + k4x * a64 + k5x * a65) * h,
-                           k6x, z + (k1z * a61 + k2z * a62 + k3z * a63 + k4z * a64
-                                     + k5z * a65) * h)
+            k6v, k6z = _derivatives(c, s, u, two, x + (k1x * a61 + k2x * a62 + k3x * a63
+                                                       + k4x * a64 + k5x * a65) * h, k6x,
+                                    z + (k1z * a61 + k2z * a62 + k3z * a63 + k4z * a64
+                                         + k5z * a65) * h)
             x_new = x + h * (k1x * b1 + k2x * b2 + k3x * b3 + k4x * b4 + k5x * b5 + k6x * b6)
-            v_new = k7x = v + h * (k1v * b1 + k2v * b2 + k3v * b3 + k4v * b4 + k5v * b5
-                                   + k6v * b6)
+            v_new = v + h * (k1v * b1 + k2v * b2 + k3v * b3 + k4v * b4 + k5v * b5 + k6v * b6)
             z_new = z + h * (k1z * b1 + k2z * b2 + k3z * b3 + k4z * b4 + k5z * b5 + k6z * b6)
-            k7v, k7z = rhs(x_new, v_new, z_new)
-            # The error estimate's RMS norm, the states in order (scipy's ``norm(err/scale)``).
+            k7x = v_new
+            k7v, k7z = _derivatives(c, s, u, two, x_new, v_new, z_new)
+            # The error estimate's RMS norm, the states in order (scipy's ``norm(err/scale)``;
+            # its sum starts at +0.0, which a sum of squares does not change).
             ex = (k1x * e1 + k2x * e2 + k3x * e3 + k4x * e4 + k5x * e5 + k6x * e6 + k7x * e7) * h
             ev = (k1v * e1 + k2v * e2 + k3v * e3 + k4v * e4 + k5v * e5 + k6v * e6 + k7v * e7) * h
             ez = (k1z * e1 + k2z * e2 + k3z * e3 + k4z * e4 + k5z * e5 + k6z * e6 + k7z * e7) * h
-            error_norm = math.sqrt((ex / (atol + max(abs(x), abs(x_new)) * rtol)) ** 2
-                                   + (ev / (atol + max(abs(v), abs(v_new)) * rtol)) ** 2
-                                   + (ez / (atol + max(abs(z), abs(z_new)) * rtol)) ** 2) / _SQRT3
+            error_norm = math.sqrt((ex / (atol + max(abs(x), abs(x_new)) * rtol)) ** two
+                                   + (ev / (atol + max(abs(v), abs(v_new)) * rtol)) ** two
+                                   + (ez / (atol + max(abs(z), abs(z_new)) * rtol)) ** two
+                                   ) / _SQRT3
             if error_norm < 1:
                 factor = _MAX_FACTOR if error_norm == 0 else min(
-                    _MAX_FACTOR, _SAFETY * error_norm ** _EXPONENT)
+                    _MAX_FACTOR, _SAFETY * error_norm ** exponent)
                 h_abs *= min(1.0, factor) if rejected else factor
                 break
-            h_abs *= max(_MIN_FACTOR, _SAFETY * error_norm ** _EXPONENT)
+            h_abs *= max(_MIN_FACTOR, _SAFETY * error_norm ** exponent)
             rejected = True
-        t_old, y_old, t, x, v, z = t, (x, v, z), t_new, x_new, v_new, z_new
+        t_old, x_old, v_old, z_old = t, x, v, z
+        t, x, v, z = t_new, x_new, v_new, z_new
         fx, fv, fz = k7x, k7v, k7z
-        if s:
-            g_new = v * s + 1e-300
-            if g >= 0 and g_new <= 0:  # crossed downwards: the root on the dense output
-                K = ((k1x, k1v, k1z), (k2x, k2v, k2z), (k3x, k3v, k3z), (k4x, k4v, k4z),
-                     (k5x, k5v, k5z), (k6x, k6v, k6z), (k7x, k7v, k7z))
-                Q = [[sum(k[i] * p[j] for k, p in zip(K, _P)) for j in range(4)]
-                     for i in range(3)]
-
-                def dense(tt, t_old=t_old, y_old=y_old, h=h, Q=Q):
-                    x = (tt - t_old) / h
-                    p = (x, x * x, x * x * x, x * x * x * x)
-                    return [y_old[i] + h * sum(q * pp for q, pp in zip(Q[i], p))
-                            for i in range(3)]
-                root = scipy.optimize.brentq(lambda tt: dense(tt)[1] * s + 1e-300, t_old, t,
-                                             xtol=4 * _EPS, rtol=4 * _EPS)
-                return (root, *dense(root), True)
+        if watch:
+            g_new = v * watch + 1e-300
+            if g >= 0 and g_new <= 0:  # crossed downwards: the caller finds the root
+                for i, (kx, kv, kz) in enumerate(((k1x, k1v, k1z), (k2x, k2v, k2z),
+                                                  (k3x, k3v, k3z), (k4x, k4v, k4z),
+                                                  (k5x, k5v, k5z), (k6x, k6v, k6z),
+                                                  (k7x, k7v, k7z))):
+                    K[i, 0], K[i, 1], K[i, 2] = kx, kv, kz
+                return t, x, v, z, True, t_old, x_old, v_old, z_old, h
             g = g_new
-    return t, x, v, z, False
+    return t, x, v, z, False, t_old, x_old, v_old, z_old, h
 
 
-def _derivatives(stage: Stage, s: float, u: float):
-    """``rhs(x, v, z) -> (dv/dt, dz/dt)`` of the stage sliding in direction ``s`` under the
-    input ``u`` (N), with its constants bound.
+def _crossing(K, t_old, y_old, h, t, s):
+    """The time and state where ``v*s`` crosses zero in the step from ``t_old`` to ``t``: the
+    root of the step's dense output (scipy's RK45 interpolant) by brentq, as scipy locates
+    events."""
+    K = K.tolist()
+    Q = [[sum(k[i] * p[j] for k, p in zip(K, _P)) for j in range(4)] for i in range(3)]
 
-    The terms that are off are left out where that is exact, so the records are the same bits
-    as with every term in: without LuGre its force is a +0.0 subtracted (``a - 0.0 == a`` for
-    every float ``a``) and its ``dz`` is 0.0; without a low-speed curve that curve is
-    ``peak*exp(...)``, a zero of the sign of ``peak``, and ``peak`` itself is the same zero;
-    without cable and cogging the position force is the constant ``offset``."""
-    m, fv = stage.mass, stage.viscous
-    if stage.stribeck_peak or stage.cable or stage.cogging:  # the whole law, term by term
-        def rhs(x, v, z):
-            f, dz = _lugre(stage, v, z)
-            fc = stage.sliding_friction(v, s)
-            return (u - fv * v - fc - f - stage.position_force(x)) / m, dz
-        return rhs
-    fc = s * (stage.coulomb + stage.stribeck_peak)
-    pos = stage.offset
-    if stage.lugre_level:
-        sigma0, sigma1, level = stage.lugre_sigma0, stage.lugre_sigma1, stage.lugre_level
-
-        def rhs(x, v, z):
-            dz = v - sigma0 * abs(v) * z / level
-            return (u - fv * v - fc - (sigma0 * z + sigma1 * dz) - pos) / m, dz
-        return rhs
-
-    def rhs(x, v, z):
-        return (u - fv * v - fc - pos) / m, 0.0
-    return rhs
+    def dense(tt):
+        x = (tt - t_old) / h
+        p = (x, x * x, x * x * x, x * x * x * x)
+        return [y_old[i] + h * sum(q * pp for q, pp in zip(Q[i], p)) for i in range(3)]
+    root = scipy.optimize.brentq(lambda tt: dense(tt)[1] * s + 1e-300, t_old, t,
+                                 xtol=4 * _EPS, rtol=4 * _EPS)
+    return root, dense(root)
 
 
 def advance(stage: Stage, st: PlantState, u: float, ts: float, *,
@@ -241,11 +271,7 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float, *,
         watch = stage.coulomb > 0 and s != 0.0 and abs(st.v) <= 2 * bound * (ts - t)
         if integrator == "solve_ivp":
             def rhs(_, y, s=s):
-                x, v, z = y
-                f, dz = _lugre(stage, v, z)
-                fc = stage.sliding_friction(v, s)
-                return [v, (u - stage.viscous * v - fc - f - stage.position_force(x))
-                        / stage.mass, dz]
+                return [y[1], *_law(stage, s, u, *y)]
 
             def crossing(_, y, s=s):
                 return y[1] * s + 1e-300  # >0 while moving in direction s
@@ -257,8 +283,12 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float, *,
             end, stopped = float(sol.t_events[0][0]) if sol.status == 1 else ts, sol.status == 1
             st.x, st.v, st.z = (float(q) for q in sol.y[:, -1])
         else:
-            end, st.x, st.v, st.z, stopped = _rk45(_derivatives(stage, s, u), t, st.x, st.v,
-                                                   st.z, ts, 1e-9, 1e-13, s if watch else 0.0)
+            K = np.empty((7, 3))
+            end, st.x, st.v, st.z, stopped, t_old, *y_old, h = _rk45(
+                _constants(stage), s, u, t, st.x, st.v, st.z, ts, 1e-9, 1e-13,
+                s if watch else 0.0, 2.0, _EXPONENT, K)
+            if stopped:
+                end, (st.x, st.v, st.z) = _crossing(K, t_old, y_old, h, end, s)
         t = end
         if stopped:  # stopped at the velocity zero crossing
             st.v = 0.0

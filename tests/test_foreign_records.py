@@ -156,6 +156,29 @@ def test_the_reference_integrator_is_scipys_rk45(hidden):
     assert np.ptp(runs[0].y) > 0.005  # the stage moved 1 cm: the comparison is not of a standstill
 
 
+EVERY_TERM = ref.Stage(coulomb=2.0, lugre_level=5.0, lugre_sigma1=100.0, cable=4.0,
+                       cable_width=0.01, cable_center=0.01, cogging=3.0, cogging_period=0.005,
+                       cogging_phase=0.7, offset=-3.0, stribeck_peak=-3.0)
+
+
+@pytest.mark.parametrize("stage", [*STAGES.values(), EVERY_TERM],
+                         ids=[*STAGES, "every_term"])
+def test_the_compiled_law_is_the_stages_law_bit_for_bit(stage):
+    """The compiled right-hand side that the integrator calls against the stage's law in Python
+    (:class:`ref.Stage`'s methods and LuGre, which ``solve_ivp`` integrates), on states from
+    standstill to 1 m/s, bristle deflections up to the pre-sliding length, both directions and
+    none: the same bits (an operation in another order, ``sigma0*(|v|*z/level)`` or
+    ``x*(2 pi/period)``, differs in the last bit on 20 to 35 % of these points)."""
+    rng = np.random.default_rng(0)
+    c = ref._constants(stage)
+    for _ in range(3000):
+        x, u = rng.uniform(-0.05, 0.15), rng.normal(0.0, 50.0)
+        v = rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(-9, 0)
+        z = rng.uniform(-1.0, 1.0) * stage.lugre_level / stage.lugre_sigma0
+        for s in (-1.0, 0.0, 1.0):
+            assert ref._derivatives(c, s, u, 2.0, x, v, z) == ref._law(stage, s, u, x, v, z)
+
+
 @pytest.mark.parametrize("cell", _cells("none") + list(SEED_CELLS))
 def test_right_model_no_finding(foreign, cell):
     _, d = foreign("none", cell)
