@@ -246,10 +246,12 @@ def _crossing(K, t_old, y_old, h, t, s):
     return root, dense(root)
 
 
-def advance(stage: Stage, st: PlantState, u: float, ts: float, *,
-            integrator: str = "rk45") -> None:
+def advance(stage: Stage, st: PlantState, u: float, ts: float, *, integrator: str = "rk45",
+            constants: np.ndarray | None = None) -> None:
     """Advance ``st`` over one sample with the input ``u`` (N) held (``integrator``: ``rk45``,
-    the Dormand-Prince pair above, or ``solve_ivp``, scipy's RK45 through its driver)."""
+    the Dormand-Prince pair above, or ``solve_ivp``, scipy's RK45 through its driver;
+    ``constants``: ``_constants(stage)`` where the caller holds them)."""
+    c = _constants(stage) if constants is None else constants
     t = 0.0
     guard = 0
     while t < ts and guard < 50:
@@ -285,8 +287,8 @@ def advance(stage: Stage, st: PlantState, u: float, ts: float, *,
         else:
             K = np.empty((7, 3))
             end, st.x, st.v, st.z, stopped, t_old, *y_old, h = _rk45(
-                _constants(stage), s, u, t, st.x, st.v, st.z, ts, 1e-9, 1e-13,
-                s if watch else 0.0, 2.0, _EXPONENT, K)
+                c, s, u, t, st.x, st.v, st.z, ts, 1e-9, 1e-13, s if watch else 0.0, 2.0,
+                _EXPONENT, K)
             if stopped:
                 end, (st.x, st.v, st.z) = _crossing(K, t_old, y_old, h, end, s)
         t = end
@@ -403,10 +405,12 @@ def run_loop(stage: Stage, controller, r: np.ndarray, ts: float, *, resolution: 
     ctrl = controller.run()
     n = len(r)
     y, u, x = np.empty(n), np.empty(n), np.empty(n)
-    for k in range(n):
+    c = _constants(stage)
+    # Python floats (the same values): numpy's scalar arithmetic on the input was slower.
+    for k, (rk, dk) in enumerate(zip(np.asarray(r, float).tolist(), dither.tolist())):
         yk = resolution * math.floor(st.x / resolution) if resolution else st.x
         next(ctrl)
-        uk = ctrl.send((float(r[k]), yk)) + dither[k]
+        uk = ctrl.send((rk, yk)) + dk
         y[k], u[k], x[k] = yk, uk, st.x
-        advance(stage, st, uk, ts, integrator=integrator)
+        advance(stage, st, uk, ts, integrator=integrator, constants=c)
     return Record(np.arange(n) * ts, np.asarray(r, float), y, u, x)

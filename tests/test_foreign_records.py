@@ -1,8 +1,9 @@
 """The diagnosis on records that clm-sim did not make (tests/reference_sim.py).
 
-The reference simulator has its own integrator (solve_ivp, event-driven stick/slip), LuGre
-friction, a saturating cable force, truncating encoders, its own PID (pole placement) and an
-EMPS-like P-P cascade, at 1 kHz and 10 kHz. The diagnosis gets the record and the *right* model
+The reference simulator has its own integrator (scipy's RK45 written out and compiled, checked
+against solve_ivp below; event-driven stick/slip), LuGre friction, a saturating cable force,
+truncating encoders, its own PID (pole placement) and an EMPS-like P-P cascade, at 1 kHz and
+10 kHz. The diagnosis gets the record and the *right* model
 (mass, viscous, Coulomb of the foreign stage, no effects, the controller's linear law); only the
 hidden effect, if any, is missing.
 
@@ -67,7 +68,9 @@ SEED_CELLS = {
     "pp1-seed3": dict(CELLS["pp1"], seed=3),
     "coarse1-seed5": dict(CELLS["coarse1"], seed=5, long=False),
 }
-SLOW_CELLS = {"pid10", "soft10", "dwell1"}  # > 10 s of reference simulation each
+# The longest records (10 kHz, and the 2 s dwells): > 10 s of reference simulation each until
+# the integrator was compiled, 0.3 to 1.2 s of CPU since (benchmarks/bench_reference_sim.py).
+SLOW_CELLS = {"pid10", "soft10", "dwell1"}
 
 STAGES = {
     "none": ref.Stage(),
