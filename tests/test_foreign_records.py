@@ -121,14 +121,20 @@ def _record(stage: ref.Stage, *, res, **cell):
 
 @pytest.fixture(scope="session")
 def foreign():
-    """(hidden, cell) -> (record, diagnosis), computed once per session."""
-    cache = {}
+    """(hidden, cell) -> (record, diagnosis), each computed once per session (the diagnosis
+    only where asked for: ``diagnosed=False`` gives ``(record, None)``)."""
+    records, diagnoses = {}, {}
 
-    def get(hidden: str, cell: str):
-        if (hidden, cell) not in cache:
-            run, model = _record(STAGES[hidden], **{**CELLS, **SEED_CELLS}[cell])
-            cache[hidden, cell] = run, diagnose(run, model)
-        return cache[hidden, cell]
+    def get(hidden: str, cell: str, *, diagnosed: bool = True):
+        key = hidden, cell
+        if key not in records:
+            records[key] = _record(STAGES[hidden], **{**CELLS, **SEED_CELLS}[cell])
+        run, model = records[key]
+        if not diagnosed:
+            return run, None
+        if key not in diagnoses:
+            diagnoses[key] = diagnose(run, model)
+        return run, diagnoses[key]
     return get
 
 
@@ -271,7 +277,7 @@ def test_validation_record_homed_elsewhere_is_registered(foreign, homed_at):
     the rest; the shift is found modulo the period, and on a record with the same origin it is
     found to be ~0 and changes nothing."""
     stage = STAGES["cogging"]
-    run, d = foreign("cogging", "pp1")
+    run, _ = foreign("cogging", "pp1", diagnosed=False)
     moved = dict(stage.__dict__, cogging_phase=stage.cogging_phase
                  + 2 * math.pi * homed_at / stage.cogging_period)
     val, model = _record(ref.Stage(**moved), **dict(CELLS["pp1"], seed=7))
