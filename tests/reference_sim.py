@@ -97,7 +97,6 @@ def _lugre(stage: Stage, v: float, z: float) -> tuple[float, float]:
 # ``advance(..., integrator="solve_ivp")`` keeps the scipy call, which
 # tests/test_foreign_records.py compares with this one. Numba freezes these tuples into the
 # compiled code (and its cache): they are constants of scipy's RK45.
-_C = tuple(float(c) for c in scipy.integrate.RK45.C)
 _A = tuple(tuple(float(a) for a in row[:i]) for i, row in enumerate(scipy.integrate.RK45.A))
 _B = tuple(float(b) for b in scipy.integrate.RK45.B)
 _E = tuple(float(e) for e in scipy.integrate.RK45.E)
@@ -152,10 +151,10 @@ def _rk45(c, s, u, t, x, v, z, t_end, rtol, atol, watch, two, exponent, K):
     (7 x 3) for the dense output. Returns ``(t, x, v, z, crossed, t_old, x_old, v_old, z_old,
     h)``.
 
-    Every sum is written out in the tableau's order, left to right: the same floating-point
-    operations, in the same order, as scipy's RK45 on a vector; compiled without fast-math, so
-    none is contracted or reordered."""
-    c2, c3, c4, c5, c6 = _C[1:]
+    Every sum is written out in the tableau's order, left to right (scipy's RK45 sums some of
+    them in another order: the 1e-12 m of the comparison test); compiled without fast-math, so
+    none is contracted or reordered, and the records are the same bits as when these lines ran
+    in Python. The law is autonomous: the stages' times (the tableau's nodes) are not needed."""
     (a21,), (a31, a32), (a41, a42, a43), (a51, a52, a53, a54), (a61, a62, a63, a64, a65) = _A[1:]
     b1, b2, b3, b4, b5, b6 = _B
     e1, e2, e3, e4, e5, e6, e7 = _E
@@ -198,8 +197,8 @@ def _rk45(c, s, u, t, x, v, z, t_end, rtol, atol, watch, two, exponent, K):
             z_new = z + h * (k1z * b1 + k2z * b2 + k3z * b3 + k4z * b4 + k5z * b5 + k6z * b6)
             k7x = v_new
             k7v, k7z = _derivatives(c, s, u, two, x_new, v_new, z_new)
-            # The error estimate's RMS norm, the states in order (scipy's ``norm(err/scale)``;
-            # its sum starts at +0.0, which a sum of squares does not change).
+            # The error estimate's RMS norm over the states in order (scipy's
+            # ``norm(err / scale) / sqrt(3)``).
             ex = (k1x * e1 + k2x * e2 + k3x * e3 + k4x * e4 + k5x * e5 + k6x * e6 + k7x * e7) * h
             ev = (k1v * e1 + k2v * e2 + k3v * e3 + k4v * e4 + k5v * e5 + k6v * e6 + k7v * e7) * h
             ez = (k1z * e1 + k2z * e2 + k3z * e3 + k4z * e4 + k5z * e5 + k6z * e6 + k7z * e7) * h
