@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 # scipy.stats is imported in the three functions that compute an interval or a p-value: it is
-# half a second of imports that every importer of experiments.table (sweep workers, `compare`)
-# would pay for nothing.
+# half a second of imports that every importer of experiments.table (every worker of a sweep,
+# `clm-sim run` refusing a config) would otherwise pay before it needs it.
 
 
 def t_interval(d, confidence: float = 0.95) -> tuple[float, float, float]:
