@@ -29,7 +29,6 @@ from dataclasses import asdict, dataclass
 from typing import ClassVar
 
 import numpy as np
-import scipy.signal
 
 from clm_sim.errors import UserError
 
@@ -71,6 +70,10 @@ class FeatureMap:
         if cutoff >= nyquist:
             raise UserError(f"features: {key} {cutoff:g} Hz is at or above the Nyquist "
                             f"frequency {nyquist:g} Hz of this record")
+        # Here, not at the top: scipy.signal (with scipy.stats) is a second of imports that a
+        # PGNN fit worker, which only unpickles a FeatureMap, never needs.
+        import scipy.signal
+
         sos = scipy.signal.butter(self.lowpass_order, cutoff, fs=1.0 / ts, output="sos")
         return scipy.signal.sosfiltfilt(sos, x, axis=0)
 

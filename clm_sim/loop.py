@@ -7,7 +7,6 @@ from typing import Protocol
 
 import numpy as np
 
-from clm_sim import kernel
 from clm_sim.errors import UserError, check_ts
 from clm_sim.plant import Plant
 from clm_sim.record import Run
@@ -59,6 +58,10 @@ def simulate(plant: Plant, controller: DiscreteController, r: np.ndarray, ts: fl
         raise ValueError("u_ff and dither must have the reference's length")
     b = np.ascontiguousarray(controller.b, dtype=np.float64)
     a = np.ascontiguousarray(controller.a, dtype=np.float64)
+    # Here, not at the top: numba is a third of a second of imports that a process which only
+    # reads a config (Dither) or refuses one never needs; a simulation is 10,000+ steps.
+    from clm_sim import kernel
+
     y, x, u, ufb = (np.empty(n) for _ in range(4))
     status = kernel.closed_loop(r, u_ff, dither, float(r[0]), 0.0, float(plant.encoder_resolution),
                                 b, a, *plant.kernel_args(ts), y, x, u, ufb, np.zeros(a.shape[0]))

@@ -18,7 +18,6 @@ namespaces of their own with the same members. A law uses only these:
 from __future__ import annotations
 
 import numpy as np
-import scipy.special
 
 
 class NumpyNamespace:
@@ -32,8 +31,15 @@ class NumpyNamespace:
     where = staticmethod(np.where)
     tanh = staticmethod(np.tanh)
     log1p = staticmethod(np.log1p)
-    erf = staticmethod(scipy.special.erf)
     sqrt = staticmethod(np.sqrt)
+
+    @staticmethod
+    def erf(x):
+        # scipy.special imported on first use (an activation only): a fifth of a second that
+        # every importer of the physics, the simulator's workers included, would pay for nothing
+        import scipy.special
+
+        return scipy.special.erf(x)
 
     @staticmethod
     def relu(x):

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
-import scipy.signal
 
 from clm_sim.errors import UserError
+
+if TYPE_CHECKING:  # imported where a PID is designed: `control` loads scipy.signal and pyplot
+    import control
 
 # Methods of control.c2d that need no extra argument and work for a TransferFunction in
 # control 0.10.2 ('gbt' needs alpha; 'matched' fails there).
@@ -118,6 +120,10 @@ def design_pid(*, mass: float, viscous: float, stiffness: float, design: PIDDesi
     UserError
         If a parameter is out of range or the sampled closed loop is not stable.
     """
+    # Here, not at the top: a config that only names a PIDDesign (every worker, every command
+    # that refuses a bad file) need not pay for control, scipy.signal and matplotlib.pyplot.
+    import control
+
     _check(mass, viscous, stiffness, design, ts)
     wc = 2 * math.pi * design.crossover_hz
     wi = wc / design.integrator_ratio
@@ -196,4 +202,6 @@ def filter_error(controller: PIDController, e: np.ndarray) -> np.ndarray:
 
     ``e`` in m (1-D); returns the force in N, float64, same length.
     """
+    import scipy.signal  # a test oracle: the simulator never calls it
+
     return scipy.signal.lfilter(controller.b, controller.a, np.asarray(e, dtype=np.float64))

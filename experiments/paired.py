@@ -14,12 +14,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.stats
+
+# scipy.stats is imported in the three functions that compute an interval or a p-value: it is
+# half a second of imports that every importer of experiments.table (every worker of a sweep,
+# `clm-sim run` refusing a config) would otherwise pay before it needs it.
 
 
 def t_interval(d, confidence: float = 0.95) -> tuple[float, float, float]:
     """Mean of paired differences ``d`` and its t-interval at ``confidence`` (infinite for one
     difference)."""
+    import scipy.stats
+
     d = np.asarray(d, dtype=float)
     n = len(d)
     half = (scipy.stats.t.ppf(0.5 + confidence / 2, n - 1) * d.std(ddof=1) / np.sqrt(n)
@@ -35,6 +40,8 @@ def paired_tests(d) -> tuple[float | None, float | None]:
     d = np.asarray(d, dtype=float)
     if len(d) < 2 or not np.any(d != d[0]):
         return None, None
+    import scipy.stats
+
     p_t = float(scipy.stats.ttest_1samp(d, 0.0).pvalue)
     p_w = float(scipy.stats.wilcoxon(d).pvalue) if np.any(d != 0) else None
     return p_t, p_w
@@ -76,6 +83,8 @@ class LogRatio:
             return None
         d = np.log(a) - np.log(b)
         mean, lo, hi = t_interval(d, confidence)
+        import scipy.stats
+
         n, sd = len(d), float(np.std(d, ddof=1))
         se = sd / math.sqrt(n)
         p = (float(2 * scipy.stats.t.sf(abs(mean) / se, n - 1)) if se > 0

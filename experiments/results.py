@@ -22,7 +22,7 @@ from clm_sim.record import Run
 from experiments.config import FeedforwardSpec
 from experiments.table import regularizers, row_settings
 
-if TYPE_CHECKING:  # the record type only; importing it would import torch
+if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
 
 

@@ -29,7 +29,7 @@ import numpy as np
 from clm_sim.plant import THETA_NAMES
 from experiments.paired import Paired, holm, t_interval  # noqa: F401 (t_interval: re-exported)
 
-if TYPE_CHECKING:  # the record type only; importing it would import torch
+if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
 
 THETA_UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}

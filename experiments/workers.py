@@ -287,7 +287,10 @@ def map_fits(payloads: list, fn: Callable = fit_pgnn,
              on_done: Callable | None = None) -> list:
     """``[fn(p) for p in payloads]`` (default :func:`fit_pgnn`; or :func:`fit_pinned`), on the
     worker pool when there is more than one fit, more than one core and this is not already a
-    pool's worker; ``on_done(result)`` is called as each one finishes (in completion order)."""
+    pool's worker; ``on_done(result)`` is called as each one finishes (in completion order).
+    The payloads need no torch (:mod:`controllers.pgnn.data`): a caller that has not imported it
+    starts the workers first, and loads it when the first fitted model is unpickled (in the
+    pool's result thread)."""
     if len(payloads) < 2 or cores() < 2 or multiprocessing.parent_process() is not None:
         results = []
         for p in payloads:

@@ -155,3 +155,24 @@ def test_physics_import_loads_no_higher_layer_nor_heavy_library():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=ROOT, check=True).stdout.strip()
     assert out == "[]", out
+
+
+@pytest.mark.parametrize("modules, absent", [
+    # what a sweep task's worker imports before its first task, and what every command imports
+    # before it can refuse a bad config (a PID design loads control when a PID is designed)
+    ("experiments.sweeps.run, experiments.runner, experiments.config, experiments.table",
+     ("torch", "control", "matplotlib", "numba", "scipy.signal", "scipy.stats",
+      "scipy.special")),
+    # what a run imports to prepare its PGNN fits before it starts their worker pool
+    ("controllers.pgnn, controllers.pgnn.data, controllers.pgnn.starts, experiments.workers",
+     ("torch", "control", "matplotlib", "scipy.signal", "scipy.stats")),
+])
+def test_start_up_imports_load_no_library_they_do_not_use(modules, absent):
+    """Every spawned worker and command line process imports these first: a library imported
+    at module level here is paid once per process (control with pyplot, scipy.signal with
+    scipy.stats, torch: seconds), where the functions that use it import it themselves."""
+    code = (f"import sys, {modules}; "
+            f"print([m for m in {absent!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, check=True).stdout.strip()
+    assert out == "[]", out

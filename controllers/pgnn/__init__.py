@@ -1,15 +1,35 @@
 """Physics-guided neural network feedforward: the model and its identification
 (:mod:`controllers.pgnn.model`; its settings are :class:`controllers.pgnn_settings.PGNNSettings`),
-the torch module (:mod:`controllers.pgnn.network`), the training cost and its terms
-(:mod:`controllers.pgnn.cost`), how a fit went (:mod:`controllers.pgnn.fit_record`) and the
-optimizations that later fits reuse (:mod:`controllers.pgnn.starts`)."""
+the data it is fitted on (:mod:`controllers.pgnn.data`), the torch module
+(:mod:`controllers.pgnn.network`), the training cost and its terms (:mod:`controllers.pgnn.cost`),
+how a fit went (:mod:`controllers.pgnn.fit_record`) and the optimizations that later fits reuse
+(:mod:`controllers.pgnn.starts`).
 
-from controllers.pgnn.fit_record import FitRecord
-from controllers.pgnn.model import (
-                                    PGNNFeedforward,
-                                    TrainingData,
-                                    lemma_condition,
-                                    training_data,
-)
+The names below are resolved on first use (PEP 562, as :mod:`clm_sim`'s): importing the package or
+its torch-free modules (data, fit_record, starts) does not load torch, so a process prepares its
+fits' data and starts their workers before it imports torch itself.
+"""
 
-__all__ = ["FitRecord", "PGNNFeedforward", "TrainingData", "lemma_condition", "training_data"]
+# public name -> module that defines it
+_EXPORTS = {
+    "FitRecord": "controllers.pgnn.fit_record",
+    "PGNNFeedforward": "controllers.pgnn.model",
+    "TrainingData": "controllers.pgnn.data",
+    "lemma_condition": "controllers.pgnn.model",
+    "training_data": "controllers.pgnn.data",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name):
+    if name in _EXPORTS:
+        import importlib
+        value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'controllers.pgnn' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(__all__)

@@ -66,54 +66,23 @@ import numpy as np
 import torch
 
 from clm_sim.errors import NotFittedError, UserError, check_ts
-from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
+from clm_sim.features import FeatureMap, held_force, lip_regressors
 from clm_sim.modelfile import mapping, number, read_json, regular_file, sample_time
 from clm_sim.numerics import single_threaded
 from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import CostTerms, SeparableCost, Weights
+from controllers.pgnn.data import TrainingData, training_data
 from controllers.pgnn.fit_record import FitRecord, Iterate, Start, ThetaPoint
 from controllers.pgnn.network import PGNNNetwork
 from controllers.pgnn.starts import StartCache, StartOutcome
 from clm_sim.schema import build
 from controllers.pgnn_settings import (CONSTRAINTS, LAMBDA_KEYS, PGNNSettings, check_settings,
-                                       checked_widths, decimation_for, parameter_count)
+                                       checked_widths, parameter_count)
 
 _OPTIONS = frozenset(f.name for f in fields(PGNNSettings))  # a model's options, by name
 # A model file's settings keys are the Python names but where it spells lambda out.
 _FILE_KEYS = {v: k for k, v in LAMBDA_KEYS.items() if k != "lambda"}
-
-
-@dataclass(frozen=True)
-class TrainingData:
-    """Fitting data: physical columns ``phi`` (N, 4) = filtered [a, v, sign v, y] (SI units), the
-    network's inputs (the same columns), the filtered force ``target`` (N,) and the sample time
-    ``ts`` (s) of the record they came from (``None``: unknown)."""
-
-    phi: np.ndarray
-    target: np.ndarray
-    ts: float | None = None
-
-    def split(self, fraction: float) -> tuple[TrainingData, TrainingData | None]:
-        """The first ``1 - fraction`` for fitting, the last ``fraction`` (contiguous) held out."""
-        if fraction <= 0:
-            return self, None
-        n = len(self.target) - round(fraction * len(self.target))
-        return (TrainingData(self.phi[:n], self.target[:n], self.ts),
-                TrainingData(self.phi[n:], self.target[n:], self.ts))
-
-
-def training_data(features: FeatureMap, *, y: np.ndarray, u: np.ndarray, ts: float,
-                  decimation: int | None = None) -> TrainingData:
-    """Filtered, aligned and decimated fitting data from positions ``y`` (m) and inputs ``u`` (N);
-    ``decimation`` None: one sample per 8 ms (:func:`controllers.pgnn_settings.decimation_for`)."""
-    decimation = decimation_for(ts, decimation)
-    yf, v, a = features.motion(y, ts)
-    cols = np.column_stack([lip_regressors(yf, v, a), edge_force(u)])
-    keep = features.fit_slice(len(yf))
-    cols = features.regression_filter(cols, ts)[keep][::decimation]
-    return TrainingData(phi=np.ascontiguousarray(cols[:, :4]), target=cols[:, 4].copy(),
-                        ts=float(ts))
 
 
 def _as_theta(theta) -> np.ndarray:

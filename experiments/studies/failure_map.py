@@ -57,7 +57,7 @@ from experiments.studies.failure_map_settings import FailureMapSettings
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
 
-if TYPE_CHECKING:  # the record type only; importing it would import torch
+if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
 
 
