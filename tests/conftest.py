@@ -145,6 +145,29 @@ def pytest_xdist_make_scheduler(config, log):
     return LoadGroupScheduling(config, log)
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session):
+    """With ``-n``, compile the numba kernels once, in this process, before the workers start.
+
+    On a fresh clone there is no numba cache yet (``__pycache__``): both workers, and every
+    worker process that the first tests spawn (the paper table's pool, the failure map's,
+    the sweeps'), would each compile the same kernels at once, several seconds of CPU apiece.
+    Compiled here, they all load the cache. Nothing else: the product compiles the same way on
+    its first run (``clm_sim/kernel.py``)."""
+    if os.environ.get("PYTEST_XDIST_WORKER") or not session.config.getoption("numprocesses",
+                                                                               None):
+        return
+    import reference_sim
+    from clm_sim.open_loop import initial_state, simulate_input
+
+    plant = Plant()
+    simulate(plant, ZeroController(), np.zeros(20), TS)  # the closed loop
+    y = np.linspace(0.0, 1e-4, 40)
+    simulate_input(plant, np.zeros(40), TS, initial_state(y, TS, plant))  # the open loop
+    reference_sim.run_loop(reference_sim.Stage(), reference_sim.Cascade(60.0, 4700.0, 1e-3),
+                           np.zeros(5), 1e-3, resolution=1e-7)  # the foreign records'
+
+
 def _hypothesis_profiles() -> None:
     """The hostile-input properties' profiles (HYPOTHESIS_PROFILE=long for a deeper search);
     where hypothesis is not installed those tests skip themselves."""
