@@ -157,7 +157,11 @@ def pytest_sessionstart(session):
     if os.environ.get("PYTEST_XDIST_WORKER") or not session.config.getoption("numprocesses",
                                                                                None):
         return
+    import time
+
     import reference_sim
+
+    start = time.monotonic()
     from clm_sim.open_loop import initial_state, simulate_input
 
     plant = Plant()
@@ -166,6 +170,17 @@ def pytest_sessionstart(session):
     simulate_input(plant, np.zeros(40), TS, initial_state(y, TS, plant))  # the open loop
     reference_sim.run_loop(reference_sim.Stage(), reference_sim.Cascade(60.0, 4700.0, 1e-3),
                            np.zeros(5), 1e-3, resolution=1e-7)  # the foreign records'
+    _WARM_UP.append(time.monotonic() - start)
+
+
+_WARM_UP: list = []  # the seconds the kernels took before the workers started (this process)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Say what the time pytest prints leaves out: it starts after the kernels compiled."""
+    if _WARM_UP:
+        terminalreporter.write_line(f"numba kernels compiled or loaded before the workers "
+                                    f"started: {_WARM_UP[0]:.1f} s (not in the time below)")
 
 
 def _hypothesis_profiles() -> None:
