@@ -10,6 +10,8 @@ its torch-free modules (data, fit_record, starts) does not load torch, so a proc
 fits' data and starts their workers before it imports torch itself.
 """
 
+from clm_sim.lazy import lazy_exports
+
 # public name -> module that defines it
 _EXPORTS = {
     "FitRecord": "controllers.pgnn.fit_record",
@@ -22,14 +24,4 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name):
-    if name in _EXPORTS:
-        import importlib
-        value = getattr(importlib.import_module(_EXPORTS[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'controllers.pgnn' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
