@@ -19,7 +19,7 @@ _LOCAL_FUNCTIONS = ("physical", "advance", "flush_tiny", "features_finite", "is_
                     "network1_avx2", "network2_avx2", "forward", "backward", "backward_avx2",
                     "stream_point", "raw_features", "filtered_features", "filtered_features_avx2",
                     "exp_avx2", "in_range", "clamp", "reset", "accept", "finish", "differences",
-                    "steady")
+                    "steady", "fill_at_rest", "fill_window")
 _MACRO_RE = re.compile(r"(?<![A-Za-z0-9_])(" + "|".join(_LOCAL_MACROS) + r"|[WB]\d+[TP]?)"
                        r"(?![A-Za-z0-9_])")
 _FUNCTION_RE = re.compile(r"(?<![A-Za-z0-9_])(" + "|".join(_LOCAL_FUNCTIONS) + r")(?=\s*\()")

@@ -121,16 +121,9 @@ static void steady(clm_ff_stream *s, const clm_ff_real x[4])
 
 unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0)
 {
-    unsigned st = CLM_FF_OK;
+    const unsigned st = fill_at_rest(s, &r0);
     clm_ff_real x[4];
     int i;
-    if (!in_range(r0)) {
-        r0 = 0;
-        st = CLM_FF_REJECTED;
-    }
-    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
-        s->buf[i] = r0;
-    s->next = 0;
     /* at rest: a = v = sign v = 0, y = r0; the sections in their steady state */
     x[0] = x[1] = x[2] = R(0.0);
     x[3] = (clm_ff_real)POS(r0);
@@ -150,12 +143,8 @@ unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real 
 {
     clm_ff_real x[4], p;
     int i;
-    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
-        if (!in_range(r[i]))
-            return CLM_FF_REJECTED;
-    for (i = 0; i < CLM_FF_WINDOW; ++i)
-        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
-    s->next = 0;
+    if (!fill_window(s, r))
+        return CLM_FF_REJECTED;
     /* The sections started in the steady state of the oldest instant's features, then run over
      * the window's 2 HALF + 2 instants: what they forget of that start decays as the filter's
      * impulse response, below the export's tolerance after HALF samples. */

@@ -44,6 +44,35 @@ unsigned clm_ff_eval(const clm_ff_pos *r, clm_ff_real *u_ff)
     return st;
 }
 
+/* Init's buffer: every sample r0 (0 when r0 is unusable, with CLM_FF_REJECTED); returns the
+ * status and the sample it filled with. */
+static unsigned fill_at_rest(clm_ff_stream *s, clm_ff_pos *r0)
+{
+    unsigned st = CLM_FF_OK;
+    int i;
+    if (!in_range(*r0)) {
+        *r0 = 0;
+        st = CLM_FF_REJECTED;
+    }
+    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
+        s->buf[i] = *r0;
+    s->next = 0;
+    return st;
+}
+
+/* Start's buffer: the window r[-LAG..LEAD] if every sample is usable (1), else nothing (0). */
+static int fill_window(clm_ff_stream *s, const clm_ff_pos *r)
+{
+    int i;
+    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
+        if (!in_range(r[i]))
+            return 0;
+    for (i = 0; i < CLM_FF_WINDOW; ++i)
+        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
+    s->next = 0;
+    return 1;
+}
+
 /* The state after init or start: the newest sample, the force last returned, export limits. */
 static void reset(clm_ff_stream *s, clm_ff_pos last_good, clm_ff_real u)
 {
