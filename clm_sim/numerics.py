@@ -24,6 +24,7 @@ import os
 import platform
 import sys
 import threading
+import warnings
 from importlib import metadata
 
 # Each library's switch for its AVX2 code path, read once when the library loads.
@@ -163,6 +164,7 @@ def single_threaded():
             blas = _limit("blas")
             if blas is not None:
                 _first.append(lambda: blas.__exit__(None, None, None))
+                _warn_if_held()
         _depth += 1
     omp = _limit("openmp")
     try:
@@ -176,6 +178,25 @@ def single_threaded():
                 for undo in reversed(_first):
                     undo()
                 _first.clear()
+
+
+def _warn_if_held() -> None:
+    """Say so when a BLAS still runs more than one thread inside the block: threadpoolctl lets
+    only the thread that first set OpenBLAS's process-wide count change it while that thread
+    lives, so a limit the main thread set (``threadpool_limits(4)``, never undone) holds in
+    every other thread, and a fit there runs on that many threads: its sums in another order,
+    its last bits not those of the same fit elsewhere."""
+    import threadpoolctl
+
+    libs = _controller(threadpoolctl).select(user_api="blas").lib_controllers
+    held = [f"{lib.internal_api} {lib.num_threads}" for lib in libs if lib.num_threads > 1]
+    if held:
+        warnings.warn(
+            f"clm_sim.numerics.single_threaded: BLAS still runs several threads in this block "
+            f"({', '.join(held)}): another thread holds threadpoolctl's control of its count "
+            f"(a threadpool_limits set in the main thread and not undone?); fits here may not "
+            f"give the bits they give in the main thread or in a worker process",
+            RuntimeWarning, stacklevel=4)
 
 
 def _limit(user_api: str):

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES
+from experiments.agreement import Cell
 from experiments.paired import Paired, holm, t_interval  # noqa: F401 (t_interval: re-exported)
 
 if TYPE_CHECKING:  # the record type, for annotations only
@@ -167,10 +168,27 @@ def _um(stat: dict) -> str:
     return s + (f" ± {stat['std'] * 1e6:.3f}" if stat["std"] else "")
 
 
+def _theta_cells(row: dict) -> list[str]:
+    """theta_phy's mean over seeds per parameter, ``± std`` over seeds where the seeds differ
+    by half a unit of the mean's last printed digit or more: the spread shows how far the data
+    determine the parameter, and it is the spread that :mod:`experiments.agreement` allows a
+    fresh run's mean on another machine."""
+    th = row["theta_phy"]
+    if not th:
+        return ["–"] * 4
+    per_seed = row.get("theta_phy_per_seed") or []
+    cells = []
+    for k in THETA_NAMES:
+        mean = f"{th[k]:.4g}"
+        std = float(np.std([t[k] for t in per_seed], ddof=1)) if len(per_seed) > 1 else 0.0
+        cells.append(mean + (f" ± {std:.2g}" if std >= 0.5 * Cell.parse(mean).ulp else ""))
+    return cells
+
+
 def to_markdown(rows: list[dict], swept: list[str] = (), failures: list[dict] = ()) -> str:
     """A Markdown table, one line per row: the ``swept`` keys' values (sweeps), the
-    feedforward, its seeds, MAE (µm, mean ± std over seeds) per reference, theta_phy and (PGNN)
-    how many fits converged, ⚠ when not all; then the ``failures`` of a sweep
+    feedforward, its seeds, MAE (µm, mean ± std over seeds) per reference, theta_phy (mean ±
+    std over seeds) and (PGNN) how many fits converged, ⚠ when not all; then the ``failures`` of a sweep
     (``{key: value, ..., "error"}``) as a list; then :func:`fit_report` for PGNN rows."""
     refs = list(rows[0]["mae"]) if rows else []
     fits = any("fits" in row for row in rows)
@@ -179,10 +197,8 @@ def to_markdown(rows: list[dict], swept: list[str] = (), failures: list[dict] = 
             + (["fits converged"] if fits else []))
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
-        th = row["theta_phy"]
-        theta = [f"{th[k]:.4g}" for k in THETA_NAMES] if th else ["–"] * 4
         cells = ([_fmt(row[k]) for k in swept] + [row["label"], str(row["n_seeds"])]
-                 + [_um(row["mae"][r]) for r in refs] + theta)
+                 + [_um(row["mae"][r]) for r in refs] + _theta_cells(row))
         if fits:
             conv = "–"
             if "fits" in row:
