@@ -256,18 +256,22 @@ def _doc(shift_mae=0.0, shift_theta=0.0, converged=10, lip_shift=0.0, std_scale=
     ({"shift_theta": 0.9}, True), ({"shift_theta": 1.3}, False),
     ({"converged": 9}, True), ({"converged": 8}, False),
     # most fits capped: the end points are not the data's; 95 % of two independent means
-    ({"converged": 3, "fresh_converged": 3, "shift_mae": 2.5}, True),
-    ({"converged": 3, "fresh_converged": 3, "shift_mae": 3.0}, False),
+    ({"converged": 3, "page_converged": 3, "shift_mae": 2.5}, True),
+    ({"converged": 3, "page_converged": 3, "shift_mae": 3.0}, False),
+    # either run saying that most fits did not converge is enough, whichever is the page
+    ({"converged": 5, "page_converged": 4, "shift_mae": 2.5}, True),
+    ({"converged": 4, "page_converged": 5, "shift_mae": 2.5}, True),
+    ({"converged": 5, "page_converged": 5, "shift_mae": 2.5}, False),
     ({"lip_shift": 0.04}, True), ({"lip_shift": 0.3}, False),
     # the spread over seeds: within its standard error (0.24 s for ten seeds) where the fits
     # converged, within 1.96·√2 of it (0.65 s) where most did not
     ({"std_scale": 0.85}, True), ({"std_scale": 0.5}, False),
-    ({"converged": 3, "fresh_converged": 3, "std_scale": 0.5}, True),
-    ({"converged": 3, "fresh_converged": 3, "std_scale": 0.3}, False),
+    ({"converged": 3, "page_converged": 3, "std_scale": 0.5}, True),
+    ({"converged": 3, "page_converged": 3, "std_scale": 0.3}, False),
 ])
 def test_the_tolerance_accepts_what_the_seeds_allow_and_no_more(change, agrees):
     change = dict(change)
-    base = {"converged": change.pop("fresh_converged")} if "fresh_converged" in change else {}
+    base = {"converged": change.pop("page_converged")} if "page_converged" in change else {}
     published = agreement.parse_markdown(to_markdown(_doc(**base)["rows"]))
     mismatches = agreement.compare(published, _doc(**change))
     assert (mismatches == []) == agrees, [str(m) for m in mismatches]
