@@ -174,8 +174,9 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     if config.truth is not None:  # diagnose the model against the emulated machine
         from experiments.diagnosis.emulate import diagnose_emulated
         diagnose_emulated(tb, record=train, out=out / "diagnosis", progress=progress)
-    (out / "table.json").write_text(table.to_json(rows, environment=environment()))
-    (out / "table.md").write_text(table.to_markdown(rows))
+    pairs = table.comparisons(rows)
+    (out / "table.json").write_text(table.to_json(rows, environment=environment(), pairs=pairs))
+    (out / "table.md").write_text(table.to_markdown(rows, pairs=pairs))
     (out / "table.csv").write_text(table.to_csv(rows))
     from experiments import (
         plots,  # matplotlib only where figures are drawn (not in tasks)

@@ -143,12 +143,14 @@ def comparisons(rows: list[dict]) -> list[dict]:
     return out
 
 
-def to_json(rows: list[dict], environment: dict | None = None) -> str:
+def to_json(rows: list[dict], environment: dict | None = None,
+            pairs: list[dict] | None = None) -> str:
     """``{"rows": ...}``, with ``"comparisons"`` when there are PGNN rows to compare and
     ``"environment"`` (library versions, CPU, kernels: :func:`clm_sim.numerics.environment`)
-    when given."""
+    when given. ``pairs``: :func:`comparisons` of ``rows`` when the caller has them (their
+    Wilcoxon p-values cost up to 0.2 s each where a difference is zero)."""
     doc = {"rows": rows}
-    pairs = comparisons(rows)
+    pairs = comparisons(rows) if pairs is None else pairs
     if pairs:
         doc["comparisons"] = pairs
     if environment is not None:
@@ -185,11 +187,11 @@ def _theta_cells(row: dict) -> list[str]:
     return cells
 
 
-def to_markdown(rows: list[dict], swept: list[str] = (), failures: list[dict] = ()) -> str:
-    """A Markdown table, one line per row: the ``swept`` keys' values (sweeps), the
-    feedforward, its seeds, MAE (µm, mean ± std over seeds) per reference, theta_phy (mean ±
-    std over seeds) and (PGNN) how many fits converged, ⚠ when not all; then the ``failures`` of a sweep
-    (``{key: value, ..., "error"}``) as a list; then :func:`fit_report` for PGNN rows."""
+def results_table(rows: list[dict], swept: list[str] = ()) -> str:
+    """The Markdown results table alone, one line per row: the ``swept`` keys' values (sweeps),
+    the feedforward, its seeds, MAE (µm, mean ± std over seeds) per reference, theta_phy (mean ±
+    std over seeds) and (PGNN) how many fits converged, ⚠ when not all. It is the table
+    ``clm-sim compare`` reads (:mod:`experiments.agreement`)."""
     refs = list(rows[0]["mae"]) if rows else []
     fits = any("fits" in row for row in rows)
     head = (list(swept) + ["feedforward", "seeds"] + [f"MAE {r} [µm]" for r in refs]
@@ -206,13 +208,21 @@ def to_markdown(rows: list[dict], swept: list[str] = (), failures: list[dict] = 
                     " ⚠" if row["converged"] < len(row["fits"]) else "")
             cells.append(conv)
         lines.append("| " + " | ".join(cells) + " |")
-    text = "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n"
+
+
+def to_markdown(rows: list[dict], swept: list[str] = (), failures: list[dict] = (),
+                pairs: list[dict] | None = None) -> str:
+    """:func:`results_table`; then the ``failures`` of a sweep (``{key: value, ..., "error"}``)
+    as a list; then :func:`fit_report` for PGNN rows (not for a sweep; ``pairs`` as for
+    :func:`to_json`)."""
+    text = results_table(rows, swept)
     if failures:
         text += f"\n{len(failures)} failed task(s):\n\n" + "".join(
             "- " + ", ".join(f"{k}={_fmt(f[k])}" for k in swept) + f": {f['error']}\n"
             for f in failures)
-    if fits and not swept:
-        text += fit_report(rows)
+    if any("fits" in row for row in rows) and not swept:
+        text += fit_report(rows, pairs)
     return text
 
 
@@ -224,7 +234,7 @@ def _fmt_diff(metric: str, x: float) -> str:
     return f"{x:+.3g} N²"
 
 
-def fit_report(rows: list[dict]) -> str:
+def fit_report(rows: list[dict], pairs: list[dict] | None = None) -> str:
     """For the PGNN rows: training cost, largest relative theta_phy drift and peak network force
     beyond the training range; the fits that did not converge; the paired comparisons."""
     pgnn = [r for r in rows if "fits" in r]
@@ -267,7 +277,7 @@ def fit_report(rows: list[dict]) -> str:
                    "signed-rank test; for MAE the geometric-mean ratio a/b with its interval; "
                    "* where the t-test stays below 0.05 after Holm's adjustment over every "
                    "comparison listed here):"), ""]
-    for c in comparisons(rows):
+    for c in comparisons(rows) if pairs is None else pairs:
         lines.append(comparison_line(c))
     return "\n".join(lines) + "\n"
 

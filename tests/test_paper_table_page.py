@@ -50,7 +50,7 @@ def test_the_page_prints_the_stored_run(stored):
     page names the command, and the stored run is of the shipped config."""
     page = PAGE.read_text(encoding="utf-8")
     assert "clm-sim run experiments/configs/paper_table.yaml" in page
-    rendered = table.to_markdown(stored["rows"]).splitlines()
+    rendered = table.results_table(stored["rows"]).splitlines()
     shown = _page_table(page)
     assert shown == rendered[:len(shown)] and len(shown) == 2 + len(stored["rows"])
     mismatches = agreement.compare(agreement.parse_markdown(page, str(PAGE)), stored)
@@ -73,7 +73,7 @@ def test_a_run_on_other_kernels_reproduces_the_page_both_ways(stored):
               if r["theta_phy_per_seed"] != s["theta_phy_per_seed"]]
     assert len(differ) >= 4  # the kernels moved fits: a comparison, not a copy
     for page, fresh in ((stored, other), (other, stored)):
-        expected = agreement.parse_markdown(table.to_markdown(page["rows"]))
+        expected = agreement.parse_markdown(table.results_table(page["rows"]))
         mismatches = agreement.compare(expected, fresh)
         assert not mismatches, "\n".join(map(str, mismatches))
 
