@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "results" / "paper_table.md"
 STORED = ROOT / "docs" / "results" / "paper_table.json"
 OTHER_KERNELS = ROOT / "docs" / "results" / "paper_table_other_kernels.json"
+REGULARIZERS = ROOT / "docs" / "results" / "regularization_comparison.json"
 CONFIG = ROOT / "experiments" / "configs" / "paper_table.yaml"
 SEEDS = 2  # network seeds rerun per row: two, so a seed index that is ignored shows
 
@@ -58,6 +59,20 @@ def test_the_page_prints_the_stored_run(stored):
     specs = load_config(CONFIG).feedforwards
     assert [row["label"] for row in stored["rows"]] == [s.label() for s in specs]
     assert [row["n_seeds"] for row in stored["rows"]] == [s.seeds for s in specs]
+
+
+def test_the_regularizers_section_prints_its_stored_run():
+    """The page's section on the successors' regularizers shows the table of the run stored
+    beside the page (``regularization_comparison.json``, written by the command the section
+    names), character for character, and its rows are the shipped config's."""
+    page = PAGE.read_text(encoding="utf-8")
+    section = page[page.index("### The successors' regularizers"):]
+    assert "clm-sim run experiments/configs/regularization_comparison.yaml" in section
+    run = json.loads(REGULARIZERS.read_text(encoding="utf-8"))
+    rendered = table.results_table(run["rows"]).splitlines()
+    assert _page_table(section) == rendered
+    specs = load_config(ROOT / "experiments" / "configs" / "regularization_comparison.yaml")
+    assert [row["label"] for row in run["rows"]] == [s.label() for s in specs.feedforwards]
 
 
 def test_a_run_on_other_kernels_reproduces_the_page_both_ways(stored):
