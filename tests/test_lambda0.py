@@ -256,7 +256,7 @@ def test_record_lip_has_an_offset_column():
 def paper_cost_fit():
     """The default testbed's training run (seed 1), its LIP, and the lambda = 0 fit with the
     paper's cost (no weight decay, no continuation) of network draw 3: a draw whose theta_phy
-    drifts by orders of magnitude (viscous ~ -7e4 N·s/m on this code), the case where a replay
+    drifts by orders of magnitude (viscous -1.44e5 N·s/m on this code), the case where a replay
     of theta on other features than the fitted ones leaks hundreds of newtons at reversals."""
     from experiments.testbed import Testbed
 
