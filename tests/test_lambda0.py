@@ -490,3 +490,38 @@ def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():
     li = ident.lip_intervals(data.phi, data.target + e)
     assert li.lag1_autocorr > 0.5  # AR(0.9) plus the white noise of synthetic()
     assert all(li.std_newey_west[n] > li.std_white[n] for n in ("viscous", "stiffness"))
+
+
+def test_section_two_of_the_page_is_what_the_report_prints_for_the_stored_run():
+    """lambda0.md section 2's two tables are ``experiments.lambda0_report`` of the paper table's
+    stored run (the run behind paper_table.md), line for line: no hand-copied number."""
+    import json
+
+    from experiments import lambda0_report
+
+    doc = json.loads((ROOT / "docs/results/paper_table.json").read_text(encoding="utf-8"))
+    page = (ROOT / "docs/results/lambda0.md").read_text(encoding="utf-8")
+    section = page[page.index("## 2. One setting at a time"):page.index("## 3.")]
+    for table in (lambda0_report.rows_table(doc), lambda0_report.comparisons_table(doc)):
+        lines = table.strip().splitlines()
+        start = section.index(lines[0])
+        assert section[start:].splitlines()[:len(lines)] == lines
+    varied = {line.split(" | ")[1] for line in
+              lambda0_report.comparisons_table(doc).strip().splitlines()[2:]}
+    assert varied == {"lambda", "weight_decay", "continuation_lambda"}
+
+
+@pytest.mark.parametrize("content, expected", [
+    (None, "not found"),
+    ('{"rows": 3}', "no 'rows' list"),
+    ('{"rows": [{"kind": "pgnn"}]}', "not a paper-table run's table.json"),
+])
+def test_the_report_refuses_what_it_cannot_read_in_one_line(content, expected, tmp_path, capsys):
+    from experiments import lambda0_report
+
+    path = tmp_path / "table.json"
+    if content is not None:
+        path.write_text(content, encoding="utf-8")
+    assert lambda0_report.main([str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err
