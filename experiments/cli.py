@@ -26,17 +26,14 @@ def _cmd_run(args) -> int:
     from experiments.config import load_config, refuse_other_commands
     from experiments.runner import run_experiment
     from experiments.suspicions import config_warnings
-    from experiments.table import to_markdown
 
-    refuse_other_commands(load_yaml(args.config), args.config)
-    config = load_config(args.config)
+    data = load_yaml(args.config)
+    refuse_other_commands(data, args.config)
+    config = load_config(args.config, data)
     _warn(args.config, config_warnings(config))
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
-    rows = run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
-    if config.data is not None:
-        print((out / "table.md").read_text(), end="")  # with the sections beyond the rows
-    else:
-        print(to_markdown(rows), end="")
+    run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
+    print((out / "table.md").read_text(), end="")  # what the run wrote: nothing computed twice
     return 0
 
 

@@ -315,10 +315,11 @@ def refuse_other_commands(data: dict, path) -> None:
                             "section") + f"; run it with 'clm-sim {command} {path}'")
 
 
-def load_config(path) -> ExperimentConfig:
-    """Read and check an experiment config; errors name the file and the key."""
+def load_config(path, data: dict | None = None) -> ExperimentConfig:
+    """Read and check an experiment config; errors name the file and the key. ``data``: the
+    file's YAML when the caller has read it already (:func:`clm_sim.schema.load_yaml`)."""
     path = Path(path)
-    data = load_yaml(path)
+    data = load_yaml(path) if data is None else data
     try:
         return build(ExperimentConfig, data, "config")
     except UserError as exc:
