@@ -96,8 +96,8 @@ def check_writable(out) -> None:
             anchor = anchor.parent
         if not anchor.is_dir():
             raise UserError(f"{given}: {anchor} is a file, not a folder")
-        probe = tempfile.mkdtemp(prefix=".clm-sim-probe-", dir=anchor)
-        os.rmdir(probe)
+        with _signals_held():  # a Ctrl-C between the two would leave the probe behind
+            os.rmdir(tempfile.mkdtemp(prefix=".clm-sim-probe-", dir=anchor))
     except OSError as exc:
         raise write_error(given, exc) from None
 
@@ -167,30 +167,37 @@ def output_lock(out: Path, given):
         yield
         return
     path = out.with_name(f".{out.name}.lock")
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise UserError(f"{given}: another clm-sim command is writing this folder; wait "
-                            f"for it to finish or choose another --out") from None
-        try:  # the holder before us may have removed the file after we opened it: lock anew
-            same = os.stat(path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)
-    _IN_PROGRESS.add(path)
+    fd = None
     try:
+        # Made, locked and recorded with Ctrl-C held, inside the try that removes the file: a
+        # Ctrl-C that came between making and recording would leave it behind.
+        with _signals_held():
+            while True:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    os.close(fd)
+                    fd = None
+                    raise UserError(f"{given}: another clm-sim command is writing this folder; "
+                                    f"wait for it to finish or choose another --out") from None
+                try:  # the holder before us may have removed the file after we opened it
+                    same = os.stat(path).st_ino == os.fstat(fd).st_ino
+                except FileNotFoundError:
+                    same = False
+                if same:
+                    break
+                os.close(fd)
+                fd = None
+            _IN_PROGRESS.add(path)
         yield
     finally:
-        try:
-            path.unlink(missing_ok=True)  # while still locked: a waiting opener re-checks
-        finally:
-            _IN_PROGRESS.discard(path)
-            os.close(fd)
+        if fd is not None:
+            try:
+                path.unlink(missing_ok=True)  # while still locked: a waiting opener re-checks
+            finally:
+                _IN_PROGRESS.discard(path)
+                os.close(fd)
 
 
 @contextlib.contextmanager
@@ -221,9 +228,10 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
         # Under the lock every other temporary folder of this output is a killed run's.
         for stale in out.parent.glob(f".{glob.escape(out.name)}.partial*"):
             shutil.rmtree(stale, ignore_errors=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-",
-                                    dir=out.parent))
-        _IN_PROGRESS.add(tmp)
+        with _signals_held():  # created and recorded at once: a Ctrl-C that came between
+            tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-",
+                                        dir=out.parent))  # the two would leave it behind
+            _IN_PROGRESS.add(tmp)
         tmp.chmod(0o777 & ~_umask())  # mkdtemp's 0700 would hide the result from others
         for sub in subdirs:
             (tmp / sub).mkdir(parents=True)
