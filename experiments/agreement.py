@@ -11,8 +11,8 @@ one unit of its last printed digit for the rounding:
 * **a mean over n seeds of a tracking error** (MAE): one standard error, ``s/√n``, with ``s`` the
   larger of the two sample standard deviations: the resolution the table itself claims; for a
   row most of whose fits did not converge in either run (their end points are the iteration
-  cap's, not the data's), 1.96·√2 standard errors: a machine difference draws such end points anew, and two
-  independent means differ by less than that in 95 % of cases;
+  cap's, not the data's), 1.96·√2 standard errors: a machine difference draws such end points
+  anew, and two independent means differ by less than that in 95 % of cases;
 * **a sample standard deviation**: its own standard error, ``s/√(2(n−1))`` (normal samples);
   in a row most of whose fits did not converge, 1.96·√2 of it, for the reason above (two
   independent standard deviations);
