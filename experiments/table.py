@@ -359,7 +359,8 @@ def seed_stat(stats: list[dict]) -> dict:
 
 def over_seeds(rows: list[dict], swept: list[str]) -> list[dict]:
     """Rows of a sweep that differ only in the swept ``seed`` merged into one row each, in the
-    order they first appear: MAE mean ± sample std over the seeds, theta_phy averaged,
+    order they first appear: MAE mean ± sample std over the seeds, theta_phy averaged (each
+    seed's in ``theta_phy_per_seed``, so that the table prints its spread over the seeds),
     ``n_seeds`` the number of seeds merged. Rows are matched by feedforward position
     (``row``) and every other swept key that can change them: a row no key of its own
     changes (the LIP beside a PGNN whose lambda is swept) is one row, those keys ``None``."""
@@ -382,7 +383,7 @@ def over_seeds(rows: list[dict], swept: list[str]) -> list[dict]:
             "mae": {ref: {k: v for k, v in seed_stat([m["mae"][ref] for m in members]).items()
                           if k != "n"} for ref in first["mae"]},
             "theta_phy": {k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES}
-            if thetas else None,
+            if thetas else None, "theta_phy_per_seed": thetas or None,
             "label": first["label"], **dict(zip(others, own)), "row": first["row"]})
     return out
 

@@ -415,7 +415,8 @@ def test_sweep_table_gives_mean_and_std_beside_the_per_seed_rows():
     text = sweep_markdown(_seed_rows(), swept, [])
     summary, every = text.split("## Every task")
     assert "Mean ± std over the 3 swept seeds" in summary
-    assert "| 0 | PGNN 0.0 | 3 | 0.300 ± 0.265 |" in summary  # std of 0.1, 0.2, 0.6 µm
+    # std of 0.1, 0.2, 0.6 µm; mass 19, 20, 21 kg over the seeds, the other parameters equal
+    assert "| 0 | PGNN 0.0 | 3 | 0.300 ± 0.265 | 20 ± 1 | 1 | 1 | 1 |" in summary
     assert "| 0.1 | PGNN 0.1 | 3 | 0.400 ± 0.265 |" in summary
     assert sum(line.startswith("| 0") for line in every.splitlines()) == 6  # every task's row
     # Without a swept seed there is nothing to average: only the per-task table.
