@@ -27,8 +27,7 @@ VARIED = ("lambda", "weight_decay", "continuation_lambda")
 
 
 def _short(label: str) -> str:
-    return (label.replace("PGNN simultaneous, ", "").replace("PGNN ", "")
-            .replace("lambda=0.01", "λ = 0.01").replace("lambda=0", "λ = 0"))
+    return label.replace("PGNN simultaneous, ", "").replace("PGNN ", "").replace("lambda=", "λ = ")
 
 
 def rows_table(doc: dict) -> str:
