@@ -324,7 +324,13 @@ def test_study_refuses_a_config_without_study_section(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.yaml"]
 
 
-def test_study_trains_every_seed_it_reports(tmp_path, capsys):
+def test_study_trains_every_seed_it_reports(tmp_path, capsys, monkeypatch):
+    import experiments.workers
+
+    # The fits in this process, not on a pool of spawned workers that each import torch (two
+    # processes, seconds of CPU apiece): the pool gives the same bits (test_pgnn.py::
+    # test_worker_pool_gives_the_same_bits) and is not what this test is about.
+    monkeypatch.setattr(experiments.workers, "cores", lambda: 1)
     cfg = tmp_path / "study.yaml"
     # Five LM iterations: the test is about which seeds the summary reports, not the fits.
     cfg.write_text(SMALL + "study:\n  lambdas: [0, 0.01]\n  hidden: 4\n  seeds: 2\n"

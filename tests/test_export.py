@@ -49,6 +49,18 @@ needs_cc = pytest.mark.skipif(compiler() is None, reason="no C compiler (gcc, cc
                               "this machine: the C export is checked by the ONNX and numpy forms")
 
 
+@pytest.fixture(autouse=True)
+def _one_thread_per_pool():
+    """Every test here on one BLAS (and torch) thread. The checks are long products of large
+    arrays (the FIR windows of whole records, the oracle's autocorrelation of 16k samples);
+    OpenBLAS's second thread spins while it waits for a core, and with two pytest-xdist workers
+    on two cores it waits long: the autocorrelation alone took 8 s to 80 s, 0.1 s on one thread.
+    No check here is about threads; what they compare is summed per row either way."""
+    from clm_sim.numerics import single_threaded
+    with single_threaded():
+        yield
+
+
 def random_reference(seed: int) -> np.ndarray:
     """A reference the product never saw: random points, dwells and limits (m)."""
     rng = np.random.default_rng(seed)
@@ -139,7 +151,7 @@ def test_window_form_is_the_product_feedforward(name, fitted, effects_lip, refer
     step = 1 if name != "pgnn" else 11  # every 11th of the 1142-sample PGNN windows (time)
     for r in references.values():
         w = wf.windows(r)[::step]
-        got = np.concatenate([wf(w[i:i + 2048]) for i in range(0, len(w), 2048)])
+        got = np.concatenate([wf(w[i:i + 256]) for i in range(0, len(w), 256)])
         assert _rel(got, model.feedforward(r, TS)[::step]) < REL
 
 
@@ -265,10 +277,12 @@ def _onnx_session(path):
     onnx = pytest.importorskip("onnx")
     ort = pytest.importorskip("onnxruntime")
     meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
-    return ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]), meta
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1  # as BLAS here (_one_thread_per_pool): no spinning thread
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"]), meta
 
 
-def _onnx_apply(session, meta, r, step=1, chunk=4000):
+def _onnx_apply(session, meta, r, step=1, chunk=256):
     """u_ff of record r by ONNX Runtime on windows built from the metadata's lag and lead."""
     lag, lead = int(meta["lag"]), int(meta["lead"])
     padded = np.concatenate([np.full(lag, r[0]), r, np.full(lead, r[-1])])
@@ -297,8 +311,8 @@ def _mlp_apply(session, wf, r):
     form's, record held at its ends), the graph's force there, the held average."""
     padded = np.concatenate([np.full(wf.half + 1, r[0]), r, np.full(wf.half + 2, r[-1])])
     w = np.lib.stride_tricks.sliding_window_view(padded, 2 * wf.half + 3)
-    p = np.concatenate([session.run(["force"], {"features": wf.features(w[i:i + 4000])})[0][:, 0]
-                        for i in range(0, len(w), 4000)])
+    p = np.concatenate([session.run(["force"], {"features": wf.features(w[i:i + 256])})[0][:, 0]
+                        for i in range(0, len(w), 256)])
     return 0.5 * (p[:-1] + p[1:])
 
 
