@@ -236,14 +236,16 @@ def test_row_that_the_swept_key_cannot_change_is_one_flat_series():
 
 def _run_failing(tmp: Path) -> dict:
     out = tmp / "out"
-    outcome = run_sweep(load_sweep(_write(tmp, FAILING_GRID)), out, workers=2, quiet=True)
+    outcome = run_sweep(load_sweep(_write(tmp, FAILING_GRID)), out, workers=1, quiet=True)
     return {"config": str(tmp / "sweep.yaml"), "out": str(out), "outcome": asdict(outcome)}
 
 
 @pytest.fixture(scope="session")
 def failing_sweep(tmp_path_factory):
-    """The four-task sweep with two unstable designs, run once on two local workers (once over
-    xdist's workers: its tests only read its folder)."""
+    """The four-task sweep with two unstable designs, run once on one local worker (once over
+    xdist's workers: its tests only read its folder). One worker is one start-up of the product
+    (seconds of imports) instead of two; the dask test then also compares across worker counts,
+    and two local workers run in the resume tests."""
     built = build_once(tmp_path_factory, "failing_sweep", _run_failing)
     return load_sweep(Path(built["config"])), Path(built["out"]), Outcome(**built["outcome"])
 
