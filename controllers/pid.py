@@ -9,6 +9,8 @@ nonsensical design raises :class:`clm_sim.errors.UserError` and never reaches a 
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -119,7 +121,24 @@ def design_pid(*, mass: float, viscous: float, stiffness: float, design: PIDDesi
     ------
     UserError
         If a parameter is out of range or the sampled closed loop is not stable.
+
+    Notes
+    -----
+    The design of given arguments is computed once per process and reused (a sweep or a study
+    designs the same PID for every task on one plant: a third of a second each); every call
+    gets its own ``b`` and ``a``.
     """
+    pid = _design(repr((mass, viscous, stiffness, design, ts)), mass, viscous, stiffness,
+                  design, ts)
+    return dataclasses.replace(pid, b=pid.b.copy(), a=pid.a.copy())
+
+
+@functools.lru_cache(maxsize=64)
+def _design(key: str, mass: float, viscous: float, stiffness: float, design: PIDDesign,
+            ts: float) -> PIDController:
+    """:func:`design_pid`'s computation. ``key``, the arguments' repr, tells apart what ``==``
+    does not (0.0 and -0.0, 1 and 1.0, a float and a numpy scalar), so a reused design is the
+    one these exact arguments give. A design that raises is not stored."""
     # Here, not at the top: a config that only names a PIDDesign (every worker, every command
     # that refuses a bad file) need not pay for control, scipy.signal and matplotlib.pyplot.
     import control

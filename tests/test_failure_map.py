@@ -127,8 +127,12 @@ def test_bad_config_is_one_error_naming_the_key(tmp_path, edit, words):
 # --------------------------------------------------------------------------------------------
 
 def _tiny(data):
-    # One pass of r1 for training, a 4-neuron network, a short fit: seconds per cell.
+    # One pass of r1 for training, a 4-neuron network, a short fit: about a second per cell.
     data["training"] = {"repeats": 1}
+    # The shipped references at a fifth of their strokes and dwells, at the same speeds: r2
+    # still leaves r1's range in position and r3 in velocity, in a fifth of the samples.
+    for ref in data["references"].values():
+        ref.update(points_m=[0.2 * p for p in ref["points_m"]], dwell_s=0.2 * ref["dwell_s"])
     fm = data["failure_map"]
     fm.update(seeds=3, hidden=[4], pgnn={"max_iter": 15, "decimation": 40})
     fm["cases"] = {k: fm["cases"][k] for k in ("none", "cable_carrier")}

@@ -203,9 +203,11 @@ def test_run_sends_a_profile_config_to_study(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_study_runs_end_to_end(tmp_path):
-    """A tiny study through the command: two records, n_l = 3, two points per direction, a
-    coarse resolution (so that points resolve and are checked); the same result in one
-    process and in two; the file reads back into the typed record and writes the same."""
+    """A tiny study through the command: two records, n_l = 3, short record fits (20
+    iterations, 20 more to polish: the profiles' start need not be a minimum for what is
+    checked here), two points per direction, a coarse resolution (so that points resolve and
+    are checked); the same result in one process and in two; the file reads back into the
+    typed record and writes the same."""
     import json
 
     from experiments.cli import main
@@ -214,7 +216,8 @@ def test_study_runs_end_to_end(tmp_path):
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text("name: tiny\nkind: identifiability\nseed: 1\ntraining: {repeats: 1}\n"
                    "identifiability: {hidden: [3], records: 2, max_iter: 3, points: 2, "
-                   "resolution: 1000.0, check: 2, check_iter: 4}\n")
+                   "resolution: 1000.0, check: 2, check_iter: 4, polish: 20,\n"
+                   "  pgnn: {max_iter: 20, weight_decay: 0, continuation_lambda: 0}}\n")
     out = tmp_path / "out"
     assert main(["study", str(cfg), "--out", str(out), "--quiet", "--workers", "1"]) == 0
     sizes = json.loads((out / "identifiability.json").read_text())["sizes"]
