@@ -64,48 +64,58 @@ def default_training_run(default_pid, r1, r1_dither):
     return simulate(Plant(), default_pid, r1, TS, dither=r1_dither)
 
 
-# The slow tier, measured (`pytest -m "not slow" --durations=60` on the 2-core machine): tests of
-# which one case takes more than about a second of CPU — end-to-end CLI runs, subprocesses that
-# import torch, PGNN fits to convergence, the foreign-record diagnoses. Kept here, in one list
-# with the measurement that put each test in it (seconds of one case, wall time on the shared
-# machine: a ranking, not a figure), rather than as marks scattered over the files; tests marked
-# `@pytest.mark.slow` in their file count too. CI runs both tiers.
+# The slow tier, measured (`pytest -n auto --durations=0` on the 2-core machine, sixth session:
+# seconds of one case, setup included, wall time in a full run: a ranking, not a figure): tests
+# of which one case takes more than about a second of CPU — end-to-end CLI runs, subprocesses
+# that import torch, PGNN fits to convergence, the foreign-record diagnoses. Kept here, in one
+# list with the measurement that put each test in it, rather than as marks scattered over the
+# files; tests marked `@pytest.mark.slow` in their file count too. The seconds also order the
+# run (longest first, below): a long test left out of this list starts late and ends the run
+# alone. CI runs both tiers.
 SLOW = {
-    "test_cli.py": {"test_study_trains_every_seed_it_reports": 26,  # CPU, 5 LM iterations a fit
-                    "test_sigterm_during_run_cleans_up_like_ctrl_c": 19,
-                    "test_lip_json_of_identify_is_a_diagnose_model": 10,
-                    "test_identify_reads_renamed_columns_in_mm_like_the_si_record": 5},
     "test_paper_table_page.py": {
-        "test_a_fresh_run_of_the_first_seeds_reproduces_the_stored_run_seed_by_seed": 70},  # CPU
-    "test_pgnn.py": {"test_fit_converges_and_records_how": 36,
-                     "test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw": 23,
-                     "test_optimized_init_never_costs_more_than_lip": 17,
-                     "test_regularized_pgnn_learns_parasitic_force_and_keeps_theta": 12,
-                     "test_jacobian_matches_finite_differences": 8,
-                     "test_result_does_not_depend_on_the_callers_thread_count": 8,
-                     "test_orthogonal_projection_keeps_theta_lip": 5},
-    "test_sweep.py": {"test_sweep_killed_by_sigkill_resumes_without_recomputing": 49,
-                      "test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes": 41,
-                      "test_dask_local_cluster_gives_the_local_results": 8,  # call; shared setup
-                      "test_failed_tasks_are_recorded_and_the_others_finish": 21},  # setup
-    "test_diagnosis.py": {"test_emps_out_of_sample_gain": 43,
-                          "test_cli_writes_json_and_report": 16,
-                          "test_model_effect_the_data_lacks_is_not_supported": 5,
-                          "test_default_plant_cable_carrier_is_cable_slab_not_cogging": 5,
-                          "test_hidden_effect_is_named_first_with_its_parameters": 5},
-    "test_foreign_records.py": {"*": 5},  # 1-15 s of CPU per record (was 6-27 s wall)
-    "test_loop.py": {"test_runner_is_deterministic": 19},
-    "test_reproducibility.py": {
-        "test_a_users_kernel_choice_wins_and_native_opts_out": 17,
-        "test_pinning_before_the_libraries_load_gives_their_avx2_kernels": 8},
-    "test_bad_input.py": {"test_real_process_prints_one_line_and_exits_2": 14},
-    "test_plots.py": {"test_importing_plots_chooses_no_backend": 6},
-    "test_lip.py": {"test_identify_cli_recovers_independent_record": 5},  # setup
-    # the tiny study (`build_once`: one build for both workers), 20 s of setup; its other tests
-    # come later in the slow tier and find it built
-    "test_failure_map.py": {"test_tiny_grid_runs_and_every_cell_is_paired": 20},
+        "test_a_fresh_run_of_the_first_seeds_reproduces_the_stored_run_seed_by_seed": 47},
+    "test_lambda0.py": {"test_emps_pgnn_runs_on_the_measured_records": 35,
+                        "test_paper_cost_lambda0_replays_near_the_lip_without_reversal_spikes": 6},
+    "test_sweep.py": {"test_sweep_killed_by_sigkill_resumes_without_recomputing": 25,
+                      "test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes": 15,
+                      "test_dask_local_cluster_gives_the_local_results": 10,
+                      "test_failed_tasks_are_recorded_and_the_others_finish": 5},  # setup
     # two tiny studies; was 47 s before its phases shared one worker pool
-    "test_profiles.py": {"test_study_runs_end_to_end": 13},
+    "test_profiles.py": {"test_study_runs_end_to_end": 17},
+    "test_export.py": {"test_strict_warnings_matrix": 14,  # 20 compiles of the AVX2 header
+                       "test_cli_exports_a_run_pgnn_that_matches_on_an_unseen_reference": 9},
+    # the tiny study (`build_once`: one build for both workers), 14 s of setup; its other tests
+    # come later in the slow tier and find it built
+    "test_failure_map.py": {"test_tiny_grid_runs_and_every_cell_is_paired": 14},
+    "test_pgnn.py": {"test_fit_converges_and_records_how": 13,
+                     "test_lambda_zero_costs_no_more_than_the_regularized_fit_of_its_draw": 5,
+                     "test_optimized_init_never_costs_more_than_lip": 2,
+                     "test_regularized_pgnn_learns_parasitic_force_and_keeps_theta": 3,
+                     "test_jacobian_matches_finite_differences": 1,
+                     "test_result_does_not_depend_on_the_callers_thread_count": 2,
+                     "test_orthogonal_projection_keeps_theta_lip": 1},
+    "test_testbed.py": {"test_readme_api_example_runs_from_any_folder": 11},
+    "test_cli.py": {"test_signal_during_pgnn_fits_ends_workers_without_tracebacks": 8,
+                    "test_study_trains_every_seed_it_reports": 6,  # 5 LM iterations a fit
+                    "test_two_runs_into_one_out_never_mix": 6,
+                    "test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly": 5,
+                    "test_lip_json_of_identify_is_a_diagnose_model": 4,
+                    "test_identify_reads_renamed_columns_in_mm_like_the_si_record": 1},
+    "test_diagnosis.py": {"test_emulated_machine_config_reports_feedforward_gain": 8,
+                          "test_emps_out_of_sample_gain": 6,
+                          "test_cli_writes_json_and_report": 5,
+                          "test_model_effect_the_data_lacks_is_not_supported": 3,
+                          "test_default_plant_cable_carrier_is_cable_slab_not_cogging": 1,
+                          "test_hidden_effect_is_named_first_with_its_parameters": 1},
+    "test_reproducibility.py": {
+        "test_a_users_kernel_choice_wins_and_native_opts_out": 7,
+        "test_pinning_before_the_libraries_load_gives_their_avx2_kernels": 6},
+    "test_loop.py": {"test_runner_is_deterministic": 5},
+    "test_foreign_records.py": {"*": 1},  # 1-3 s of CPU per record
+    "test_bad_input.py": {"test_real_process_prints_one_line_and_exits_2": 1},
+    "test_plots.py": {"test_importing_plots_chooses_no_backend": 1},
+    "test_lip.py": {"test_identify_cli_recovers_independent_record": 3},  # setup
 }
 
 
