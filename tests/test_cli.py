@@ -358,13 +358,15 @@ def _session_processes(sid: int) -> list[int]:
     """Processes still alive in the session ``sid`` (a command started with
     ``start_new_session``: its workers inherit the session even once orphaned)."""
     alive = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
+    # Listed, then read: a process may end in between (Path.glob's own stat of "N/stat" raised
+    # ProcessLookupError there once), so only the read is tried.
+    for pid in (name for name in os.listdir("/proc") if name.isdigit()):
         try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
         if int(fields[3]) == sid and fields[0] != "Z":  # fields: state ppid pgrp session
-            alive.append(int(stat.parent.name))
+            alive.append(int(pid))
     return alive
 
 
