@@ -126,7 +126,8 @@ def design_pid(*, mass: float, viscous: float, stiffness: float, design: PIDDesi
     -----
     The design of given arguments is computed once per process and reused (a sweep or a study
     designs the same PID for every task on one plant: a third of a second each); every call
-    gets its own ``b`` and ``a``.
+    gets its own ``b`` and ``a``, and shares ``continuous`` and ``discrete`` (python-control
+    transfer functions, read only).
     """
     pid = _design(repr((mass, viscous, stiffness, design, ts)), mass, viscous, stiffness,
                   design, ts)

@@ -187,7 +187,7 @@ def pytest_sessionstart(session):
     simulate(Plant(), ZeroController(), np.zeros(20), TS)  # the closed loop
     reference_sim.run_loop(reference_sim.Stage(), reference_sim.Cascade(60.0, 4700.0, 1e-3),
                            np.zeros(5), 1e-3, resolution=1e-7)  # the foreign records'
-    if beside is None or beside.wait() != 0:  # (if it failed, the tests will say why)
+    if beside is None or beside.wait() != 0:  # cached already, or the second process failed
         compile_open_loop()
     _WARM_UP.append(time.monotonic() - start)
 
@@ -196,8 +196,9 @@ def compile_open_loop() -> None:
     """Compile (or load) the open-loop kernel (:mod:`clm_sim.open_loop`)."""
     from clm_sim.open_loop import initial_state, simulate_input
 
+    plant = Plant()
     y = np.linspace(0.0, 1e-4, 40)
-    simulate_input(Plant(), np.zeros(40), TS, initial_state(y, TS, Plant()))
+    simulate_input(plant, np.zeros(40), TS, initial_state(y, TS, plant))
 
 
 _WARM_UP: list = []  # the seconds the kernels took before the workers started (this process)
