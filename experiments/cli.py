@@ -93,21 +93,17 @@ def _warn(path, lines: list[str]) -> None:
 
 
 def _cmd_study(args) -> int:
-    from clm_sim.schema import load_yaml
-    from experiments.studies import (emps_benchmark, extrapolation, failure_map, mechanism,
-                                     profiles)
-    from experiments.studies.kinds import kind_of
+    import importlib
 
+    from clm_sim.schema import load_yaml
+    from experiments.studies.kinds import MODULES, POOLED, kind_of
+
+    # Only the study asked for is imported (each loads its own libraries: matplotlib,
+    # scipy.signal, torch), so a config refused for its kind costs none of them.
     kind = kind_of(load_yaml(args.config), args.config)
-    if kind == "failure_map":  # where lambda = 0 fails
-        return failure_map.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
-    if kind == "emps_benchmark":  # EMPS on the field's benchmark protocol
-        return emps_benchmark.main(args.config, args.out, quiet=args.quiet)
-    if kind == "mechanism":  # finding (iii) over training records, and its mechanism
-        return mechanism.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
-    if kind == "identifiability":  # converged profiles of the data cost at lambda = 0
-        return profiles.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
-    return extrapolation.main(args.config, args.out, quiet=args.quiet)
+    study = importlib.import_module(f"experiments.studies.{MODULES[kind]}")
+    pool = {"workers": args.workers} if kind in POOLED else {}
+    return study.main(args.config, args.out, quiet=args.quiet, **pool)
 
 
 def _cmd_diagnose(args) -> int:

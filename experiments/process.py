@@ -59,6 +59,7 @@ def _end_now(signum, frame):
     if not _ENDING.acquire(blocking=False):
         return
     workers.kill_all()
+    workers.stop_server()
     outdir.abandon()
     _say(signum, lambda line: os.write(2, f"{line}\n".encode()))
     os._exit(CODES[signum])
@@ -189,6 +190,8 @@ def _exit_now(code: int) -> None:
     guard = threading.Timer(1.0, os._exit, (code,))
     guard.daemon = True
     guard.start()
+    with contextlib.suppress(Exception):
+        workers.stop_server()  # the workers are ended: the fork server follows at once
     with contextlib.suppress(Exception):
         multiprocessing.util._exit_function()
     # Unlink the pools' semaphores (multiprocessing's resource tracker, which exits by itself

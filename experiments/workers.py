@@ -1,16 +1,20 @@
 """Worker processes: the one place where clm-sim starts them.
 
-Every worker is a fresh ``spawn`` process that starts single-threaded (BLAS, OpenMP, numba,
-torch: :func:`single_threaded_children`) and exits with its parent even when the parent is
-killed (:func:`watch_parent`). Two users: :func:`run_local` maps a function over task payloads in
+Every worker starts single-threaded (BLAS, OpenMP, numba, torch: :func:`single_threaded_children`)
+and exits with the process that started it even when that process is killed
+(:func:`watch_parent`). Workers come from a fork server (:func:`context`): a clean process,
+started once per clm-sim process with the libraries the workers use already imported (torch,
+python-control, scipy, the kernels: about 4 s of CPU that each fresh ``spawn`` process paid
+again), which forks each worker. Where the platform has no fork server, workers are ``spawn``
+processes. Two users: :func:`run_local` maps a function over task payloads in
 completion order (sweeps, the studies; a study of several phases maps them on one
 :func:`local_pool`), and :func:`map_fits` runs the PGNN fits of one table row on a pool kept
 for the process.
 
 PGNN fits of independent seeds on worker processes, one thread each.
 
-The fits of one table row differ only in their seed, so they run in a pool of ``spawn`` worker
-processes (one per available core). Every fit pins torch and BLAS to one thread itself
+The fits of one table row differ only in their seed, so they run in a pool of worker processes
+(one per available core). Every fit pins torch and BLAS to one thread itself
 (:func:`clm_sim.numerics.single_threaded`), so a fit gives the same bits in a worker and in the
 calling process, and the pool changes the wall time, never a result. Inside a worker process of
 another pool (a sweep task) the fits run in-process: pools do not nest.
@@ -23,6 +27,7 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -57,12 +62,29 @@ SPAWNING = threading.Lock()
 @contextlib.contextmanager
 def _spawning():
     """Around every call that may start a worker: child processes start with one thread each
-    and with Ctrl-C and SIGTERM ignored (a disposition a new process inherits; a blocked mask
-    it does not), so a signal to the process group while a worker starts its interpreter and
-    imports its modules cannot print a traceback in it (the parent alone answers, and ends its
-    workers). A command line process receives its signals in a thread of its own
-    (:func:`experiments.cli.main`), which waits for :data:`SPAWNING` before it passes one on,
-    so none is lost."""
+    and with Ctrl-C and SIGTERM ignored (a disposition a new process inherits), so a signal to
+    the process group while a worker starts cannot print a traceback in it (the owner alone
+    answers, and ends its workers). With a fork server (:func:`context`) that holds for the
+    server's start only: every worker is a copy of it, with its dispositions and environment,
+    and the block itself runs with this process's signals as they are (a Ctrl-C while the
+    server still imports its libraries interrupts the wait for the first worker at once)."""
+    if context().get_start_method() == "forkserver":
+        from multiprocessing import forkserver
+
+        with _starting():
+            forkserver.ensure_running()
+        yield
+    else:
+        with _starting():
+            yield
+
+
+@contextlib.contextmanager
+def _starting():
+    """Child processes started within the block start single-threaded, with Ctrl-C and SIGTERM
+    ignored. A command line process receives its signals in a thread of its own
+    (:func:`experiments.process.receive_signals`), which waits for :data:`SPAWNING` before it
+    passes one on, so none is lost."""
     main = threading.current_thread() is threading.main_thread()
     mask = main and hasattr(signal, "pthread_sigmask")
     with SPAWNING:
@@ -105,6 +127,84 @@ def _start_resource_tracker() -> None:
             os.close(saved)
 
 
+# What the fork server imports before it forks the first worker: every library a worker's task
+# uses (a fit: torch; a replay or a sweep task: python-control for the PID design, numba's
+# kernels). Paid once per clm-sim process, not once per worker.
+PRELOAD = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.signal", "control", "torch",
+           "clm_sim.loop", "controllers.pgnn", "controllers.pgnn.model", "experiments.workers",
+           "experiments.runner", "experiments.testbed")
+
+
+def context() -> multiprocessing.context.BaseContext:
+    """The start method of every worker: ``forkserver`` with :data:`PRELOAD` on Linux, else
+    ``spawn`` (macOS has a fork server too, but its system libraries are not safe to use in a
+    forked copy of a process that loaded them; Windows has none). A forked worker is a copy of
+    the fork server, a process started for this purpose that never computes, so it inherits
+    imported modules and nothing of the caller's state; the server itself starts inside
+    :func:`_spawning` (one thread per library, Ctrl-C and SIGTERM ignored) and hands that to
+    every worker."""
+    if not sys.platform.startswith("linux"):
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["__main__", *PRELOAD])
+    global _STOP_AT_EXIT
+    if not _STOP_AT_EXIT:
+        _STOP_AT_EXIT = True
+        atexit.register(stop_server)
+    return ctx
+
+
+_STOP_AT_EXIT = False
+
+
+def stop_server() -> None:
+    """End this process's fork server, if it started one, and wait until it has gone (a
+    command ends with no process of its own left behind), every pool's workers first; a later
+    pool starts a new one. Reads private attributes of :mod:`multiprocessing.forkserver` (those
+    of CPython 3.11); where a Python has others, this does nothing and the server exits by
+    itself once this process and its workers have ended."""
+    from multiprocessing import forkserver
+
+    server = forkserver._forkserver
+    lock = getattr(server, "_lock", None)
+    if getattr(server, "_forkserver_pid", None) is None or lock is None \
+            or not lock.acquire(timeout=1.0):
+        return
+    try:
+        pid, alive = server._forkserver_pid, server._forkserver_alive_fd
+        address = server._forkserver_address
+        server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
+        kill_all()
+        # Killed, not asked: it computes nothing and may still be importing its libraries
+        # (seconds before it reads its pipe); its workers are killed above.
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(pid, 0)
+        with contextlib.suppress(OSError, TypeError):
+            os.close(alive)
+        with contextlib.suppress(OSError, TypeError):
+            if not address.startswith("\0"):  # a file, not Linux's abstract namespace
+                os.unlink(address)
+        _remove_temp_dir()
+    except AttributeError:  # another Python's forkserver: it exits after this process
+        pass
+    finally:
+        lock.release()
+
+
+def _remove_temp_dir() -> None:
+    """Remove multiprocessing's temporary folder of this process (it held the fork server's
+    socket) now, by its own finalizer: a process that ends with ``os._exit`` after an
+    interruption would leave it in /tmp."""
+    from multiprocessing import util
+
+    with contextlib.suppress(Exception):
+        for finalizer in list(util._finalizer_registry.values()):
+            if getattr(finalizer, "_callback", None) is util._remove_temp_dir:
+                finalizer()
+
+
 def stop(pool: ProcessPoolExecutor) -> None:
     """End ``pool`` now: its workers killed (they write no file and ignore SIGTERM), queued
     work cancelled, without waiting for running tasks."""
@@ -132,16 +232,33 @@ def kill_all() -> None:
                 proc.kill()
 
 
-def watch_parent(parent_pid: int) -> None:
-    """Worker initializer: ignore Ctrl-C and SIGTERM (the parent handles them and ends the
-    workers) and exit when the parent process dies (even by SIGKILL), leaving no orphan
-    computing a result nobody will store."""
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, killed and not yet reaped, does not)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return True  # no /proc: kill(pid, 0) is all there is
+
+
+def watch_parent(owner_pid: int) -> None:
+    """Worker initializer: ignore Ctrl-C and SIGTERM (the owner, the process whose pool this
+    is, handles them and ends the workers) and exit when the owner dies (even by SIGKILL) or
+    the process that started this worker does (the fork server, or the owner itself for a
+    ``spawn`` worker), leaving no orphan computing a result nobody will store."""
     for sig in _STOP_SIGNALS:  # already ignored since the start (see _spawning), for good
         signal.signal(sig, signal.SIG_IGN)
+    starter = os.getppid()
 
     def watch():
         while True:
-            if os.getppid() != parent_pid:
+            if os.getppid() != starter or not _alive(owner_pid):
                 os._exit(1)
             time.sleep(0.5)
     threading.Thread(target=watch, daemon=True, name="clm-sim-parent-watch").start()
@@ -149,14 +266,12 @@ def watch_parent(parent_pid: int) -> None:
 
 @contextlib.contextmanager
 def local_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
-    """A pool of ``workers`` fresh processes (``spawn``: no state inherited from the parent, same
-    behaviour on Linux, macOS and Windows) for one or several :func:`run_local` maps in a row: a
-    study of several phases starts its workers (each imports torch: seconds) once, not once a
-    phase. The block's end shuts it down; an exception (Ctrl-C, a failed task) kills its workers
+    """A pool of ``workers`` fresh processes (:func:`context`: no state inherited from the
+    caller) for one or several :func:`run_local` maps in a row: a study of several phases starts
+    its workers once, not once a phase. The block's end shuts it down; an exception (Ctrl-C, a failed task) kills its workers
     at once instead of waiting for running tasks."""
-    ctx = multiprocessing.get_context("spawn")
     with _spawning():
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context(),
                                    initializer=watch_parent, initargs=(os.getpid(),))
     _POOLS.add(pool)
     try:
@@ -229,13 +344,13 @@ def cores() -> int:
 
 
 def _pool() -> ProcessPoolExecutor:
-    """The pool, started once per process (a spawned worker imports torch: seconds, paid once
-    rather than per row); workers start single-threaded and exit with their parent, as the
-    the sweeps' (:func:`run_local`)."""
+    """The pool, started once per process (its workers' first fit loads torch's kernels: paid
+    once rather than per row); workers start single-threaded and exit with their owner, as the
+    sweeps' (:func:`run_local`)."""
     global _POOL
     if _POOL is None:
         _POOL = ProcessPoolExecutor(max_workers=cores(),
-                                    mp_context=multiprocessing.get_context("spawn"),
+                                    mp_context=context(),
                                     initializer=watch_parent, initargs=(os.getpid(),))
         _POOLS.add(_POOL)
         atexit.register(stop_fits)

@@ -512,6 +512,31 @@ def test_signal_during_pgnn_fits_ends_workers_without_tracebacks(sig, moment, tm
 
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_a_command_killed_outright_leaves_no_worker_behind(tmp_path):
+    """SIGKILL while the PGNN fit pool fits (no clean-up of the command's own can run): its
+    workers see their owner gone and exit, and the process that started them with them."""
+    cfg = tmp_path / "pgnn.yaml"
+    cfg.write_text(SMALL + PGNN_ROWS)
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    # the command and at least one worker (and, on Linux, the fork server that started it)
+    started = _wait_for(proc, lambda: len(_survivors(proc.pid)) >= 3)
+    time.sleep(1.0)
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 10.0
+    while _survivors(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = _survivors(proc.pid)
+    for pid in left:  # not left running after the test (they hold the command's pipes)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    _finish(proc)
+    assert started, "the run ended before its fit pool started"
+    assert left == {}, "a worker outlived the command that was killed"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_during_sweep_ends_workers_and_keeps_finished_tasks(sig, tmp_path):
     """A sweep interrupted while its workers compute: one line, the exit code, no worker left,

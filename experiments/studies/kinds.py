@@ -20,6 +20,10 @@ from clm_sim.schema import build, load_yaml
 KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
          "emps_benchmark": "benchmark", "mechanism": "mechanism",
          "identifiability": "identifiability"}
+MODULES = {"extrapolation": "extrapolation", "failure_map": "failure_map",  # kind -> its module
+           "emps_benchmark": "emps_benchmark", "mechanism": "mechanism",  # (experiments.studies)
+           "identifiability": "profiles"}
+POOLED = {"failure_map", "mechanism", "identifiability"}  # kinds whose main() takes workers=
 
 
 def kind_of(data: dict, path) -> str:
