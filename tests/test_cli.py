@@ -520,7 +520,6 @@ def test_a_command_killed_outright_leaves_no_worker_behind(tmp_path):
     proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
     # the command and at least one worker (and, on Linux, the fork server that started it)
     started = _wait_for(proc, lambda: len(_survivors(proc.pid)) >= 3)
-    time.sleep(1.0)
     proc.kill()
     proc.wait()
     deadline = time.monotonic() + 10.0
