@@ -68,11 +68,16 @@ def _spawning():
     server's start only: every worker is a copy of it, with its dispositions and environment,
     and the block itself runs with this process's signals as they are (a Ctrl-C while the
     server still imports its libraries interrupts the wait for the first worker at once)."""
+    global _SERVER_FAILED
     if context().get_start_method() == "forkserver":
         from multiprocessing import forkserver
 
-        with _starting():
-            forkserver.ensure_running()
+        try:
+            with _starting():
+                forkserver.ensure_running()
+        except OSError:  # no socket in the temporary folder (read-only, full): spawn workers
+            _SERVER_FAILED = True
+    if context().get_start_method() == "forkserver":
         yield
     else:
         with _starting():
@@ -138,12 +143,13 @@ PRELOAD = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.signal", "control",
 def context() -> multiprocessing.context.BaseContext:
     """The start method of every worker: ``forkserver`` with :data:`PRELOAD` on Linux, else
     ``spawn`` (macOS has a fork server too, but its system libraries are not safe to use in a
-    forked copy of a process that loaded them; Windows has none). A forked worker is a copy of
+    forked copy of a process that loaded them; Windows has none), and ``spawn`` too once the
+    server could not start here (its socket needs a writable temporary folder). A forked worker is a copy of
     the fork server, a process started for this purpose that never computes, so it inherits
     imported modules and nothing of the caller's state; the server itself starts inside
     :func:`_spawning` (one thread per library, Ctrl-C and SIGTERM ignored) and hands that to
     every worker."""
-    if not sys.platform.startswith("linux"):
+    if not sys.platform.startswith("linux") or _SERVER_FAILED:
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(["__main__", *PRELOAD])
@@ -155,6 +161,7 @@ def context() -> multiprocessing.context.BaseContext:
 
 
 _STOP_AT_EXIT = False
+_SERVER_FAILED = False  # the fork server could not start in this process: spawn from then on
 
 
 def stop_server() -> None:

@@ -415,3 +415,18 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
     bad.write_text("study:\n  lambdaz: [0]\n")
     with pytest.raises(UserError, match=r"bad.yaml: study.lambdaz: unknown key"):
         load_study(bad)
+
+
+def test_workers_are_spawned_where_the_fork_server_cannot_start(monkeypatch):
+    """A fork server needs a socket in the temporary folder: where it cannot start, the pool's
+    workers are spawn processes and the work is done all the same."""
+    import multiprocessing.forkserver
+
+    from experiments import workers
+
+    def fails():
+        raise OSError(30, "Read-only file system")
+    monkeypatch.setattr(workers, "_SERVER_FAILED", False)
+    monkeypatch.setattr(multiprocessing.forkserver, "ensure_running", fails)
+    assert workers.map_in_order(abs, [-1, -2, 3], 2) == [1, 2, 3]
+    assert workers.context().get_start_method() == "spawn"
