@@ -17,6 +17,7 @@ from clm_sim.effects import Effect
 from clm_sim.errors import NotFittedError, UserError, check_ts
 from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
 from clm_sim.modelfile import mapping, number, read_json, sample_time
+from clm_sim.numerics import single_threaded
 from clm_sim.outdir import atomic_write
 from clm_sim.plant import THETA_NAMES
 from clm_sim.rigid_body import rigid_body
@@ -54,7 +55,14 @@ class LIPFeedforward:
         return np.column_stack([lip_regressors(y, v, a), *cols.values()]), list(cols)
 
     def fit(self, *, y: np.ndarray, u: np.ndarray, ts: float) -> "LIPFeedforward":
-        """Identify from measured positions ``y`` (m) and applied forces ``u`` (N)."""
+        """Identify from measured positions ``y`` (m) and applied forces ``u`` (N), with one
+        BLAS thread (:func:`clm_sim.numerics.single_threaded`): OpenBLAS splits the sums of a
+        long record's normal matrix over its threads, so ``std_`` (and on the EMPS record
+        ``theta_``) moved in the last digits with the machine's cores."""
+        with single_threaded():
+            return self._fit(y, u, ts)
+
+    def _fit(self, y: np.ndarray, u: np.ndarray, ts: float) -> "LIPFeedforward":
         yf, v, a = self.features.motion(y, ts)
         ue = edge_force(u)
         phi, extra = self._design(yf, v, a, ue)

@@ -264,6 +264,33 @@ def test_diagnosis_is_deterministic(diagnosed):
     assert json.dumps(again.to_json()) == json.dumps(d.to_json())
 
 
+class _Probed(Exception):
+    pass
+
+
+def test_the_diagnosis_runs_on_one_blas_thread(diagnosed, monkeypatch):
+    """OpenBLAS splits some sums over its threads, so the findings' last digits depended on the
+    machine's cores (on the EMPS records they moved in the last two or three of 16 digits
+    between one and two threads). Every BLAS library runs one thread while the diagnosis
+    selects its causes, whatever the caller set."""
+    import importlib
+
+    import threadpoolctl
+
+    module = importlib.import_module("experiments.diagnosis.diagnose")
+    _, run, d = diagnosed("cogging")
+    seen = []
+
+    def probe(residual):
+        seen.extend(lib["num_threads"] for lib in threadpoolctl.threadpool_info()
+                    if lib["user_api"] == "blas")
+        raise _Probed
+    monkeypatch.setattr(module, "forward_select", probe)
+    with threadpoolctl.threadpool_limits(2, user_api="blas"), pytest.raises(_Probed):
+        module.diagnose(run, d.model)
+    assert seen and set(seen) == {1}, seen
+
+
 # ------------------------------------------------------------------ records and CLI
 def test_cli_writes_json_and_report(tmp_path):
     from experiments.cli import main

@@ -58,6 +58,20 @@ def test_lip_recovers_effect_free_plant(effect_free_training):
     check_recovery(lip.theta_, config.plant.theta())
 
 
+def test_lip_fit_is_the_same_whatever_blas_threads_the_caller_set(effect_free_training):
+    """OpenBLAS splits the sums of a long record's normal matrix over its threads: ``std_``
+    moved in its last digits between one and two threads (the EMPS record's ``theta_`` too)."""
+    import threadpoolctl
+
+    config, run = effect_free_training
+    fits = []
+    for threads in (1, 2):
+        with threadpoolctl.threadpool_limits(threads, user_api="blas"):
+            lip = LIPFeedforward(features=config.features).fit(y=run.y, u=run.u, ts=config.ts)
+        fits.append(json.dumps([lip.theta_, lip.std_, lip.residual_rms_]))
+    assert fits[0] == fits[1]
+
+
 def test_lip_predict_refuses_before_fit(ts):
     with pytest.raises(NotFittedError, match="fit"):
         LIPFeedforward().predict(y=np.zeros(1000), ts=ts)

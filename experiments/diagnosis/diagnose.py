@@ -13,6 +13,7 @@ from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_o
 from experiments.diagnosis.search import forward_select
 from clm_sim.effects import Effect
 from clm_sim.errors import UserError, check_ts
+from clm_sim.numerics import single_threaded
 from clm_sim.plant import Plant
 from clm_sim.record import Run
 
@@ -88,7 +89,19 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
 
     The causes are selected on ``record`` (or on its first ``1 - holdout_fraction`` when no
     ``validation`` record is given) and the gain is measured on the validation data.
+
+    Runs with one BLAS thread (:func:`clm_sim.numerics.single_threaded`): OpenBLAS splits some
+    sums over its threads, so with the machine's default the last digits of the findings
+    depended on its number of cores.
     """
+    import scipy.linalg  # noqa: F401  (scipy's own OpenBLAS loaded, so the limit reaches it too)
+
+    with single_threaded():
+        return _diagnose(record, model, validation=validation, settings=settings)
+
+
+def _diagnose(record: Run, model: SimulationModel, *, validation: Run | None,
+              settings: DiagnosisSettings) -> Diagnosis:
     if model.controller is not None:  # a controller runs at its own rate only
         check_ts(model.controller.ts, record.ts, f"{source_of(record)}: the model's controller "
                  f"({model.name})")
