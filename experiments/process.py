@@ -60,6 +60,7 @@ def _end_now(signum, frame):
         return
     workers.kill_all()
     workers.stop_server()
+    workers.remove_temp_dir()
     outdir.abandon()
     _say(signum, lambda line: os.write(2, f"{line}\n".encode()))
     os._exit(CODES[signum])

@@ -193,21 +193,27 @@ def stop_server() -> None:
         with contextlib.suppress(OSError, TypeError):
             if not address.startswith("\0"):  # a file, not Linux's abstract namespace
                 os.unlink(address)
-        _remove_temp_dir()
     except AttributeError:  # another Python's forkserver: it exits after this process
         pass
     finally:
         lock.release()
 
 
-def _remove_temp_dir() -> None:
-    """Remove multiprocessing's temporary folder of this process (it held the fork server's
-    socket) now, by its own finalizer: a process that ends with ``os._exit`` after an
-    interruption would leave it in /tmp."""
+def remove_temp_dir() -> None:
+    """Remove multiprocessing's temporary folder of this process now, for a process about to
+    end with ``os._exit`` (no exit clean-up runs): it held the fork server's socket, and the
+    sockets through which workers and this process handed each other torch's tensors. Their own
+    clean-ups run first (they unlink those sockets, and would fail on a folder already gone),
+    then the folder's. Every other ending leaves this to multiprocessing's exit function, which
+    runs them in the same order."""
     from multiprocessing import util
 
     with contextlib.suppress(Exception):
-        for finalizer in list(util._finalizer_registry.values()):
+        pending = list(util._finalizer_registry.values())
+        for finalizer in pending:
+            if getattr(finalizer, "_callback", None) is os.unlink:
+                finalizer()
+        for finalizer in pending:
             if getattr(finalizer, "_callback", None) is util._remove_temp_dir:
                 finalizer()
 

@@ -462,6 +462,24 @@ def test_two_runs_into_one_out_never_mix(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s1.yaml", "s2.yaml", "same"]
 
 
+@pytest.mark.slow
+def test_a_run_whose_rows_reuse_fits_ends_with_nothing_on_stderr(tmp_path):
+    """A run whose continuation row reuses the fits of the row before (as the paper table's do)
+    sends torch's tensors to its workers through sockets in multiprocessing's temporary folder;
+    the run ends with exit 0 and not a line on stderr (the folder once went before those
+    sockets' own clean-up, which then printed a FileNotFoundError traceback at exit)."""
+    cfg = tmp_path / "reuse.yaml"
+    cfg.write_text(SMALL + (
+        "  - {kind: pgnn, training: simultaneous, lambda: 0, hidden: 4, seeds: 2, name: decay,\n"
+        "     pgnn: {max_iter: 20, weight_decay: 1.0e-5, continuation_lambda: 0}}\n"
+        "  - {kind: pgnn, training: simultaneous, lambda: 0, hidden: 4, seeds: 2, name: cont,\n"
+        "     pgnn: {max_iter: 20, weight_decay: 1.0e-5}}\n"))
+    proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
+    _, err = _finish(proc)
+    assert proc.returncode == 0, err
+    assert err == ""
+
+
 @pytest.mark.parametrize("command", ["run", "sweep"])
 def test_a_command_into_an_out_being_written_is_refused(command, tmp_path, capsys):
     """While another command holds the lock of --out (here: this test), a run or a sweep is
