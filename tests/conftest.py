@@ -97,7 +97,9 @@ SLOW = {
                      "test_result_does_not_depend_on_the_callers_thread_count": 2,
                      "test_orthogonal_projection_keeps_theta_lip": 1},
     "test_testbed.py": {"test_readme_api_example_runs_from_any_folder": 11},
-    "test_cli.py": {"test_signal_during_pgnn_fits_ends_workers_without_tracebacks": 8,
+    "test_cli.py": {"test_a_run_whose_rows_reuse_fits_ends_with_nothing_on_stderr": 15,
+                    "test_a_command_killed_outright_leaves_no_worker_behind": 10,
+                    "test_signal_during_pgnn_fits_ends_workers_without_tracebacks": 8,
                     "test_study_trains_every_seed_it_reports": 6,  # 5 LM iterations a fit
                     "test_two_runs_into_one_out_never_mix": 6,
                     "test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly": 5,

@@ -471,9 +471,9 @@ def test_a_run_whose_rows_reuse_fits_ends_with_nothing_on_stderr(tmp_path):
     cfg = tmp_path / "reuse.yaml"
     cfg.write_text(SMALL + (
         "  - {kind: pgnn, training: simultaneous, lambda: 0, hidden: 4, seeds: 2, name: decay,\n"
-        "     pgnn: {max_iter: 20, weight_decay: 1.0e-5, continuation_lambda: 0}}\n"
+        "     pgnn: {max_iter: 5, weight_decay: 1.0e-5, continuation_lambda: 0}}\n"
         "  - {kind: pgnn, training: simultaneous, lambda: 0, hidden: 4, seeds: 2, name: cont,\n"
-        "     pgnn: {max_iter: 20, weight_decay: 1.0e-5}}\n"))
+        "     pgnn: {max_iter: 5, weight_decay: 1.0e-5}}\n"))
     proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
     _, err = _finish(proc)
     assert proc.returncode == 0, err
