@@ -4,7 +4,8 @@ Besides its inputs, three things decide the last bits of a float64 fit:
 
 * **threads**: a sum split over threads is added in another order. :func:`single_threaded` runs a
   block with one thread in every BLAS and OpenMP library loaded (through threadpoolctl, whatever
-  the BLAS: OpenBLAS, MKL, BLIS) and in torch's intra-op pool.
+  the BLAS: OpenBLAS, MKL, BLIS; scipy's own OpenBLAS is loaded first) and in torch's intra-op
+  pool.
 * **CPU kernels**: OpenBLAS, MKL (inside torch), torch's vectorized kernels and numpy's SIMD
   loops each pick code for the CPU when they load (AVX2 here, AVX-512 elsewhere), and the kernels
   sum in different orders and round transcendental functions differently.
@@ -156,6 +157,7 @@ def single_threaded():
     with _lock:
         if _depth == 0:
             _first.clear()
+            _load_scipy_blas()
             if "torch" in sys.modules:
                 torch = sys.modules["torch"]
                 before = torch.get_num_threads()
@@ -178,6 +180,16 @@ def single_threaded():
                 for undo in reversed(_first):
                     undo()
                 _first.clear()
+
+
+def _load_scipy_blas() -> None:
+    """Load scipy's own OpenBLAS (it comes with ``scipy.linalg``) before the limit is set: a
+    library loaded inside the block escapes it, and a block that first used scipy there ran its
+    sums on every core (the diagnosis did, until the seventh session of 2026-11-26). Only in a
+    process that has numpy already: this module imports no numerical library by itself."""
+    if "numpy" in sys.modules and "scipy.linalg" not in sys.modules:
+        with contextlib.suppress(ImportError):
+            import scipy.linalg  # noqa: F401
 
 
 def _warn_if_held() -> None:

@@ -4,8 +4,8 @@ Every worker starts single-threaded (BLAS, OpenMP, numba, torch: :func:`single_t
 and exits with the process that started it even when that process is killed
 (:func:`watch_parent`). Workers come from a fork server (:func:`context`): a clean process,
 started once per clm-sim process with the libraries the workers use already imported (torch,
-python-control, scipy, the kernels: about 4 s of CPU that each fresh ``spawn`` process paid
-again), which forks each worker. Where the platform has no fork server, workers are ``spawn``
+python-control, scipy, numba: 4 to 6 s of CPU that each fresh ``spawn`` process paid again),
+which forks each worker. Where the platform has no fork server, workers are ``spawn``
 processes. Two users: :func:`run_local` maps a function over task payloads in
 completion order (sweeps, the studies; a study of several phases maps them on one
 :func:`local_pool`), and :func:`map_fits` runs the PGNN fits of one table row on a pool kept
@@ -133,8 +133,9 @@ def _start_resource_tracker() -> None:
 
 
 # What the fork server imports before it forks the first worker: every library a worker's task
-# uses (a fit: torch; a replay or a sweep task: python-control for the PID design, numba's
-# kernels). Paid once per clm-sim process, not once per worker.
+# uses (a fit: torch; a replay or a sweep task: python-control for the PID design, numba; the
+# compiled kernels themselves load from numba's cache at a worker's first call). Paid once per
+# clm-sim process, not once per worker.
 PRELOAD = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.signal", "control", "torch",
            "clm_sim.loop", "controllers.pgnn", "controllers.pgnn.model", "experiments.workers",
            "experiments.runner", "experiments.testbed")

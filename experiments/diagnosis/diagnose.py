@@ -94,8 +94,6 @@ def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = No
     sums over its threads, so with the machine's default the last digits of the findings
     depended on its number of cores.
     """
-    import scipy.linalg  # noqa: F401  (scipy's own OpenBLAS loaded, so the limit reaches it too)
-
     with single_threaded():
         return _diagnose(record, model, validation=validation, settings=settings)
 
