@@ -11,6 +11,8 @@ line on stderr:
 - anything else is a bug of clm-sim: one line naming the command, its input and the internal
   error, with a hint to report it, exit 1 (the Python traceback only with ``--debug``).
 
+A signal the process was started with ignored (:data:`IGNORED`) stays ignored.
+
 A real process (``program=True``) receives its signals in a thread of its own
 (:func:`receive_signals`) and, after an interruption, ends without interpreter shutdown
 (:func:`_exit_now`). The two modules it stops on the way, :mod:`experiments.workers` (worker
@@ -46,6 +48,10 @@ class Terminated(KeyboardInterrupt):
 
 _said = False  # the line of an interruption is printed (a second signal prints no other)
 _state = {"signalled": False, "done": False, "exiting": False, "signum": signal.SIGINT}
+# Signals this process was started with ignored (a background job of a non-interactive shell,
+# `nohup`-like wrappers): left ignored, as Python itself and the POSIX tools leave them; a
+# Ctrl-C meant for the shell that started the command in the background does not stop it.
+IGNORED = frozenset(sig for sig in CODES if signal.getsignal(sig) is signal.SIG_IGN)
 _POKE = getattr(signal, "SIGUSR1", None)  # thread-directed, from the signal thread to main
 _unwinding = threading.Event()  # set when the main thread has taken the first signal
 _ENDING = threading.Lock()  # held by whoever ends the process: _exit_now or _end_now
@@ -64,6 +70,12 @@ def _end_now(signum, frame):
     outdir.abandon()
     _say(signum, lambda line: os.write(2, f"{line}\n".encode()))
     os._exit(CODES[signum])
+
+
+def _catch(handler) -> dict:
+    """``handler`` for Ctrl-C and SIGTERM, except a signal ignored when the process started
+    (:data:`IGNORED`); returns the handlers it replaced."""
+    return {sig: signal.signal(sig, handler) for sig in CODES if sig not in IGNORED}
 
 
 def _say(signum, write) -> None:
@@ -86,8 +98,7 @@ def _signalled(signum, frame):
     """The first Ctrl-C or SIGTERM: unwind (every ``finally`` removes what it was writing); a
     second signal ends the process at once."""
     _unwinding.set()
-    signal.signal(signal.SIGINT, _end_now)
-    signal.signal(signal.SIGTERM, _end_now)
+    _catch(_end_now)
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
@@ -101,7 +112,9 @@ def receive_signals() -> None:
     Does nothing where the platform has no thread-directed signals."""
     if not hasattr(signal, "pthread_sigmask") or _POKE is None:
         return
-    stops = set(CODES)
+    stops = set(CODES) - IGNORED
+    if not stops:
+        return
     signal.pthread_sigmask(signal.SIG_BLOCK, stops)
     # The main thread is poked with a signal of its own (a real one: it also ends a blocking
     # wait there), and takes it as the signal received.
@@ -136,7 +149,7 @@ def run(command: Callable[[], int], *, program: bool, name: str, source: str | N
     global _said
     _said = False
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = {sig: signal.signal(sig, _signalled) for sig in CODES} if main_thread else {}
+    previous = _catch(_signalled) if main_thread else {}
     code = None
     try:
         code = command()
@@ -172,8 +185,7 @@ def run(command: Callable[[], int], *, program: bool, name: str, source: str | N
         if program and main_thread:
             # Done: a late signal (results written, interpreter exiting) ends with its code.
             _state["done"] = True
-            signal.signal(signal.SIGINT, _end_now)
-            signal.signal(signal.SIGTERM, _end_now)
+            _catch(_end_now)
         else:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 # Before numpy, scipy or torch load: the kernels the CLI pins (docs/reproducibility.md), so a test
@@ -10,6 +11,13 @@ from pathlib import Path
 from clm_sim.numerics import pin_portable_kernels
 
 pin_portable_kernels()
+
+# The suite tests what Ctrl-C does to commands. Run in the background of a non-interactive shell
+# (`pytest ... &` in a script), this process starts with SIGINT ignored, and every process it
+# starts would inherit that (a command then rightly leaves it ignored). A handler, unlike
+# SIG_IGN, is reset to the default at exec: the tests' processes get an ordinary Ctrl-C.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 import numpy as np  # noqa: E402
 import pytest
@@ -102,6 +110,7 @@ SLOW = {
                     "test_signal_during_pgnn_fits_ends_workers_without_tracebacks": 8,
                     "test_study_trains_every_seed_it_reports": 6,  # 5 LM iterations a fit
                     "test_two_runs_into_one_out_never_mix": 6,
+                    "test_a_command_started_with_ctrl_c_ignored_runs_through_it": 6,
                     "test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly": 5,
                     "test_lip_json_of_identify_is_a_diagnose_model": 4,
                     "test_identify_reads_renamed_columns_in_mm_like_the_si_record": 1},

@@ -430,6 +430,39 @@ def test_signal_during_run_cleans_up(sig, code, word, tmp_path):
     assert _survivors(proc.pid) == {}
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_a_command_started_with_ctrl_c_ignored_runs_through_it(tmp_path):
+    """Started with SIGINT ignored (a background job of a script, which a Ctrl-C meant for the
+    script must not stop), the command leaves it ignored, as Python and the POSIX tools do: it
+    finishes, exit 0, nothing on stderr, the result folder whole. SIGTERM still ends it."""
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+    def start(out):
+        return subprocess.Popen(
+            [sys.executable, "-m", "experiments.cli", "run", str(cfg), "--out", str(out),
+             "--quiet"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, start_new_session=True, env=env,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+
+    proc = start(tmp_path / "out")
+    seen = _wait_for(proc, lambda: bool(_partial(tmp_path)))
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = _finish(proc)
+    assert seen, "the run finished before the Ctrl-C"
+    assert proc.returncode == 0 and err == "", err
+    assert (tmp_path / "out" / "table.json").exists() and not _partial(tmp_path)
+    proc = start(tmp_path / "again")
+    seen = _wait_for(proc, lambda: bool(_partial(tmp_path)))
+    os.killpg(proc.pid, signal.SIGTERM)
+    _, err = _finish(proc)
+    assert seen and proc.returncode == 143, err
+    assert err.strip().splitlines() == ["clm-sim: terminated"], err
+    assert not (tmp_path / "again").exists() and not _partial(tmp_path)
+    assert _survivors(proc.pid) == {}
+
+
 def _one_run(out: Path) -> int:
     """The seed of the one run that ``out`` describes; fails if its files disagree."""
     seeds = {int(line.split(":")[1]) for line in (out / "config.resolved.yaml").read_text()
