@@ -15,9 +15,10 @@ A signal the process was started with ignored (:data:`IGNORED`) stays ignored.
 
 A real process (``program=True``) receives its signals in a thread of its own
 (:func:`receive_signals`) and, after an interruption, ends without interpreter shutdown
-(:func:`_exit_now`). The two modules it stops on the way, :mod:`experiments.workers` (worker
-processes) and :mod:`clm_sim.outdir` (temporary folders, locks), are imported here by name:
-both are light (standard library only).
+(:func:`_exit_now`). The modules it stops on the way, :mod:`experiments.worker_life` (worker
+processes, the fork server), :mod:`experiments.workers` (the PGNN fit pool) and
+:mod:`clm_sim.outdir` (temporary folders, locks), are imported here by name: all are light
+(standard library only).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from collections.abc import Callable
 
 from clm_sim import outdir
 from clm_sim.errors import UserError
-from experiments import workers
+from experiments import worker_life, workers
 
 EXIT_USER = 2  # a user mistake: bad input, a file that cannot be written
 EXIT_BUG = 1  # an internal error (also: sweep tasks that failed, compare mismatches)
@@ -64,9 +65,9 @@ def _end_now(signum, frame):
     Does nothing if the process is already being ended (:func:`_exit_now`)."""
     if not _ENDING.acquire(blocking=False):
         return
-    workers.kill_all()
-    workers.stop_server()
-    workers.remove_temp_dir()
+    worker_life.kill_all()
+    worker_life.stop_server()
+    worker_life.remove_temp_dir()
     outdir.abandon()
     _say(signum, lambda line: os.write(2, f"{line}\n".encode()))
     os._exit(CODES[signum])
@@ -105,7 +106,7 @@ def _signalled(signum, frame):
 def receive_signals() -> None:
     """A real process takes Ctrl-C and SIGTERM in a thread of its own: they are blocked in every
     other thread (blocked here before any library starts one), so none is lost to a library's
-    thread or while workers start (:data:`experiments.workers.SPAWNING`). The first is passed
+    thread or while workers start (:data:`experiments.worker_life.SPAWNING`). The first is passed
     to the main thread as if it had come there (it unwinds the command); if the main thread has
     not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
     after the command ended, this thread ends the process at once (:func:`_end_now`).
@@ -130,7 +131,7 @@ def receive_signals() -> None:
                 _end_now(signum, None)
                 continue  # (only if the main thread is already ending the process)
             _state["signalled"], _state["signum"] = True, signum
-            with workers.SPAWNING:
+            with worker_life.SPAWNING:
                 signal.pthread_kill(main, _POKE)
             if not _unwinding.wait(ANSWER_S):
                 # The main thread is inside a long call that releases the GIL (a simulation
@@ -204,7 +205,7 @@ def _exit_now(code: int) -> None:
     guard.daemon = True
     guard.start()
     with contextlib.suppress(Exception):
-        workers.stop_server()  # the workers are ended: the fork server follows at once
+        worker_life.stop_server()  # the workers are ended: the fork server follows at once
     with contextlib.suppress(Exception):
         multiprocessing.util._exit_function()
     # Unlink the pools' semaphores (multiprocessing's resource tracker, which exits by itself

@@ -1,17 +1,9 @@
-"""Worker processes: the one place where clm-sim starts them.
+"""Work on worker processes: maps of tasks, and the pool of PGNN fits.
 
-Every worker starts single-threaded (BLAS, OpenMP, numba, torch: :func:`single_threaded_children`)
-and exits with the process that started it even when that process is killed
-(:func:`watch_parent`). Workers come from a fork server (:func:`context`): a clean process,
-started once per clm-sim process with the libraries the workers use already imported (torch,
-python-control, scipy, numba: 4 to 6 s of CPU that each fresh ``spawn`` process paid again),
-which forks each worker. Where the platform has no fork server, workers are ``spawn``
-processes. Two users: :func:`run_local` maps a function over task payloads in
-completion order (sweeps, the studies; a study of several phases maps them on one
-:func:`local_pool`), and :func:`map_fits` runs the PGNN fits of one table row on a pool kept
-for the process.
-
-PGNN fits of independent seeds on worker processes, one thread each.
+Two users: :func:`run_local` maps a function over task payloads in completion order (sweeps, the
+studies; a study of several phases maps them on one :func:`local_pool`), and :func:`map_fits`
+runs the PGNN fits of one table row on a pool kept for the process. How the workers start and
+end (a fork server, one thread each, Ctrl-C left to the owner) is :mod:`experiments.worker_life`.
 
 The fits of one table row differ only in their seed, so they run in a pool of worker processes
 (one per available core). Every fit pins torch and BLAS to one thread itself
@@ -26,256 +18,10 @@ import atexit
 import contextlib
 import multiprocessing
 import os
-import signal
-import sys
-import threading
-import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, as_completed, wait
 
-
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                    "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMBA_NUM_THREADS")
-
-
-@contextlib.contextmanager
-def single_threaded_children():
-    """Within the block, child processes start with one BLAS/OpenMP/numba thread each."""
-    saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
-    os.environ.update({k: "1" for k in THREAD_VARIABLES})
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
-# Held while workers are being started (their signals set to "ignore"): a signal that comes
-# meanwhile is handed to the main thread once it is released (experiments.cli).
-SPAWNING = threading.Lock()
-
-
-@contextlib.contextmanager
-def _spawning():
-    """Around every call that may start a worker: child processes start with one thread each
-    and with Ctrl-C and SIGTERM ignored (a disposition a new process inherits), so a signal to
-    the process group while a worker starts cannot print a traceback in it (the owner alone
-    answers, and ends its workers). With a fork server (:func:`context`) that holds for the
-    server's start only: every worker is a copy of it, with its dispositions and environment,
-    and the block itself runs with this process's signals as they are (a Ctrl-C while the
-    server still imports its libraries interrupts the wait for the first worker at once)."""
-    global _SERVER_FAILED
-    if context().get_start_method() == "forkserver":
-        from multiprocessing import forkserver
-
-        try:
-            with _starting():
-                forkserver.ensure_running()
-        except OSError:  # no socket in the temporary folder (read-only, full): spawn workers
-            _SERVER_FAILED = True
-    if context().get_start_method() == "forkserver":
-        yield
-    else:
-        with _starting():
-            yield
-
-
-@contextlib.contextmanager
-def _starting():
-    """Child processes started within the block start single-threaded, with Ctrl-C and SIGTERM
-    ignored. A command line process receives its signals in a thread of its own
-    (:func:`experiments.process.receive_signals`), which waits for :data:`SPAWNING` before it
-    passes one on, so none is lost."""
-    main = threading.current_thread() is threading.main_thread()
-    mask = main and hasattr(signal, "pthread_sigmask")
-    with SPAWNING:
-        if mask:
-            previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
-            # multiprocessing's resource tracker unblocks both signals in this thread once it
-            # has started it: start it before they are ignored, then block them again.
-            _start_resource_tracker()
-            signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-        handlers = ({sig: signal.signal(sig, signal.SIG_IGN) for sig in _STOP_SIGNALS}
-                    if main else {})
-        try:
-            with single_threaded_children():
-                yield
-        finally:
-            for sig, handler in handlers.items():
-                signal.signal(sig, handler)
-            if mask:
-                signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
-
-
-def _start_resource_tracker() -> None:
-    """Start multiprocessing's resource tracker with its stderr on the null device: after an
-    interrupted command it removes the pools' semaphores and would say so, in lines of its own
-    beside the command's one line."""
-    from multiprocessing import resource_tracker
-
-    tracker = resource_tracker._resource_tracker
-    if getattr(tracker, "_fd", None) is not None:
-        return
-    with contextlib.suppress(Exception):
-        saved = os.dup(2)
-        try:
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, 2)
-            os.close(null)
-            resource_tracker.ensure_running()
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-
-
-# What the fork server imports before it forks the first worker: every library a worker's task
-# uses (a fit: torch; a replay or a sweep task: python-control for the PID design, numba; the
-# compiled kernels themselves load from numba's cache at a worker's first call). Paid once per
-# clm-sim process, not once per worker.
-PRELOAD = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.signal", "control", "torch",
-           "clm_sim.loop", "controllers.pgnn", "controllers.pgnn.model", "experiments.workers",
-           "experiments.runner", "experiments.testbed")
-
-
-def context() -> multiprocessing.context.BaseContext:
-    """The start method of every worker: ``forkserver`` with :data:`PRELOAD` on Linux, else
-    ``spawn`` (macOS has a fork server too, but its system libraries are not safe to use in a
-    forked copy of a process that loaded them; Windows has none), and ``spawn`` too once the
-    server could not start here (its socket needs a writable temporary folder). A forked worker is a copy of
-    the fork server, a process started for this purpose that never computes, so it inherits
-    imported modules and nothing of the caller's state; the server itself starts inside
-    :func:`_spawning` (one thread per library, Ctrl-C and SIGTERM ignored) and hands that to
-    every worker."""
-    if not sys.platform.startswith("linux") or _SERVER_FAILED:
-        return multiprocessing.get_context("spawn")
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["__main__", *PRELOAD])
-    global _STOP_AT_EXIT
-    if not _STOP_AT_EXIT:
-        _STOP_AT_EXIT = True
-        atexit.register(stop_server)
-    return ctx
-
-
-_STOP_AT_EXIT = False
-_SERVER_FAILED = False  # the fork server could not start in this process: spawn from then on
-
-
-def stop_server() -> None:
-    """End this process's fork server, if it started one, and wait until it has gone (a
-    command ends with no process of its own left behind), every pool's workers first; a later
-    pool starts a new one. Reads private attributes of :mod:`multiprocessing.forkserver` (those
-    of CPython 3.11); where a Python has others, this does nothing and the server exits by
-    itself once this process and its workers have ended."""
-    from multiprocessing import forkserver
-
-    server = forkserver._forkserver
-    lock = getattr(server, "_lock", None)
-    if getattr(server, "_forkserver_pid", None) is None or lock is None \
-            or not lock.acquire(timeout=1.0):
-        return
-    try:
-        pid, alive = server._forkserver_pid, server._forkserver_alive_fd
-        address = server._forkserver_address
-        server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
-        kill_all()
-        # Killed, not asked: it computes nothing and may still be importing its libraries
-        # (seconds before it reads its pipe); its workers are killed above.
-        with contextlib.suppress(OSError):
-            os.kill(pid, signal.SIGKILL)
-        with contextlib.suppress(ChildProcessError):
-            os.waitpid(pid, 0)
-        with contextlib.suppress(OSError, TypeError):
-            os.close(alive)
-        with contextlib.suppress(OSError, TypeError):
-            if not address.startswith("\0"):  # a file, not Linux's abstract namespace
-                os.unlink(address)
-    except AttributeError:  # another Python's forkserver: it exits after this process
-        pass
-    finally:
-        lock.release()
-
-
-def remove_temp_dir() -> None:
-    """Remove multiprocessing's temporary folder of this process now, for a process about to
-    end with ``os._exit`` (no exit clean-up runs): it held the fork server's socket, and the
-    sockets through which workers and this process handed each other torch's tensors. Their own
-    clean-ups run first (they unlink those sockets, and would fail on a folder already gone),
-    then the folder's. Every other ending leaves this to multiprocessing's exit function, which
-    runs them in the same order."""
-    from multiprocessing import util
-
-    with contextlib.suppress(Exception):
-        pending = list(util._finalizer_registry.values())
-        for finalizer in pending:
-            if getattr(finalizer, "_callback", None) is os.unlink:
-                finalizer()
-        for finalizer in pending:
-            if getattr(finalizer, "_callback", None) is util._remove_temp_dir:
-                finalizer()
-
-
-def stop(pool: ProcessPoolExecutor) -> None:
-    """End ``pool`` now: its workers killed (they write no file and ignore SIGTERM), queued
-    work cancelled, without waiting for running tasks."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    for proc in procs:
-        with contextlib.suppress(Exception):
-            proc.kill()
-    with contextlib.suppress(Exception):
-        pool.shutdown(wait=False, cancel_futures=True)
-    deadline = time.monotonic() + 1.0
-    for proc in procs:
-        with contextlib.suppress(Exception):
-            proc.join(max(0.0, deadline - time.monotonic()))
-
-
-_POOLS: set = set()  # the pools of this process that are running now
-
-
-def kill_all() -> None:
-    """Kill every worker of this process's pools at once, without waiting (for a process about
-    to end at once)."""
-    for pool in list(_POOLS):
-        for proc in list((getattr(pool, "_processes", None) or {}).values()):
-            with contextlib.suppress(Exception):
-                proc.kill()
-
-
-def _alive(pid: int) -> bool:
-    """Whether process ``pid`` runs (a zombie, killed and not yet reaped, does not)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
-    except (OSError, IndexError):
-        return True  # no /proc: kill(pid, 0) is all there is
-
-
-def watch_parent(owner_pid: int) -> None:
-    """Worker initializer: ignore Ctrl-C and SIGTERM (the owner, the process whose pool this
-    is, handles them and ends the workers) and exit when the owner dies (even by SIGKILL) or
-    the process that started this worker does (the fork server, or the owner itself for a
-    ``spawn`` worker), leaving no orphan computing a result nobody will store."""
-    for sig in _STOP_SIGNALS:  # already ignored since the start (see _spawning), for good
-        signal.signal(sig, signal.SIG_IGN)
-    starter = os.getppid()
-
-    def watch():
-        while True:
-            if os.getppid() != starter or not _alive(owner_pid):
-                os._exit(1)
-            time.sleep(0.5)
-    threading.Thread(target=watch, daemon=True, name="clm-sim-parent-watch").start()
+from experiments.worker_life import new_pool, retire, spawning, stop
 
 
 @contextlib.contextmanager
@@ -284,17 +30,15 @@ def local_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     caller) for one or several :func:`run_local` maps in a row: a study of several phases starts
     its workers once, not once a phase. The block's end shuts it down; an exception (Ctrl-C, a failed task) kills its workers
     at once instead of waiting for running tasks."""
-    with _spawning():
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context(),
-                                   initializer=watch_parent, initargs=(os.getpid(),))
-    _POOLS.add(pool)
+    with spawning():
+        pool = new_pool(workers)
     try:
         yield pool
     except BaseException:
         stop(pool)
         raise
     finally:
-        _POOLS.discard(pool)
+        retire(pool)
     pool.shutdown(wait=True)
 
 
@@ -308,7 +52,7 @@ def run_local(fn: Callable, payloads: Sequence, workers: int,
         with local_pool(workers) as pool:
             yield from run_local(fn, payloads, workers, pool)
         return
-    with _spawning():
+    with spawning():
         # Keep at most two tasks per worker queued: an interrupted sweep then has little
         # submitted-but-unstarted work to cancel, and memory stays bounded on huge grids.
         pending = {}
@@ -325,7 +69,7 @@ def run_local(fn: Callable, payloads: Sequence, workers: int,
             yield index, fut.result()
             item = next(todo, None)
             if item is not None:
-                with _spawning():
+                with spawning():
                     pending[pool.submit(fn, item[1])] = item[0]
 
 
@@ -363,10 +107,7 @@ def _pool() -> ProcessPoolExecutor:
     sweeps' (:func:`run_local`)."""
     global _POOL
     if _POOL is None:
-        _POOL = ProcessPoolExecutor(max_workers=cores(),
-                                    mp_context=context(),
-                                    initializer=watch_parent, initargs=(os.getpid(),))
-        _POOLS.add(_POOL)
+        _POOL = new_pool(cores())
         atexit.register(stop_fits)
     return _POOL
 
@@ -376,7 +117,7 @@ def stop_fits() -> None:
     global _POOL
     pool, _POOL = _POOL, None
     if pool is not None:
-        _POOLS.discard(pool)
+        retire(pool)
         stop(pool)
 
 
@@ -428,7 +169,7 @@ def map_fits(payloads: list, fn: Callable = fit_pgnn,
                 on_done(results[-1])
         return results
     try:
-        with _spawning():  # workers are spawned on submit and inherit this
+        with spawning():  # workers are spawned on submit and inherit this
             futures = [_pool().submit(fn, p) for p in payloads]
         if on_done is not None:
             for fut in as_completed(futures):

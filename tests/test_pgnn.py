@@ -422,11 +422,11 @@ def test_workers_are_spawned_where_the_fork_server_cannot_start(monkeypatch):
     workers are spawn processes and the work is done all the same."""
     import multiprocessing.forkserver
 
-    from experiments import workers
+    from experiments import worker_life, workers
 
     def fails():
         raise OSError(30, "Read-only file system")
-    monkeypatch.setattr(workers, "_SERVER_FAILED", False)
+    monkeypatch.setattr(worker_life, "_SERVER_FAILED", False)
     monkeypatch.setattr(multiprocessing.forkserver, "ensure_running", fails)
     assert workers.map_in_order(abs, [-1, -2, 3], 2) == [1, 2, 3]
-    assert workers.context().get_start_method() == "spawn"
+    assert worker_life.context().get_start_method() == "spawn"
