@@ -85,6 +85,7 @@ SLOW = {
     "test_paper_table_page.py": {
         "test_a_fresh_run_of_the_first_seeds_reproduces_the_stored_run_seed_by_seed": 47},
     "test_lambda0.py": {"test_emps_pgnn_runs_on_the_measured_records": 35,
+                        "test_a_record_split_over_tasks_gives_what_one_task_gives": 4,
                         "test_paper_cost_lambda0_replays_near_the_lip_without_reversal_spikes": 6},
     "test_sweep.py": {"test_sweep_killed_by_sigkill_resumes_without_recomputing": 25,
                       "test_sweep_stopped_by_sigterm_keeps_whole_results_and_resumes": 15,

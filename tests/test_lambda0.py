@@ -5,6 +5,8 @@ errors naming the key, a run on a record, the shipped EMPS config)."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -419,6 +421,35 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     text = (tmp_path / "out" / "report.md").read_text()
     assert "| cable_linear | λ = 0 |" in text and "two-level bootstrap" in text
     assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
+
+
+def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
+    """Five records on two workers would leave one worker idle for the last record: the draws
+    of a record are then split over tasks, and merged back they are what one task computes,
+    bit for bit (a record's two draws, split in two)."""
+    from experiments.studies.mechanism import cells, load_mechanism, merged, parts_for, run_cell
+
+    path = tmp_path / "m.yaml"
+    path.write_text(
+        "name: m\nseed: 1\n"
+        "references:\n"
+        "  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}\n"
+        "  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}\n"
+        "training: {repeats: 1}\n"
+        "mechanism:\n  records: 3\n  draws: 2\n  hidden: 3\n  bootstrap: 200\n"
+        "  pgnn: {weight_decay: 0, continuation_lambda: 0, max_iter: 5}\n"
+        "  cases:\n    cable_cubic:\n"
+        "      - {type: cable_slab, coefficients: [0.0, 10.0, 0.0, 2000.0]}\n")
+    config, st = load_mechanism(path)
+    assert parts_for(st, 1) == 1 and parts_for(st, 2) == 2
+    assert parts_for(dataclasses.replace(st, records=2), 2) == 1
+    assert [(t.record, t.draws) for t in cells(config, st, 2)] == [
+        (1, (0,)), (1, (1,)), (2, (0,)), (2, (1,)), (3, (0,)), (3, (1,))]
+    split = cells(config, st, 2)[:2]
+    whole = [run_cell(t) for t in cells(config, st, 1)[:1]]
+    assert [(f["draw"], f["lambda"]) for f in whole[0]["fits"]] == [
+        (0, 0.0), (0, st.lam), (1, 0.0), (1, st.lam)]
+    assert json.dumps(merged([run_cell(t) for t in split])) == json.dumps(whole)
 
 
 def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():

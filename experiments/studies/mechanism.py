@@ -115,12 +115,14 @@ def load_mechanism(path) -> tuple[ExperimentConfig, MechanismSettings]:
 
 @dataclass(frozen=True)
 class Cell:
-    """One task: a case and a training record (every draw, both lambdas)."""
+    """One task: a case, a training record and its network ``draws`` (both lambdas each;
+    ``None``: every draw)."""
 
     config: ExperimentConfig
     settings: MechanismSettings
     case: str
     record: int
+    draws: tuple[int, ...] | None = None
 
 
 def cubic(y: np.ndarray, f: np.ndarray) -> float:
@@ -185,7 +187,7 @@ def _cell(cell: Cell) -> dict:
                    "need_along_rms_n": float(np.sqrt(np.mean(need[along] ** 2))),
                    "mae": {r: tb.replay(lip, r).mae for r in (st.inside, st.outside)}},
            "truth_cubic": cubic(y[within], truth[within]), "fits": []}
-    for draw in range(st.draws):
+    for draw in range(st.draws) if cell.draws is None else cell.draws:
         for lam in (0.0, st.lam):
             model = tb.fit_pgnn(run, hidden=st.hidden, lam=lam, seed=draw, lip=lip,
                                 **{k: v for k, v in settings.items() if k != "lam"})
@@ -222,10 +224,35 @@ def run_cell(cell: Cell) -> dict:
     return out
 
 
-def cells(config: ExperimentConfig, settings: MechanismSettings) -> list[Cell]:
-    """Every task in a fixed order (case, record); records are ``seed, seed + 1, ...``."""
-    return [Cell(config, settings, case, config.seed + k)
-            for case in settings.cases for k in range(settings.records)]
+def cells(config: ExperimentConfig, settings: MechanismSettings, parts: int = 1) -> list[Cell]:
+    """Every task in a fixed order (case, record, draws); records are ``seed, seed + 1, ...``.
+    ``parts`` > 1 splits each record's draws into that many tasks of consecutive draws (each
+    simulates the record and fits its LIP again: a few seconds against its fits)."""
+    parts = max(1, min(parts, settings.draws))
+    split = [tuple(map(int, d)) for d in np.array_split(np.arange(settings.draws), parts)]
+    return [Cell(config, settings, case, config.seed + k, None if parts == 1 else draws)
+            for case in settings.cases for k in range(settings.records) for draws in split]
+
+
+def parts_for(settings: MechanismSettings, workers: int) -> int:
+    """Tasks per record for ``workers`` processes: one, unless the records leave a process
+    idle at the end (5 records on 2 workers: the last record alone for a fifth of the run);
+    then ``workers``, so the tasks come out even."""
+    n = len(settings.cases) * settings.records
+    return 1 if workers <= 1 or n % workers == 0 else workers
+
+
+def merged(results: list[dict]) -> list[dict]:
+    """The results of the tasks of :func:`cells` as one per (case, record), every draw's fits
+    in draw order: what the record computed in one task gives (the rest of a record's result
+    is the same in each of its tasks: the same training run, LIP and replays)."""
+    out: list[dict] = []
+    for r in results:
+        if out and (out[-1]["case"], out[-1]["record"]) == (r["case"], r["record"]):
+            out[-1]["fits"].extend(r["fits"])
+        else:
+            out.append({**r, "fits": list(r["fits"])})
+    return out
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -460,13 +487,17 @@ def draw(results: list[dict], settings: MechanismSettings, path: Path) -> None:
 def compute(config: ExperimentConfig, settings: MechanismSettings, *, workers: int = 1,
             progress=None) -> list[dict]:
     """Every cell (in ``workers`` processes when > 1), in task order; the results do not depend
-    on ``workers``."""
+    on ``workers`` (a record split over tasks, :func:`parts_for`, is merged back)."""
     from experiments.workers import map_in_order
 
     progress = progress or (lambda message: None)
-    tasks = cells(config, settings)
-    return map_in_order(run_cell, tasks, workers, lambda done, i, _: progress(
-        f"cell {done}/{len(tasks)}: {tasks[i].case}, record {tasks[i].record}"))
+    tasks = cells(config, settings, parts_for(settings, workers))
+
+    def said(done, i, _):
+        t = tasks[i]
+        which = "" if t.draws is None else f", draws {t.draws[0]}-{t.draws[-1]}"
+        progress(f"cell {done}/{len(tasks)}: {t.case}, record {t.record}{which}")
+    return merged(map_in_order(run_cell, tasks, workers, said))
 
 
 def run_mechanism(config: ExperimentConfig, settings: MechanismSettings, out, *,
