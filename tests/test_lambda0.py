@@ -423,6 +423,22 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
 
 
+def test_one_exploded_pair_moves_the_mean_force_error_but_not_its_median():
+    """Fifty paired force errors near +1.5 N and one of +3300 N (a network that explodes
+    beyond the range, as one fit of lambda0_iii_ten_draws.yaml does): the mean moves by some
+    65 N, the median and the count of pairs above zero do not."""
+    from experiments.studies.mechanism import paired_median
+
+    calm = [[1.5 + 0.01 * (k - d) for d in range(10)] for k in range(5)]
+    wild = [row[:] for row in calm]
+    wild[0][6] = 3300.0
+    a, b = paired_median(calm), paired_median(wild)
+    assert np.mean(wild) - np.mean(calm) > 60
+    assert b["median"] == pytest.approx(a["median"], abs=0.01)
+    assert a["higher"] == b["higher"] == 50 and a["n"] == b["n"] == 50
+    assert paired_median([[-1.0, 2.0], [3.0]]) == {"median": 2.0, "higher": 2, "n": 3}
+
+
 def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
     """Five records on two workers would leave one worker idle for the last record: the draws
     of a record are then split over tasks, and merged back they are what one task computes,
