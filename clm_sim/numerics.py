@@ -39,6 +39,9 @@ NATIVE_SWITCH = "CLM_SIM_NATIVE_KERNELS"
 """Set to 1 to let every library pick its own kernels for the CPU (faster on AVX-512, other bits)."""
 
 _HEAVY = ("numpy", "scipy", "torch")
+# Every library's thread count, read when the library loads.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                    "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMBA_NUM_THREADS")
 
 
 def _cpu_flags() -> set[str]:
@@ -81,6 +84,21 @@ def pin_portable_kernels() -> str:
     for key, value in PORTABLE_KERNELS.items():
         os.environ.setdefault(key, value)
     return "portable"
+
+
+def one_thread_per_process() -> bool:
+    """Before numpy, scipy or torch load: every library of this process computes on one thread
+    (:data:`THREAD_VARIABLES` set to 1, whatever they were). clm-sim runs its parallel work in
+    worker processes, each on one thread; a sum a library splits over its threads comes out in
+    another order, so without this a command's last digits followed the machine's cores or the
+    caller's ``OPENBLAS_NUM_THREADS`` wherever it had no :func:`single_threaded` block of its
+    own (the EMPS benchmark study did, until 2026-11-26). Returns False, and does nothing, once
+    a numerical library is loaded (in-process callers: the blocks around fits, the LIP and
+    the diagnosis hold there)."""
+    if any(name in sys.modules for name in _HEAVY):
+        return False
+    os.environ.update({k: "1" for k in THREAD_VARIABLES})
+    return True
 
 
 def kernels() -> dict:

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 import clm_sim
-from clm_sim.numerics import pin_portable_kernels
+from clm_sim.numerics import one_thread_per_process, pin_portable_kernels
 from experiments import arguments, process
 
 
@@ -205,6 +205,7 @@ def main(argv=None) -> int:
     if program:
         process.receive_signals()
     pin_portable_kernels()  # before numpy, scipy or torch load (clm_sim.numerics)
+    one_thread_per_process()  # the same bits whatever the cores or thread variables
     args = parser().parse_args(argv)
     # Files only, never a window: the one place where clm-sim picks matplotlib's backend.
     os.environ["MPLBACKEND"] = "Agg"

@@ -24,9 +24,7 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                    "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMBA_NUM_THREADS")
+from clm_sim.numerics import THREAD_VARIABLES
 
 
 @contextlib.contextmanager

@@ -112,6 +112,7 @@ SLOW = {
                     "test_study_trains_every_seed_it_reports": 6,  # 5 LM iterations a fit
                     "test_two_runs_into_one_out_never_mix": 6,
                     "test_a_command_started_with_ctrl_c_ignored_runs_through_it": 6,
+                    "test_a_command_computes_on_one_thread_whatever_the_thread_variables": 3,
                     "test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly": 5,
                     "test_lip_json_of_identify_is_a_diagnose_model": 4,
                     "test_identify_reads_renamed_columns_in_mm_like_the_si_record": 1},

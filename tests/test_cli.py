@@ -272,6 +272,31 @@ def test_identify_writes_under_results_never_into_the_current_folder(tmp_path, c
     assert "results/identify/rec/lip.json" in printed
 
 
+def test_a_command_computes_on_one_thread_whatever_the_thread_variables(tmp_path):
+    """A clm-sim process sets every library's thread count to 1 before they load, whatever the
+    caller's OPENBLAS_NUM_THREADS and OMP_NUM_THREADS: a sum split over threads comes out in
+    another order, and a command's last digits then followed the machine (the EMPS benchmark
+    study's did). After `identify` in a process started with both at 4, every BLAS library runs
+    one thread and every thread variable (OpenMP's, which torch reads, among them) is 1."""
+    _write_csv(tmp_path / "rec.csv", _moving_record())
+    script = ("import json, sys\n"
+              "from experiments import cli\n"
+              "code = cli.main(sys.argv[1:])\n"
+              "import os, threadpoolctl\n"
+              "from clm_sim.numerics import THREAD_VARIABLES\n"
+              "print(json.dumps([code, sorted({i['num_threads'] for i in "
+              "threadpoolctl.threadpool_info()}), sorted({os.environ[k] for k in "
+              "THREAD_VARIABLES})]))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OPENBLAS_NUM_THREADS": "4",
+           "OMP_NUM_THREADS": "4"}
+    out = subprocess.run([sys.executable, "-c", script, "identify", str(tmp_path / "rec.csv"),
+                          "--out", str(tmp_path / "o")], capture_output=True, text=True,
+                         env=env, timeout=120)
+    code, threads, variables = json.loads(out.stdout.strip().splitlines()[-1])
+    assert code == 0, out.stderr
+    assert threads == [1] and variables == ["1"], (threads, variables)
+
+
 def test_identify_bad_column_option_is_one_line(tmp_path, capsys):
     _write_csv(tmp_path / "rec.csv", _moving_record())
     code, _, err = _cli(["identify", tmp_path / "rec.csv", "--out", tmp_path / "o",
