@@ -18,6 +18,7 @@ from clm_sim.schema import build
 from controllers.pgnn import PGNNFeedforward, TrainingData
 from controllers.pgnn.model import theta_movement
 from controllers.pgnn_settings import decimation_for
+from small_config import tiny_mechanism
 from experiments import identifiability as ident
 from experiments.config import ExperimentConfig, load_config
 
@@ -406,14 +407,7 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     from experiments.studies.mechanism import load_mechanism, run_mechanism
 
     path = tmp_path / "m.yaml"
-    path.write_text(
-        "name: m\nseed: 1\n"
-        "references:\n"
-        "  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}\n"
-        "  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}\n"
-        "training: {repeats: 1}\n"
-        "mechanism:\n  records: 2\n  draws: 1\n  hidden: 3\n  bootstrap: 200\n"
-        "  pgnn: {weight_decay: 0, continuation_lambda: 0, max_iter: 5}\n")
+    path.write_text(tiny_mechanism())
     config, st = load_mechanism(path)
     summary = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
     assert summary["cases"]["cable_cubic"]["truth_cubic"] == pytest.approx(2000.0, rel=1e-6)
@@ -446,16 +440,9 @@ def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
     from experiments.studies.mechanism import cells, load_mechanism, merged, parts_for, run_cell
 
     path = tmp_path / "m.yaml"
-    path.write_text(
-        "name: m\nseed: 1\n"
-        "references:\n"
-        "  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}\n"
-        "  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}\n"
-        "training: {repeats: 1}\n"
-        "mechanism:\n  records: 3\n  draws: 2\n  hidden: 3\n  bootstrap: 200\n"
-        "  pgnn: {weight_decay: 0, continuation_lambda: 0, max_iter: 5}\n"
+    path.write_text(tiny_mechanism(records=3, draws=2, cases=(
         "  cases:\n    cable_cubic:\n"
-        "      - {type: cable_slab, coefficients: [0.0, 10.0, 0.0, 2000.0]}\n")
+        "      - {type: cable_slab, coefficients: [0.0, 10.0, 0.0, 2000.0]}\n")))
     config, st = load_mechanism(path)
     assert parts_for(st, 1) == 1 and parts_for(st, 2) == 2
     assert parts_for(dataclasses.replace(st, records=2), 2) == 1

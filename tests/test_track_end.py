@@ -15,6 +15,7 @@ import scipy.integrate
 from clm_sim.effects import CableSlab, TrackEnd
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
+from small_config import tiny_mechanism
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -119,17 +120,10 @@ def test_mechanism_study_runs_on_the_track_end_variant(tmp_path):
     from experiments.studies.mechanism import load_mechanism, run_mechanism
 
     path = tmp_path / "m.yaml"
-    path.write_text(
-        "name: m\nseed: 1\n"
-        "references:\n"
-        "  r1: {points_m: [0.0, 0.01, -0.01, 0.0], dwell_s: 0.05}\n"
-        "  r2: {points_m: [0.0, 0.02, 0.0], dwell_s: 0.05}\n"
-        "training: {repeats: 1}\n"
-        "mechanism:\n  records: 2\n  draws: 1\n  hidden: 3\n  bootstrap: 200\n"
-        "  pgnn: {weight_decay: 0, continuation_lambda: 0, max_iter: 5}\n"
+    path.write_text(tiny_mechanism(cases=(
         "  cases:\n    track_end:\n"
         "      - {type: cable_slab, coefficients: [0.0, 10.0]}\n"
-        "      - {type: track_end, start: 0.012, coil_length: 0.02, fringe: 0.001}\n")
+        "      - {type: track_end, start: 0.012, coil_length: 0.02, fringe: 0.001}\n")))
     config, st = load_mechanism(path)
     summary = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
     g = TrackEnd(start=0.012, coil_length=0.02, fringe=0.001).overlap(np.array(0.02))
