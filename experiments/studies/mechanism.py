@@ -168,8 +168,10 @@ def _cell(cell: Cell) -> dict:
     truth = tb.machine.motor_command(y, zeros, zeros)  # exact where an effect scales u
     lip_static = lip.theta_["stiffness"] * y
 
-    def rms_beyond(f):
-        return float(np.sqrt(np.mean((f - truth)[beyond] ** 2)))
+    def rms_beyond(f, side=None):
+        """rms error beyond the range; ``side`` -1 or +1: below -limit or above +limit only."""
+        where = beyond if side is None else beyond & (np.sign(y) == side)
+        return float(np.sqrt(np.mean((f - truth)[where] ** 2)))
 
     # The force along the outside reference where it is beyond the range, against the motor
     # command its exact motion needs: what a static curve misses where an effect scales m*a.
@@ -202,6 +204,7 @@ def _cell(cell: Cell) -> dict:
                 "theta": dict(model.theta_),
                 "mae": {r: tb.replay(model, r).mae for r in (st.inside, st.outside)},
                 "error_beyond_rms_n": rms_beyond(total),
+                "error_beyond_sides_rms_n": [rms_beyond(total, -1), rms_beyond(total, 1)],
                 "error_along_rms_n": rms_along(model),
                 "dwell_force_n": float(np.interp(reach, y, total)),
                 "drift_stiffness": model.theta_["stiffness"] - lip.theta_["stiffness"],
@@ -342,6 +345,8 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
         every = [f for f in fits]
         rho = scipy.stats.spearmanr([f["mae"][ref] for f in every],
                                     [f["error_beyond_rms_n"] for f in every])
+        worst = max(fits, key=lambda f: f["error_beyond_rms_n"])
+        worst_record = next(r["record"] for r in cell_list if any(f is worst for f in r["fits"]))
         p = _record_t(diff)
         pvals.append(p)
         out[case] = {
@@ -361,6 +366,13 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
                                                       settings.confidence, rng),
                                   **paired_median(err)},
             "spearman_mae_vs_force_error": float(rho.statistic),
+            # the fit that carries a heavy tail, and on which side of the range its error is
+            "worst_error_beyond": {"record": worst_record, "draw": worst["draw"],
+                                   "lambda": worst["lambda"],
+                                   "rms_n": worst["error_beyond_rms_n"],
+                                   "sides_rms_n": worst["error_beyond_sides_rms_n"],
+                                   "mae_outside_um": worst["mae"][ref] * 1e6,
+                                   "error_along_rms_n": worst["error_along_rms_n"]},
             "rows": rows, "lip": lip}
     for case, p in zip(settings.cases, holm(pvals)):
         out[case]["mae_outside_diff"]["p_holm"] = p
@@ -401,6 +413,15 @@ def report(s: dict) -> str:
                    f"({_p(d.get('p_holm'))}) | {e['median']:+.2f} ({e['higher']}/{e['n']}); "
                    f"mean {e['mean']:+.2f} [{e['ci'][0]:+.2f}, {e['ci'][1]:+.2f}] | "
                    f"{c['spearman_mae_vs_force_error']:.2f} |")
+    out += ["", "Largest static force error beyond the range, per case (the fit that a mean "
+            "of the column above can rest on): "
+            + "; ".join(f"{case}: record {w['record']}, draw {w['draw']}, λ = {w['lambda']:g}, "
+                        f"{w['rms_n']:.4g} N rms (below the range {w['sides_rms_n'][0]:.4g}, "
+                        f"above it {w['sides_rms_n'][1]:.4g}), MAE {st['outside']} "
+                        f"{w['mae_outside_um']:.3f} µm, force error along {st['outside']} "
+                        f"beyond the range {w['error_along_rms_n']:.3g} N"
+                        for case, c in s["cases"].items()
+                        for w in [c["worst_error_beyond"]]) + "."]
     out += ["", "**The mechanism** (medians over every fit of the case; static force at rest, "
             "v = a = 0, against position; 'beyond': positions outside the training range out "
             f"to the reach of {st['outside']}; Δfk: θ's stiffness minus the LIP's; network "
