@@ -32,7 +32,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -56,6 +55,7 @@ from experiments.studies.failure_map_result import (BothFits, CellFailure, CellS
 from experiments.studies.failure_map_settings import FailureMapSettings
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
+from experiments.workers import cores
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
@@ -335,7 +335,7 @@ def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out,
     """Run the study and write it into ``out`` (replaced atomically). Returns the map."""
     progress = Progress(quiet)
     out = Path(out)
-    workers = workers or os.cpu_count() or 1
+    workers = workers or cores()
     with atomic_folder(out, marker="failure_map.json", what="a clm-sim failure map") as tmp:
         (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
             {**resolved(config), "failure_map": to_plain(settings)}, sort_keys=False))

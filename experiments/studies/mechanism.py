@@ -38,7 +38,6 @@ are written into the output folder.
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -58,6 +57,7 @@ from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study, run_checked
 from experiments.table import holm
 from experiments.testbed import Progress, Testbed
+from experiments.workers import cores
 
 
 def _default_cases() -> dict[str, tuple[Effect, ...]]:
@@ -538,7 +538,7 @@ def run_mechanism(config: ExperimentConfig, settings: MechanismSettings, out, *,
     """Run the study and write it into ``out`` (replaced atomically). Returns the summary."""
     progress = Progress(quiet)
     out = Path(out)
-    workers = workers or os.cpu_count() or 1
+    workers = workers or cores()
     with atomic_folder(out, marker="mechanism.json", what="a clm-sim mechanism study") as tmp:
         (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
             {**resolved(config), "mechanism": to_plain(settings)}, sort_keys=False))

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -54,6 +53,7 @@ from experiments.profiles_result import (Check, FirstStop, LipIntervals, MarkedF
 from experiments.studies.kinds import run_checked, take_kind
 from experiments.studies.profiles_report import to_markdown
 from experiments.testbed import STREAM_NETWORK, Progress, Testbed, stream
+from experiments.workers import cores
 
 
 _LOW, _GT_ZERO = "integer at least", "number above zero"  # a setting's constraint
@@ -399,7 +399,7 @@ def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
 
     progress = Progress(quiet)
     out = Path(out)
-    workers = workers or os.cpu_count() or 1
+    workers = workers or cores()
     with atomic_folder(out, marker="identifiability.json",
                        what="a clm-sim identifiability study") as tmp:
         (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(

@@ -29,6 +29,7 @@ from experiments.sweeps.grid import Sweep
 from experiments.runner import run_task, slug
 from experiments.sweeps.store import ResultStore
 from experiments.testbed import Progress
+from experiments.workers import cores
 
 
 @dataclass
@@ -123,8 +124,7 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
     out = Path(out)
     check_output(out)
     if workers is None:
-        workers = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                   else os.cpu_count() or 1)
+        workers = cores()
     if workers < 1:
         raise UserError(f"--workers: expected an integer >= 1, got {workers}")
     say = Progress(quiet)
