@@ -138,7 +138,7 @@ def context() -> multiprocessing.context.BaseContext:
     server could not start here (its socket needs a writable temporary folder). A forked worker is a copy of
     the fork server, a process started for this purpose that never computes, so it inherits
     imported modules and nothing of the caller's state; the server itself starts inside
-    :func:`_spawning` (one thread per library, Ctrl-C and SIGTERM ignored) and hands that to
+    :func:`spawning` (one thread per library, Ctrl-C and SIGTERM ignored) and hands that to
     every worker."""
     if not sys.platform.startswith("linux") or _SERVER_FAILED:
         return multiprocessing.get_context("spawn")
@@ -271,7 +271,7 @@ def watch_parent(owner_pid: int) -> None:
     is, handles them and ends the workers) and exit when the owner dies (even by SIGKILL) or
     the process that started this worker does (the fork server, or the owner itself for a
     ``spawn`` worker), leaving no orphan computing a result nobody will store."""
-    for sig in _STOP_SIGNALS:  # already ignored since the start (see _spawning), for good
+    for sig in _STOP_SIGNALS:  # already ignored since the start (see spawning), for good
         signal.signal(sig, signal.SIG_IGN)
     starter = os.getppid()
 
