@@ -16,6 +16,7 @@ import glob
 import os
 import shutil
 import tempfile
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -102,18 +103,35 @@ def check_writable(out) -> None:
         raise write_error(given, exc) from None
 
 
+# Signals held with Ctrl-C and SIGTERM by :func:`_signals_held`. A command line process receives
+# those two in a thread of its own and passes them to the main thread as another signal
+# (experiments.process.receive_signals), which registers it here with :func:`hold_also`:
+# otherwise it would interrupt the main thread inside a block meant to be whole.
+_HELD_ALSO: set[int] = set()
+# Held by every block of :func:`_signals_held` and by :func:`abandon`: a process ended from
+# another thread never removes a folder halfway through its creation or commit.
+_WRITING = threading.Lock()
+_ABANDON_WAIT_S = 10.0  # s: how long abandon() waits for a block to end (a commit's rename)
+
+
+def hold_also(signum: int) -> None:
+    """Hold ``signum`` too while a result folder or lock file is created or committed."""
+    _HELD_ALSO.add(signum)
+
+
 @contextlib.contextmanager
 def _signals_held():
-    """Ctrl-C and SIGTERM wait until the block ends (main thread, POSIX; elsewhere a no-op)."""
+    """Ctrl-C and SIGTERM (and :data:`_HELD_ALSO`) wait until the block ends (main thread,
+    POSIX), and :func:`abandon` waits for it in any thread."""
     import signal
-    import threading
 
     hold = (hasattr(signal, "pthread_sigmask")
             and threading.current_thread() is threading.main_thread())
-    signals = {signal.SIGINT, signal.SIGTERM}
+    signals = {signal.SIGINT, signal.SIGTERM, *_HELD_ALSO}
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, signals) if hold else None
     try:
-        yield
+        with _WRITING:
+            yield
     finally:
         if hold:
             signal.pthread_sigmask(signal.SIG_SETMASK, previous)
@@ -126,7 +144,17 @@ _IN_PROGRESS: set[Path] = set()
 def abandon() -> None:
     """Remove every temporary folder and lock file this process is writing now. For a process
     about to end at once (a second Ctrl-C during the clean-up of the first), where no ``finally``
-    runs any more; best effort, never raises."""
+    runs any more; best effort, never raises. A folder being created or committed in another
+    thread is left to finish first (:func:`_signals_held`): a committed result stays whole."""
+    held = _WRITING.acquire(timeout=_ABANDON_WAIT_S)
+    try:
+        _remove_in_progress()
+    finally:
+        if held:
+            _WRITING.release()
+
+
+def _remove_in_progress() -> None:
     for path in list(_IN_PROGRESS):
         with contextlib.suppress(OSError):
             if path.is_dir():

@@ -120,6 +120,9 @@ def receive_signals() -> None:
     # The main thread is poked with a signal of its own (a real one: it also ends a blocking
     # wait there), and takes it as the signal received.
     signal.signal(_POKE, lambda _, frame: _signalled(_state["signum"], frame))
+    # Held with Ctrl-C and SIGTERM where a result folder is created or committed: the poke is
+    # the signal as the main thread receives it.
+    outdir.hold_also(_POKE)
     main = threading.main_thread().ident
 
     def receive():
