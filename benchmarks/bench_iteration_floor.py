@@ -6,10 +6,10 @@ included. This script times one LM iteration of a paper's-cost fit (lambda = 0, 
 the rows that are 64 % of those iterations) on the paper table's training data, two ways, on one
 thread, CPU time:
 
-* ``product``: the product's iteration (as ``benchmarks/bench_fit.py`` times it): an evaluation
-  with the Jacobian (forward pass, SVD of the scaled linear system, closed-form Jacobian,
-  Kaufman's projection), ``J'J`` and ``J'r``, the first-order test, a damped solve, a trial
-  evaluation (forward pass and SVD);
+* ``product``: the product's iteration with an accepted step: a trial evaluation (forward pass,
+  SVD of the scaled linear system), then at that point the Jacobian (closed form, Kaufman's
+  projection; the linear solve cached), ``J'J`` and ``J'r``, the first-order test and a damped
+  solve (a rejected step adds a trial, on both sides alike);
 * ``restructured``: the least arithmetic known here for the same step, in numpy: the linear
   system solved through the Cholesky factor of its Gram matrix (numerically the weakest choice:
   it squares the condition number, which the lambda = 0 rows, nearly rank-deficient by design,
@@ -25,7 +25,8 @@ iteration is a floor for the arithmetic, not a method the product could adopt as
 rounding differs, and the rows without a minimizer end elsewhere after 200 iterations when the
 rounding moves (docs/performance.md).
 
-    python benchmarks/bench_iteration_floor.py [--repeats 40] [--iterations 6353,5915]
+    python benchmarks/bench_iteration_floor.py [--rounds 7] [--repeats 20]
+                                           [--iterations 6353,5915]
 """
 
 from __future__ import annotations
@@ -65,16 +66,19 @@ def cost_at_start(data, theta_lip, hidden):
 
 
 def product_iteration(cost, beta):
-    step = 1e-9 * np.ones_like(beta)
+    """One iteration of the product's fit: a trial evaluation at a new point (forward pass,
+    SVD), which is accepted, then the Jacobian there (its linear solve cached), ``J'J``, ``J'r``,
+    the first-order test and a damped solve."""
+    moved = [0]
 
     def one():
-        cost._cache = (None, None)
-        r, J = cost(beta, True)
+        moved[0] += 1
+        b = beta + moved[0] * 1e-12  # a new point every time: no cache hit for the trial
+        cost(b, False)
+        r, J = cost(b, True)
         normal, g = J.T @ J, J.T @ r
         optim.first_order_measure(r, J, normal, g)
         np.linalg.solve(normal + np.eye(len(g)) * normal.trace() * 1e-3, g)
-        cost._cache = (None, None)
-        cost(beta + step, False)
         return normal, g
     return one
 
@@ -106,9 +110,9 @@ class Restructured:
         x = xs / scale
         return h, As, L, x, A @ x - self.c
 
-    def normal(self, beta):
+    def normal(self, beta, solved=None):
         nh, zs = self.n_hidden, self.zs
-        h, As, L, x, r = self.solve(beta)
+        h, As, L, x, r = solved if solved is not None else self.solve(beta)
         s = (1.0 - h * h) * (x[4:4 + nh] * self.cost.sq)
         p = 5 * nh
         N, P, g = np.zeros((p, p)), np.zeros((As.shape[1], p)), np.zeros(p)
@@ -125,10 +129,13 @@ class Restructured:
         return N - C.T @ C, g, r
 
     def iteration(self, beta):
-        step = 1e-9 * np.ones_like(beta)
+        """The same iteration as :func:`product_iteration`, restructured."""
+        moved = [0]
 
         def one():
-            normal, g, r = self.normal(beta)
+            moved[0] += 1
+            b = beta + moved[0] * 1e-12
+            normal, g, r = self.normal(b, self.solve(b))  # the trial's solve, reused
             d = np.sqrt(np.diag(normal))
             w, V = np.linalg.eigh(normal / np.outer(d, d))  # the first-order test
             keep = w > w[-1] * 1e-12
@@ -136,7 +143,6 @@ class Restructured:
             float(proj @ (proj / w[keep]) / float(r @ r))
             f = scipy.linalg.cho_factor(normal + np.eye(len(g)) * normal.trace() * 1e-3)
             scipy.linalg.cho_solve(f, g)
-            self.solve(beta + step)
             return normal, g
         return one
 
@@ -151,7 +157,9 @@ def cpu_ms(fn, repeats):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=40)
+    ap.add_argument("--repeats", type=int, default=20, help="iterations per round")
+    ap.add_argument("--rounds", type=int, default=7,
+                    help="rounds, the two sides interleaved; the median round is printed")
     ap.add_argument("--iterations", default="6353,5915",
                     help="the table's LM iterations at n_l = 16 and 8 (bench_table.py)")
     args = ap.parse_args(argv)
@@ -172,7 +180,12 @@ def main(argv=None) -> int:
             (n1, g1), (n2, g2) = mine(), floor()
             dn = np.abs(n1 - n2).max() / np.abs(n1).max()
             dg = np.abs(g1 - g2).max() / np.abs(g1).max()
-            ms = {"product": cpu_ms(mine, args.repeats), "restructured": cpu_ms(floor, args.repeats)}
+            # Interleaved rounds, the median of each side: both see the same load.
+            rounds = {"product": [], "restructured": []}
+            for _ in range(args.rounds):
+                rounds["product"].append(cpu_ms(mine, args.repeats))
+                rounds["restructured"].append(cpu_ms(floor, args.repeats))
+            ms = {k: float(np.median(v)) for k, v in rounds.items()}
             for k in totals:
                 totals[k] += ms[k] * count / 1e3
             print(f"n_l = {hidden:2d}: product {ms['product']:6.2f} ms, restructured "
