@@ -109,8 +109,10 @@ def check_writable(out) -> None:
 # otherwise it would interrupt the main thread inside a block meant to be whole.
 _HELD_ALSO: set[int] = set()
 # Held by every block of :func:`_signals_held` and by :func:`abandon`: a process ended from
-# another thread never removes a folder halfway through its creation or commit.
-_WRITING = threading.Lock()
+# another thread never removes a folder halfway through its creation or commit. Re-entrant: a
+# handler that runs in the thread holding it (where a signal reached another thread of the
+# process first) does not wait for itself.
+_WRITING = threading.RLock()
 _ABANDON_WAIT_S = 10.0  # s: how long abandon() waits for a block to end (a commit's rename)
 
 
