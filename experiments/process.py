@@ -24,6 +24,7 @@ processes, the fork server), :mod:`experiments.workers` (the PGNN fit pool) and
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 import signal
 import sys
@@ -190,6 +191,10 @@ def run(command: Callable[[], int], *, program: bool, name: str, source: str | N
             # Done: a late signal (results written, interpreter exiting) ends with its code.
             _state["done"] = True
             _catch(_end_now)
+        if program:
+            # Every object left lives until the process ends: frozen, the collections of the
+            # interpreter's shutdown do not walk them (with torch loaded: 1.2 s, 0.3 s frozen).
+            gc.freeze()
         else:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

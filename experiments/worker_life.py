@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import gc
 import multiprocessing
 import os
 import signal
@@ -270,7 +271,10 @@ def watch_parent(owner_pid: int) -> None:
     """Worker initializer: ignore Ctrl-C and SIGTERM (the owner, the process whose pool this
     is, handles them and ends the workers) and exit when the owner dies (even by SIGKILL) or
     the process that started this worker does (the fork server, or the owner itself for a
-    ``spawn`` worker), leaving no orphan computing a result nobody will store."""
+    ``spawn`` worker), leaving no orphan computing a result nobody will store. What the worker
+    holds now (the fork server's libraries) lives as long as it does: frozen, so that the full
+    collections during its tasks do not walk it (a paper-table worker's: 0.8 s each)."""
+    gc.freeze()
     for sig in _STOP_SIGNALS:  # already ignored since the start (see spawning), for good
         signal.signal(sig, signal.SIG_IGN)
     starter = os.getppid()

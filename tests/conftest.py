@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 from pathlib import Path
@@ -222,6 +223,36 @@ def pytest_terminal_summary(terminalreporter):
     if _WARM_UP:
         terminalreporter.write_line(f"numba kernels compiled or loaded before the workers "
                                     f"started: {_WARM_UP[0]:.1f} s (not in the time below)")
+
+
+def pytest_collection_finish(session):
+    """The test modules and the libraries they imported live for the whole run: frozen, the full
+    collections of the run do not walk them (a pytest worker's heap is then mostly torch,
+    python-control and scipy's), nor does the interpreter's shutdown at the end."""
+    gc.freeze()
+
+
+def pytest_unconfigure(config):
+    """What the tests left lives until the process ends: frozen too (see above)."""
+    gc.freeze()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def fits_in_the_tests_process():
+    """With pytest-xdist (``-n``) every core already runs a test: a test's PGNN fits run in its
+    own process rather than on the fit pool (:func:`experiments.workers.map_fits`), whose fork
+    server imports torch again and whose fits travel pickled. The pool gives the same bits
+    (``test_pgnn.py::test_worker_pool_gives_the_same_bits``, which asks for it), and the tests
+    of real ``clm-sim`` processes still run theirs on it. Measured on the 2-core machine: 35 s of
+    the suite's 630 s of CPU."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        yield
+        return
+    import experiments.workers
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(experiments.workers, "cores", lambda: 1)
+        yield
 
 
 def _hypothesis_profiles() -> None:
