@@ -21,7 +21,7 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, as_completed, wait
 
-from experiments.worker_life import new_pool, retire, spawning, stop
+from experiments.worker_life import FIT_PRELOAD, new_pool, retire, spawning, stop
 
 
 @contextlib.contextmanager
@@ -169,7 +169,7 @@ def map_fits(payloads: list, fn: Callable = fit_pgnn,
                 on_done(results[-1])
         return results
     try:
-        with spawning():  # workers are spawned on submit and inherit this
+        with spawning(FIT_PRELOAD):  # workers are spawned on submit and inherit this
             futures = [_pool().submit(fn, p) for p in payloads]
         if on_done is not None:
             for fut in as_completed(futures):

@@ -328,6 +328,7 @@ def test_result_does_not_depend_on_the_callers_thread_count(data):
 def test_worker_pool_gives_the_same_bits(data, monkeypatch):
     """Fits on the process pool equal fits in this process (the pool asked for, whatever the
     cores: under pytest-xdist the other tests fit in their own process, conftest.py)."""
+    from experiments import worker_life
     from experiments import workers as parallel
 
     monkeypatch.setattr(parallel, "cores", lambda: 2)
@@ -337,7 +338,11 @@ def test_worker_pool_gives_the_same_bits(data, monkeypatch):
     small = TrainingData(data.phi[:600], data.target[:600])
     payloads = [({"hidden": 4, "max_iter": 10}, FeatureMap(), small, theta,
                  np.random.SeedSequence(11, spawn_key=(1, s))) for s in range(2)]
-    pooled = parallel.map_fits(payloads)
+    try:
+        pooled = parallel.map_fits(payloads)
+    finally:  # the fit pool's server imports less than a sweep's: later pools start their own
+        parallel.stop_fits()
+        worker_life.stop_server()
     assert used  # the fits went to the pool
     for p, m in zip(payloads, pooled):
         here = parallel.fit_pgnn(p)
