@@ -191,13 +191,13 @@ def run(command: Callable[[], int], *, program: bool, name: str, source: str | N
             # Done: a late signal (results written, interpreter exiting) ends with its code.
             _state["done"] = True
             _catch(_end_now)
+        else:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
         if program:
             # Every object left lives until the process ends: frozen, the collections of the
             # interpreter's shutdown do not walk them (with torch loaded: 1.2 s, 0.3 s frozen).
             gc.freeze()
-        else:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
 
 
 def _exit_now(code: int) -> None:
