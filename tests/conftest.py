@@ -106,7 +106,9 @@ SLOW = {
                      "test_jacobian_matches_finite_differences": 1,
                      "test_result_does_not_depend_on_the_callers_thread_count": 2,
                      "test_orthogonal_projection_keeps_theta_lip": 1},
-    "test_testbed.py": {"test_readme_api_example_runs_from_any_folder": 11},
+    "test_testbed.py": {"test_readme_api_example_runs_from_any_folder": 11,
+                        # tenth session, -n 0: two testbeds, one on the fit pool
+                        "test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool": 7},
     "test_cli.py": {"test_a_run_whose_rows_reuse_fits_ends_with_nothing_on_stderr": 15,
                     "test_a_command_killed_outright_leaves_no_worker_behind": 10,
                     "test_signal_during_pgnn_fits_ends_workers_without_tracebacks": 8,
@@ -242,8 +244,9 @@ def fits_in_the_tests_process():
     """With pytest-xdist (``-n``) every core already runs a test: a test's PGNN fits run in its
     own process rather than on the fit pool (:func:`experiments.workers.map_fits`), whose fork
     server imports torch again and whose fits travel pickled. The pool gives the same bits
-    (``test_pgnn.py::test_worker_pool_gives_the_same_bits``, which asks for it), and the tests
-    of real ``clm-sim`` processes still run theirs on it. Measured on the 2-core machine: 35 s of
+    (``test_pgnn.py::test_worker_pool_gives_the_same_bits`` and, for rows that reuse starts,
+    ``test_testbed.py::test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool``, which
+    ask for it), and the tests of real ``clm-sim`` processes still run theirs on it. Measured on the 2-core machine: 35 s of
     the suite's 630 s of CPU."""
     if not os.environ.get("PYTEST_XDIST_WORKER"):
         yield

@@ -171,3 +171,43 @@ def test_a_continuation_row_reuses_the_starts_of_earlier_rows(monkeypatch):
     assert alone.fit_ == shared[2].fit_ and alone.history_ == shared[2].history_
     for k, v in alone.network_.state_dict().items():
         assert np.array_equal(v.numpy(), shared[2].network_.state_dict()[k].numpy()), k
+
+
+
+def test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool(monkeypatch):
+    """On the fit pool a worker fills a copy of a draw's start cache, which comes back and
+    replaces the testbed's: a continuation row after its lambda = 0 and lambda = 0.01 rows gives
+    the same models, fit records and caches as in this process (under pytest-xdist the other
+    tests fit in their own process, conftest.py; this one asks for the pool)."""
+    from experiments import worker_life
+    from experiments import workers as parallel
+    from experiments.config import FeedforwardSpec
+
+    kw = dict(training="simultaneous", hidden=3, seeds=2)
+    no_cont = {"max_iter": 6, "weight_decay": 1e-5, "continuation_lam": 0.0}
+    rows = [FeedforwardSpec.pgnn_row(lam=0.0, settings=no_cont, **kw),
+            FeedforwardSpec.pgnn_row(lam=0.01, settings=no_cont, **kw),
+            FeedforwardSpec.pgnn_row(lam=0.0, settings={**no_cont, "continuation_lam": 0.01},
+                                     **kw)]
+    used, pool = [], parallel._pool
+    monkeypatch.setattr(parallel, "_pool", lambda: used.append(1) or pool())
+    beds, models = {}, {}
+    for cores in (1, 2):
+        monkeypatch.setattr(parallel, "cores", lambda cores=cores: cores)
+        tb = beds[cores] = short_testbed()
+        run = tb.training_run()
+        lip = tb.fit_lip(run)
+        try:
+            models[cores] = [tb.fit_row(spec, run, lip) for spec in rows][-1]
+        finally:  # the fit pool's server imports less than a sweep's: later pools start their own
+            parallel.stop_fits()
+            worker_life.stop_server()
+        assert bool(used) == (cores == 2)  # in this process, then on the pool
+    for here, pooled in zip(models[1], models[2]):
+        assert [s.start for s in pooled.fit_.starts] == ["draw", "continuation"]
+        assert pooled.fit_ == here.fit_ and pooled.history_ == here.history_
+        for k, v in here.network_.state_dict().items():
+            assert np.array_equal(v.numpy(), pooled.network_.state_dict()[k].numpy()), k
+    assert beds[2]._starts.keys() == beds[1]._starts.keys()
+    for key, cache in beds[1]._starts.items():  # the workers' caches came back
+        assert len(cache) == 3 and set(cache._outcomes) == set(beds[2]._starts[key]._outcomes)
