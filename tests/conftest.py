@@ -181,7 +181,8 @@ def pytest_sessionstart(session):
     the sweeps'), would each compile the same kernels at once, several seconds of CPU apiece.
     Compiled here, they all load the cache. The open loop compiles in a second process while
     this one compiles the closed loop (8 s each on a fresh clone; 9 s side by side against 16 s
-    one after the other). Nothing else: the product compiles the same way on its first run
+    one after the other), then the foreign records' integrator (2.6 s) and the pre-sliding
+    states (1.0 s). Nothing else: the product compiles the same way on its first run
     (``clm_sim/kernel.py``)."""
     if os.environ.get("PYTEST_XDIST_WORKER") or not session.config.getoption("numprocesses",
                                                                                None):
@@ -201,8 +202,13 @@ def pytest_sessionstart(session):
         beside = subprocess.Popen([sys.executable, "-c", "import conftest; "
                                    "conftest.compile_open_loop()"], cwd=Path(__file__).parent)
     simulate(Plant(), ZeroController(), np.zeros(20), TS)  # the closed loop
+    # The foreign records' integrator: on a ramp (at rest on zeros the stage sticks and nothing
+    # is integrated, which left it to compile in every worker until the tenth session).
     reference_sim.run_loop(reference_sim.Stage(), reference_sim.Cascade(60.0, 4700.0, 1e-3),
-                           np.zeros(5), 1e-3, resolution=1e-7)  # the foreign records'
+                           np.linspace(0.0, 1e-2, 20), 1e-3, resolution=1e-7)
+    from clm_sim.kernel import dahl_states
+
+    dahl_states(np.zeros(4), 1e-6)  # pre-sliding (clm_sim.effects, the open loop's start)
     if beside is None or beside.wait() != 0:  # cached already, or the second process failed
         compile_open_loop()
     _WARM_UP.append(time.monotonic() - start)
