@@ -144,22 +144,29 @@ def test_evaluate_replays_each_seed_as_replay_does():
                                                           rel=1e-14, abs=0)
 
 
+def continuation_rows(seeds: int) -> list:
+    """A lambda = 0 row, a lambda = 0.01 row and the continuation row that reuses both (tiny
+    fits: n_l = 3, six iterations), ``seeds`` draws each."""
+    from experiments.config import FeedforwardSpec
+
+    kw = dict(training="simultaneous", hidden=3, seeds=seeds)
+    no_cont = {"max_iter": 6, "weight_decay": 1e-5, "continuation_lam": 0.0}
+    return [FeedforwardSpec.pgnn_row(lam=0.0, settings=no_cont, **kw),
+            FeedforwardSpec.pgnn_row(lam=0.01, settings=no_cont, **kw),
+            FeedforwardSpec.pgnn_row(lam=0.0, settings={**no_cont, "continuation_lam": 0.01},
+                                     **kw)]
+
+
 def test_a_continuation_row_reuses_the_starts_of_earlier_rows(monkeypatch):
     """The continuation row's draw start is the lambda = 0 row's fit and its lambda = 0.01 start
     the lambda = 0.01 row's: taken from the testbed, not run again, with the same bits as a
     testbed that runs them."""
     from controllers import optim
-    from experiments.config import FeedforwardSpec
 
     tb = short_testbed()
     run = tb.training_run()
     lip = tb.fit_lip(run)
-    kw = dict(training="simultaneous", hidden=3, seeds=1)
-    no_cont = {"max_iter": 6, "weight_decay": 1e-5, "continuation_lam": 0.0}
-    rows = [FeedforwardSpec.pgnn_row(lam=0.0, settings=no_cont, **kw),
-            FeedforwardSpec.pgnn_row(lam=0.01, settings=no_cont, **kw),
-            FeedforwardSpec.pgnn_row(lam=0.0, settings={**no_cont, "continuation_lam": 0.01},
-                                     **kw)]
+    rows = continuation_rows(seeds=1)
     ran, lm = [], optim.levenberg_marquardt
     monkeypatch.setattr(optim, "levenberg_marquardt", lambda *a, **k: ran.append(1) or lm(*a, **k))
     shared = [tb.fit_row(spec, run, lip)[0] for spec in rows]
@@ -173,7 +180,6 @@ def test_a_continuation_row_reuses_the_starts_of_earlier_rows(monkeypatch):
         assert np.array_equal(v.numpy(), shared[2].network_.state_dict()[k].numpy()), k
 
 
-
 def test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool(monkeypatch):
     """On the fit pool a worker fills a copy of a draw's start cache, which comes back and
     replaces the testbed's: a continuation row after its lambda = 0 and lambda = 0.01 rows gives
@@ -181,14 +187,8 @@ def test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool(monkeypatch):
     tests fit in their own process, conftest.py; this one asks for the pool)."""
     from experiments import worker_life
     from experiments import workers as parallel
-    from experiments.config import FeedforwardSpec
 
-    kw = dict(training="simultaneous", hidden=3, seeds=2)
-    no_cont = {"max_iter": 6, "weight_decay": 1e-5, "continuation_lam": 0.0}
-    rows = [FeedforwardSpec.pgnn_row(lam=0.0, settings=no_cont, **kw),
-            FeedforwardSpec.pgnn_row(lam=0.01, settings=no_cont, **kw),
-            FeedforwardSpec.pgnn_row(lam=0.0, settings={**no_cont, "continuation_lam": 0.01},
-                                     **kw)]
+    rows = continuation_rows(seeds=2)
     used, pool = [], parallel._pool
     monkeypatch.setattr(parallel, "_pool", lambda: used.append(1) or pool())
     beds, models = {}, {}
