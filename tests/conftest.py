@@ -252,7 +252,7 @@ def fits_in_the_tests_process():
     server imports torch again and whose fits travel pickled. The pool gives the same bits
     (``test_pgnn.py::test_worker_pool_gives_the_same_bits`` and, for rows that reuse starts,
     ``test_testbed.py::test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool``, which
-    ask for it), and the tests of real ``clm-sim`` processes still run theirs on it. Measured on the 2-core machine: 35 s of
+    ask for it: :func:`fit_pool`), and the tests of real ``clm-sim`` processes still run theirs on it. Measured on the 2-core machine: 35 s of
     the suite's 630 s of CPU."""
     if not os.environ.get("PYTEST_XDIST_WORKER"):
         yield
@@ -262,6 +262,22 @@ def fits_in_the_tests_process():
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(experiments.workers, "cores", lambda: 1)
         yield
+
+
+@pytest.fixture
+def fit_pool(monkeypatch) -> list:
+    """For a test about the PGNN fit pool (the others fit in their own process under ``-n``,
+    above): :func:`experiments.workers.map_fits` uses the pool whatever the cores, and the
+    returned list gets an entry each time it does. The pool and its fork server end with the
+    test: the fit pool's server imports less than a sweep's, so later pools start their own."""
+    from experiments import worker_life, workers
+
+    used, pool = [], workers._pool
+    monkeypatch.setattr(workers, "cores", lambda: 2)
+    monkeypatch.setattr(workers, "_pool", lambda: used.append(1) or pool())
+    yield used
+    workers.stop_fits()
+    worker_life.stop_server()
 
 
 def _hypothesis_profiles() -> None:

@@ -325,25 +325,17 @@ def test_result_does_not_depend_on_the_callers_thread_count(data):
         assert torch.equal(states[0][k], states[1][k]), k
 
 
-def test_worker_pool_gives_the_same_bits(data, monkeypatch):
+def test_worker_pool_gives_the_same_bits(data, fit_pool):
     """Fits on the process pool equal fits in this process (the pool asked for, whatever the
     cores: under pytest-xdist the other tests fit in their own process, conftest.py)."""
-    from experiments import worker_life
     from experiments import workers as parallel
 
-    monkeypatch.setattr(parallel, "cores", lambda: 2)
-    used, pool = [], parallel._pool
-    monkeypatch.setattr(parallel, "_pool", lambda: used.append(1) or pool())
     theta = as_dict(lip_theta(data))
     small = TrainingData(data.phi[:600], data.target[:600])
     payloads = [({"hidden": 4, "max_iter": 10}, FeatureMap(), small, theta,
                  np.random.SeedSequence(11, spawn_key=(1, s))) for s in range(2)]
-    try:
-        pooled = parallel.map_fits(payloads)
-    finally:  # the fit pool's server imports less than a sweep's: later pools start their own
-        parallel.stop_fits()
-        worker_life.stop_server()
-    assert used  # the fits went to the pool
+    pooled = parallel.map_fits(payloads)
+    assert fit_pool  # the fits went to the pool
     for p, m in zip(payloads, pooled):
         here = parallel.fit_pgnn(p)
         for k, v in here.network_.state_dict().items():

@@ -180,29 +180,22 @@ def test_a_continuation_row_reuses_the_starts_of_earlier_rows(monkeypatch):
         assert np.array_equal(v.numpy(), shared[2].network_.state_dict()[k].numpy()), k
 
 
-def test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool(monkeypatch):
+def test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool(monkeypatch, fit_pool):
     """On the fit pool a worker fills a copy of a draw's start cache, which comes back and
     replaces the testbed's: a continuation row after its lambda = 0 and lambda = 0.01 rows gives
     the same models, fit records and caches as in this process (under pytest-xdist the other
     tests fit in their own process, conftest.py; this one asks for the pool)."""
-    from experiments import worker_life
     from experiments import workers as parallel
 
     rows = continuation_rows(seeds=2)
-    used, pool = [], parallel._pool
-    monkeypatch.setattr(parallel, "_pool", lambda: used.append(1) or pool())
     beds, models = {}, {}
-    for cores in (1, 2):
+    for cores in (1, 2):  # in this process, then on the pool
         monkeypatch.setattr(parallel, "cores", lambda cores=cores: cores)
         tb = beds[cores] = short_testbed()
         run = tb.training_run()
         lip = tb.fit_lip(run)
-        try:
-            models[cores] = [tb.fit_row(spec, run, lip) for spec in rows][-1]
-        finally:  # the fit pool's server imports less than a sweep's: later pools start their own
-            parallel.stop_fits()
-            worker_life.stop_server()
-        assert bool(used) == (cores == 2)  # in this process, then on the pool
+        models[cores] = [tb.fit_row(spec, run, lip) for spec in rows][-1]
+        assert bool(fit_pool) == (cores == 2)
     for here, pooled in zip(models[1], models[2]):
         assert [s.start for s in pooled.fit_.starts] == ["draw", "continuation"]
         assert pooled.fit_ == here.fit_ and pooled.history_ == here.history_
