@@ -110,7 +110,8 @@ def receive_signals() -> None:
     thread or while workers start (:data:`experiments.worker_life.SPAWNING`). The first is passed
     to the main thread as if it had come there (it unwinds the command); if the main thread has
     not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
-    after the command ended, this thread ends the process at once (:func:`_end_now`).
+    after the command ended, this thread ends the process at once (:func:`_end_now`), as the
+    main thread does if Python drops the signal in a finalizer (:func:`_poke_again`).
     Does nothing where the platform has no thread-directed signals."""
     if not hasattr(signal, "pthread_sigmask") or _POKE is None:
         return
@@ -125,6 +126,7 @@ def receive_signals() -> None:
     # the signal as the main thread receives it.
     outdir.hold_also(_POKE)
     main = threading.main_thread().ident
+    sys.unraisablehook = _poke_again(sys.unraisablehook, main)
 
     def receive():
         while True:
@@ -143,6 +145,22 @@ def receive_signals() -> None:
                 _end_now(signum, None)
 
     threading.Thread(target=receive, daemon=True, name="clm-sim-signals").start()
+
+
+def _poke_again(hook, main: int):
+    """``sys.unraisablehook`` that does not let Python drop the interruption: the poke's
+    exception, raised while the main thread ran a finalizer (a ``__del__``, a weakref callback:
+    a collection can run one anywhere), is printed as "Exception ignored" and dropped, and the
+    command would run on to exit 0 as if no signal had come. The process ends from here, as
+    when the main thread does not answer the poke (:func:`_end_now`; nothing Python-level may
+    wait here for a new poke, which would be taken, and dropped, here again). Any other
+    unraisable exception goes to ``hook``."""
+    def unraisable(info):
+        if isinstance(info.exc_value, KeyboardInterrupt) and _state["signalled"] \
+                and not _state["done"] and threading.get_ident() == main:
+            _end_now(_state["signum"], None)
+        hook(info)
+    return unraisable
 
 
 def run(command: Callable[[], int], *, program: bool, name: str, source: str | None = None,

@@ -166,8 +166,9 @@ _SERVER_FAILED = False  # the fork server could not start in this process: spawn
 
 def stop_server() -> None:
     """End this process's fork server, if it started one, and wait until it has gone (a
-    command ends with no process of its own left behind), every pool's workers first; a later
-    pool starts a new one. Reads private attributes of :mod:`multiprocessing.forkserver` (those
+    command ends with no process of its own left behind), every process it forked first (the
+    pools' workers, and one being forked that no pool knows yet); a later pool starts a new
+    one. Reads private attributes of :mod:`multiprocessing.forkserver` (those
     of CPython 3.11); where a Python has others, this does nothing and the server exits by
     itself once this process and its workers have ended."""
     from multiprocessing import forkserver
@@ -183,7 +184,16 @@ def stop_server() -> None:
         server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
         kill_all()
         # Killed, not asked: it computes nothing and may still be importing its libraries
-        # (seconds before it reads its pipe); its workers are killed above.
+        # (seconds before it reads its pipe). Stopped first, so that it forks no other
+        # process, then every process it forked is killed: the pools' workers (killed above)
+        # and one it may be forking now, which no pool knows yet and which, once this process
+        # has removed the pools' semaphores, would fail to read its task with a traceback.
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGSTOP)
+            _wait_stopped(pid)
+        for child in _children(pid):
+            with contextlib.suppress(OSError):
+                os.kill(child, signal.SIGKILL)
         with contextlib.suppress(OSError):
             os.kill(pid, signal.SIGKILL)
         with contextlib.suppress(ChildProcessError):
@@ -197,6 +207,37 @@ def stop_server() -> None:
         pass
     finally:
         lock.release()
+
+
+def _stat(pid: int) -> list[bytes]:
+    """The fields of ``/proc/PID/stat`` after the command name (state, parent, ...); empty
+    where there is no such process or no ``/proc``."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()
+    except (OSError, IndexError):
+        return []
+
+
+def _wait_stopped(pid: int, timeout_s: float = 0.5) -> None:
+    """Wait until process ``pid``, sent SIGSTOP, has stopped (a stop is delivered
+    asynchronously: a fork under way completes first), at most ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        fields = _stat(pid)
+        if not fields or fields[0] in (b"T", b"t", b"Z"):
+            return
+        time.sleep(0.001)
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid``, from ``/proc`` (none where it is missing)."""
+    try:
+        names = [n for n in os.listdir("/proc") if n.isdigit()]
+    except OSError:
+        return []
+    parent = str(pid).encode()
+    return [int(n) for n in names if _stat(int(n))[1:2] == [parent]]
 
 
 def remove_temp_dir() -> None:
@@ -268,11 +309,8 @@ def _alive(pid: int) -> bool:
         return False
     except PermissionError:
         return True
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
-    except (OSError, IndexError):
-        return True  # no /proc: kill(pid, 0) is all there is
+    fields = _stat(pid)
+    return not fields or fields[0] != b"Z"  # no /proc: kill(pid, 0) is all there is
 
 
 def watch_parent(owner_pid: int) -> None:

@@ -610,6 +610,89 @@ def test_a_command_killed_outright_leaves_no_worker_behind(tmp_path):
     assert left == {}, "a worker outlived the command that was killed"
 
 
+def _script(tmp_path: Path, text: str) -> subprocess.Popen:
+    """``text`` run as a Python program of its own session on this checkout's code."""
+    path = tmp_path / "script.py"
+    path.write_text(text)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, str(path)], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env=env)
+
+
+FORKED_UNKNOWN = """\
+import sys, time
+from experiments import worker_life
+
+if __name__ == "__main__":
+    with worker_life.spawning(("time",)):
+        # forked by the server, known to no pool: as a worker is while it is being started
+        worker = worker_life.context().Process(target=time.sleep, args=(60,))
+        worker.start()
+    print(worker.pid, flush=True)
+    worker_life.stop_server()
+    print("stopped", flush=True)
+    time.sleep(60)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_stopping_the_fork_server_ends_a_worker_no_pool_knows_yet(tmp_path):
+    """A command that ends while its fork server forks a worker (a signal between the fork and
+    the pool's record of it, as one CI run met): the worker dies with the server, instead of
+    living on to read a task whose semaphores are gone and print a traceback."""
+    proc = _script(tmp_path, FORKED_UNKNOWN)
+    try:
+        worker = int(proc.stdout.readline())
+        assert proc.stdout.readline().strip() == "stopped"
+        deadline = time.monotonic() + 5.0
+        while worker in _session_processes(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        alive = [pid for pid in _session_processes(proc.pid) if pid == worker]
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    assert alive == [], "the worker forked by the server outlived it"
+
+
+SWALLOWED = """\
+import pathlib, sys, time
+from experiments import process
+
+class Slow:
+    def __del__(self):  # a finalizer: what Python's garbage collection runs anywhere
+        pathlib.Path("in finalizer").write_text("")
+        start = time.monotonic()
+        while time.monotonic() - start < 20.0:
+            pass
+
+def command():
+    Slow()
+    pathlib.Path("ran on").write_text("")
+    return 0
+
+if __name__ == "__main__":
+    process.receive_signals()
+    sys.exit(process.run(command, program=True, name="test"))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_that_lands_in_a_finalizer_still_ends_the_command(sig, tmp_path):
+    """Python drops an exception raised in a finalizer ("Exception ignored in ..."), the
+    interruption's too: a signal taken while the main thread runs one still ends the command
+    (one run of a PGNN config met it in a weakref callback and exited 0 with its results)."""
+    proc = _script(tmp_path, SWALLOWED)
+    started = _wait_for(proc, lambda: (tmp_path / "in finalizer").exists())
+    os.killpg(proc.pid, sig)
+    _, err = _finish(proc)
+    assert started, err
+    code, word = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}[sig]
+    assert (proc.returncode, err.strip().splitlines()) == (code, [f"clm-sim: {word}"]), err
+    assert not (tmp_path / "ran on").exists(), "the command ran on after the signal"
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
