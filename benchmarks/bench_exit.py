@@ -1,12 +1,18 @@
 """What a process with the numerical libraries loaded pays to end (a benchmark, not a test).
 
 A ``clm-sim`` command that has fitted PGNNs has torch, python-control, scipy.signal and numba
-loaded, hundreds of thousands of objects; the interpreter's shutdown runs full garbage
-collections that walk every one of them. ``clm-sim`` freezes its heap (``gc.freeze``) once its
-command has ended (:func:`experiments.process.run`), so those collections skip them. This
-script starts fresh processes that load the libraries and end, half of them freezing first
-(interleaved), and prints for each way the time from the process's last exit handler to its end
-as its parent sees it (wall time; median and range over ``--runs``).
+loaded, hundreds of thousands of objects; the interpreter's shutdown tears down every module and
+runs full garbage collections that walk them. This script starts fresh processes that load the
+libraries and end in one of three ways (interleaved):
+
+- ``collected``: as Python ends a process;
+- ``frozen``: the heap frozen first (``gc.freeze``), so those collections skip it;
+- ``ended``: the exit handlers run, then ``os._exit``: no shutdown at all, as a ``clm-sim``
+  command has ended since the eleventh session (:func:`experiments.process.run`; the shutdown
+  wrote nothing of clm-sim's, and a signal that came during it was lost);
+
+and prints for each way the time from the process's last exit handler to its end as its parent
+sees it (wall time; median and range over ``--runs``).
 
     python benchmarks/bench_exit.py [--runs 5] [--modules torch,control,scipy.signal,numba]
 """
@@ -28,6 +34,10 @@ for name in sys.argv[2].split(","):
 if sys.argv[3] == "frozen":
     gc.freeze()
 atexit.register(lambda: open(sys.argv[1], "w").write(repr(time.time())))
+if sys.argv[3] == "ended":
+    import os
+    atexit._run_exitfuncs()
+    os._exit(0)
 """
 
 
@@ -43,7 +53,7 @@ def main(argv=None) -> None:
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--modules", default="torch,control,scipy.signal,numba")
     args = parser.parse_args(argv)
-    times: dict[str, list[float]] = {"collected": [], "frozen": []}
+    times: dict[str, list[float]] = {"collected": [], "frozen": [], "ended": []}
     with tempfile.TemporaryDirectory() as tmp:
         stamp = Path(tmp) / "stamp"
         for _ in range(args.runs):
@@ -55,6 +65,7 @@ def main(argv=None) -> None:
               f"(range {min(values):.2f} to {max(values):.2f} s)")
     ratio = statistics.median(times["collected"]) / statistics.median(times["frozen"])
     print(f"ratio_collected_over_frozen={ratio:.1f}")
+    print(f"ended_median_s={statistics.median(times['ended']):.3f}")
 
 
 if __name__ == "__main__":

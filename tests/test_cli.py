@@ -693,6 +693,62 @@ def test_a_signal_that_lands_in_a_finalizer_still_ends_the_command(sig, tmp_path
     assert not (tmp_path / "ran on").exists(), "the command ran on after the signal"
 
 
+AFTER_THE_COMMAND = """\
+import atexit, pathlib, sys, time, types
+from experiments import process
+
+def busy(marker, open=open, monotonic=time.monotonic):  # (modules are gone at the end)
+    open(marker, "w").close()
+    start = monotonic()
+    while monotonic() - start < 20.0:
+        pass
+
+class Late:
+    def __del__(self, busy=busy):  # run by the interpreter's shutdown, after exit handlers
+        busy("in phase")
+
+def leave_one_behind():  # in a module of its own, which the shutdown tears down
+    module = types.ModuleType("late")
+    module.late = Late()
+    sys.modules["late"] = module
+
+def command():
+    if sys.argv[1] == "exit handler":
+        atexit.register(busy, "in phase")
+    pathlib.Path("result").write_text("")
+    return 0
+
+if __name__ == "__main__":
+    if sys.argv[1] == "interpreter shutdown":  # the last exit handler leaves an object behind
+        atexit.register(leave_one_behind)
+    process.receive_signals()
+    sys.exit(process.run(command, program=True, name="test"))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("phase", ["exit handler", "interpreter shutdown"])
+def test_a_signal_after_the_results_are_written_ends_with_its_code(phase, tmp_path):
+    """docs/cli.md: a signal after the results were written still ends the command with 130
+    or 143 and one line. It may come while the exit handlers run (the fit pool, the fork
+    server, the libraries' clean-ups are stopped), where the signal thread answers; the
+    interpreter's shutdown, where no thread answered any more (the signal was lost and the
+    command exited 0), no longer runs: a finalizer it would run never starts."""
+    path = tmp_path / "script.py"
+    path.write_text(AFTER_THE_COMMAND)
+    proc = subprocess.Popen([sys.executable, str(path), phase], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    reached = _wait_for(proc, lambda: (tmp_path / "in phase").exists())
+    if reached:
+        os.killpg(proc.pid, signal.SIGTERM)
+    _, err = _finish(proc)
+    assert (tmp_path / "result").exists(), err
+    expected = (143, "clm-sim: terminated\n") if reached else (0, "")
+    assert (proc.returncode, err) == expected, err
+    assert reached == (phase == "exit handler")
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
