@@ -261,11 +261,16 @@ def remove_temp_dir() -> None:
 
 def stop(pool: ProcessPoolExecutor) -> None:
     """End ``pool`` now: its workers killed (they write no file and ignore SIGTERM), queued
-    work cancelled, without waiting for running tasks."""
+    work cancelled, without waiting for running tasks. The fork server is stopped first, with
+    every process it forked (:func:`stop_server`; a later pool starts a new one): an
+    interruption may come while the server forks a worker that no pool knows yet, and that
+    worker, left alive, would read its task after the shutdown below has removed the pool's
+    semaphores, and print a traceback."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
     for proc in procs:
         with contextlib.suppress(Exception):
             proc.kill()
+    stop_server()
     with contextlib.suppress(Exception):
         pool.shutdown(wait=False, cancel_futures=True)
     deadline = time.monotonic() + 1.0

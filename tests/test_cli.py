@@ -610,12 +610,12 @@ def test_a_command_killed_outright_leaves_no_worker_behind(tmp_path):
     assert left == {}, "a worker outlived the command that was killed"
 
 
-def _script(tmp_path: Path, text: str) -> subprocess.Popen:
+def _script(tmp_path: Path, text: str, *args: str) -> subprocess.Popen:
     """``text`` run as a Python program of its own session on this checkout's code."""
     path = tmp_path / "script.py"
     path.write_text(text)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen([sys.executable, str(path)], cwd=tmp_path,
+    return subprocess.Popen([sys.executable, str(path), *args], cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, env=env)
 
@@ -630,18 +630,26 @@ if __name__ == "__main__":
         worker = worker_life.context().Process(target=time.sleep, args=(60,))
         worker.start()
     print(worker.pid, flush=True)
-    worker_life.stop_server()
+    if sys.argv[1] == "server":
+        worker_life.stop_server()
+    else:  # a pool stopped by an interruption: before its shutdown removes its semaphores
+        with worker_life.spawning(("time",)):
+            pool = worker_life.new_pool(1)
+            pool.submit(time.sleep, 0).result()
+        worker_life.stop(pool)
     print("stopped", flush=True)
     time.sleep(60)
 """
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
-def test_stopping_the_fork_server_ends_a_worker_no_pool_knows_yet(tmp_path):
+@pytest.mark.parametrize("stopping", ["server", "pool"])
+def test_stopping_the_fork_server_ends_a_worker_no_pool_knows_yet(stopping, tmp_path):
     """A command that ends while its fork server forks a worker (a signal between the fork and
     the pool's record of it, as one CI run met): the worker dies with the server, instead of
-    living on to read a task whose semaphores are gone and print a traceback."""
-    proc = _script(tmp_path, FORKED_UNKNOWN)
+    living on to read a task whose semaphores are gone and print a traceback; and a pool
+    stopped by the interruption stops the server first (its shutdown removes the semaphores)."""
+    proc = _script(tmp_path, FORKED_UNKNOWN, stopping)
     try:
         worker = int(proc.stdout.readline())
         assert proc.stdout.readline().strip() == "stopped"
@@ -734,11 +742,7 @@ def test_a_signal_after_the_results_are_written_ends_with_its_code(phase, tmp_pa
     server, the libraries' clean-ups are stopped), where the signal thread answers; the
     interpreter's shutdown, where no thread answered any more (the signal was lost and the
     command exited 0), no longer runs: a finalizer it would run never starts."""
-    path = tmp_path / "script.py"
-    path.write_text(AFTER_THE_COMMAND)
-    proc = subprocess.Popen([sys.executable, str(path), phase], cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    proc = _script(tmp_path, AFTER_THE_COMMAND, phase)
     reached = _wait_for(proc, lambda: (tmp_path / "in phase").exists())
     if reached:
         os.killpg(proc.pid, signal.SIGTERM)
