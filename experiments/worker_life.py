@@ -261,22 +261,24 @@ def remove_temp_dir() -> None:
 
 def stop(pool: ProcessPoolExecutor) -> None:
     """End ``pool`` now: its workers killed (they write no file and ignore SIGTERM), queued
-    work cancelled, without waiting for running tasks. The fork server is stopped first, with
-    every process it forked (:func:`stop_server`; a later pool starts a new one): an
-    interruption may come while the server forks a worker that no pool knows yet, and that
-    worker, left alive, would read its task after the shutdown below has removed the pool's
-    semaphores, and print a traceback."""
+    work cancelled, without waiting for running tasks. The killed workers are waited for (at
+    most a second in all): the fork server then reaps them, and their CPU time counts in this
+    process's children's, as ``/usr/bin/time`` reports it. The fork server is then stopped,
+    with every process it forked (:func:`stop_server`; a later pool starts a new one), before
+    the pool's shutdown: an interruption may come while the server forks a worker that no pool
+    knows yet, and that worker, left alive, would read its task after the shutdown has removed
+    the pool's semaphores, and print a traceback."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
     for proc in procs:
         with contextlib.suppress(Exception):
             proc.kill()
-    stop_server()
-    with contextlib.suppress(Exception):
-        pool.shutdown(wait=False, cancel_futures=True)
     deadline = time.monotonic() + 1.0
     for proc in procs:
         with contextlib.suppress(Exception):
             proc.join(max(0.0, deadline - time.monotonic()))
+    stop_server()
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 _POOLS: set = set()  # the pools of this process that are running now
