@@ -13,7 +13,7 @@ apart. Every failure is printed with its delay and the end of its stderr; the la
 ``failed=<k> of=<n> ended_first=<m>``, exit code 1 if ``k > 0``.
 
     python benchmarks/stress_signals.py [--runs 40] [--signal TERM|INT] [--window 0.6 2.6]
-                                        [--command run|sweep] [--seed 0]
+                                        [--command run|sweep] [--twice 0 0.1] [--seed 0]
 
 Three faults were found with it (eleventh session, docs/performance.md): a worker forked at the
 moment of the signal outlived the command with a traceback, a signal taken in a finalizer was
@@ -35,7 +35,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-from small_config import SMALL_CONFIG  # noqa: E402  (the tests' small configuration)
+from sessions import session_processes, survivors  # noqa: E402  (the tests' helpers)
+from small_config import SMALL_CONFIG  # noqa: E402
 
 CONFIGS = {
     "run": SMALL_CONFIG + ("  - {kind: pgnn, training: sequential, hidden: 4, seeds: 2, "
@@ -44,34 +45,10 @@ CONFIGS = {
 }
 
 
-def session(sid: int) -> list[int]:
-    """The live processes of session ``sid`` (zombies not counted)."""
-    alive = []
-    for pid in (name for name in os.listdir("/proc") if name.isdigit()):
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[3]) == sid and fields[0] != "Z":
-            alive.append(int(pid))
-    return alive
-
-
-def survivors(sid: int) -> list[int]:
-    """The processes left in session ``sid`` but multiprocessing's resource tracker."""
-    left = []
-    for pid in session(sid):
-        try:
-            if b"resource_tracker" not in Path(f"/proc/{pid}/cmdline").read_bytes():
-                left.append(pid)
-        except OSError:
-            continue
-    return left
-
-
-def one(command: str, sig: signal.Signals, delay: float, folder: Path) -> tuple[str, str]:
-    """One command signalled ``delay`` s after its first child: ("ok" | "ended first" | the
-    fault, stderr)."""
+def one(command: str, sig: signal.Signals, delay: float, folder: Path,
+        second: float | None = None) -> tuple[str, str]:
+    """One command signalled ``delay`` s after its first child (and again ``second`` s later,
+    if given): ("ok" | "ended first" | the fault, stderr)."""
     cfg = folder / "config.yaml"
     cfg.write_text(CONFIGS[command])
     out = folder / "out"
@@ -80,15 +57,21 @@ def one(command: str, sig: signal.Signals, delay: float, folder: Path) -> tuple[
     proc = subprocess.Popen(args, cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True, start_new_session=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
-    while proc.poll() is None and len(session(proc.pid)) <= 1:
+    while proc.poll() is None and len(session_processes(proc.pid)) <= 1:
         time.sleep(0.005)
     time.sleep(delay)
     ended_first = proc.poll() is not None
     try:
         os.killpg(proc.pid, sig)
+        if second is not None:
+            time.sleep(second)
+            os.killpg(proc.pid, sig)
     except ProcessLookupError:
         pass
     _, err = proc.communicate(timeout=300)
+    if second is not None:  # docs/cli.md: the tracker may say it removed the pools' semaphores
+        err = "".join(line for line in err.splitlines(keepends=True)
+                      if "resource_tracker" not in line)
     if ended_first:
         return "ended first", err
     time.sleep(0.3)  # killed workers are reaped
@@ -100,7 +83,7 @@ def one(command: str, sig: signal.Signals, delay: float, folder: Path) -> tuple[
         faults.append("stderr")
     left = survivors(proc.pid)
     if left:
-        faults.append(f"left {left}")
+        faults.append(f"left {sorted(left)}")
         for pid in left:
             try:
                 os.kill(pid, signal.SIGKILL)
@@ -130,6 +113,9 @@ def main(argv=None) -> int:
                         metavar=("FROM_S", "TO_S"),
                         help="the delay after the command's first child, drawn uniformly")
     parser.add_argument("--command", choices=sorted(CONFIGS), default="run")
+    parser.add_argument("--twice", type=float, nargs=2, default=None, metavar=("FROM_S", "TO_S"),
+                        help="send the signal a second time, this long after the first (drawn "
+                             "uniformly): the second ends the command at once")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     if not Path("/proc/self/stat").exists():
@@ -139,13 +125,15 @@ def main(argv=None) -> int:
     failed = ended_first = 0
     for i in range(args.runs):
         delay = rng.uniform(*args.window)
+        second = rng.uniform(*args.twice) if args.twice else None
         with tempfile.TemporaryDirectory() as tmp:
-            verdict, err = one(args.command, sig, delay, Path(tmp))
+            verdict, err = one(args.command, sig, delay, Path(tmp), second)
         if verdict == "ended first":
             ended_first += 1
         elif verdict != "ok":
             failed += 1
-            print(f"run {i}, delay {delay:.2f} s: {verdict}\n{err[-800:]}", flush=True)
+            again = f", again {second:.3f} s later" if second is not None else ""
+            print(f"run {i}, delay {delay:.2f} s{again}: {verdict}\n{err[-800:]}", flush=True)
     print(f"failed={failed} of={args.runs} ended_first={ended_first}")
     return 1 if failed else 0
 

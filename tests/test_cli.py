@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from build_once import build_once
+from sessions import session_processes, survivors
 from small_config import SMALL_CONFIG
 
 from clm_sim.record import load_record, save_npz
@@ -379,36 +380,6 @@ def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys
     assert sorted(p.name for p in tmp_path.iterdir()) == ["study.yaml"]
 
 
-def _session_processes(sid: int) -> list[int]:
-    """Processes still alive in the session ``sid`` (a command started with
-    ``start_new_session``: its workers inherit the session even once orphaned)."""
-    alive = []
-    # Listed, then read: a process may end in between (Path.glob's own stat of "N/stat" raised
-    # ProcessLookupError there once), so only the read is tried.
-    for pid in (name for name in os.listdir("/proc") if name.isdigit()):
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[3]) == sid and fields[0] != "Z":  # fields: state ppid pgrp session
-            alive.append(int(pid))
-    return alive
-
-
-def _survivors(sid: int) -> dict[int, bytes]:
-    """The command lines of the processes left in session ``sid``, but for multiprocessing's
-    resource tracker: not a worker, it exits by itself once the command's end closes its pipe."""
-    out = {}
-    for pid in _session_processes(sid):
-        try:
-            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
-        except OSError:
-            continue  # ended meanwhile
-        if cmdline and b"resource_tracker" not in cmdline:  # empty: its memory is gone, exiting
-            out[pid] = cmdline[:300]
-    return out
-
-
 def _clm(args, cwd) -> subprocess.Popen:
     """``clm-sim ARGS`` in a real process of its own session, running this checkout's code."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -452,7 +423,7 @@ def test_signal_during_run_cleans_up(sig, code, word, tmp_path):
     assert proc.returncode == code, err
     assert err.strip().splitlines() == [f"clm-sim: {word}"], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.yaml"]
-    assert _survivors(proc.pid) == {}
+    assert survivors(proc.pid) == {}
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
@@ -485,7 +456,7 @@ def test_a_command_started_with_ctrl_c_ignored_runs_through_it(tmp_path):
     assert seen and proc.returncode == 143, err
     assert err.strip().splitlines() == ["clm-sim: terminated"], err
     assert not (tmp_path / "again").exists() and not _partial(tmp_path)
-    assert _survivors(proc.pid) == {}
+    assert survivors(proc.pid) == {}
 
 
 def _one_run(out: Path) -> int:
@@ -563,7 +534,7 @@ def _interrupted_cleanly(proc, err: str, sig, folder: Path, keep: list[str]) -> 
     assert proc.returncode == code, err
     assert err.strip().splitlines() == [f"clm-sim: {word}"], err
     assert sorted(p.name for p in folder.iterdir()) == keep
-    assert _survivors(proc.pid) == {}, "a process of the command outlived it"
+    assert survivors(proc.pid) == {}, "a process of the command outlived it"
 
 
 @pytest.mark.slow
@@ -577,7 +548,7 @@ def test_signal_during_pgnn_fits_ends_workers_without_tracebacks(sig, moment, tm
     cfg = tmp_path / "pgnn.yaml"
     cfg.write_text(SMALL + PGNN_ROWS)
     proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
-    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 1)
+    started = _wait_for(proc, lambda: len(session_processes(proc.pid)) > 1)
     if moment == "fits running":
         time.sleep(3.0)  # workers have imported torch and fit
     os.killpg(proc.pid, sig)
@@ -595,13 +566,13 @@ def test_a_command_killed_outright_leaves_no_worker_behind(tmp_path):
     cfg.write_text(SMALL + PGNN_ROWS)
     proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
     # the command and at least one worker (and, on Linux, the fork server that started it)
-    started = _wait_for(proc, lambda: len(_survivors(proc.pid)) >= 3)
+    started = _wait_for(proc, lambda: len(survivors(proc.pid)) >= 3)
     proc.kill()
     proc.wait()
     deadline = time.monotonic() + 10.0
-    while _survivors(proc.pid) and time.monotonic() < deadline:
+    while survivors(proc.pid) and time.monotonic() < deadline:
         time.sleep(0.05)
-    left = _survivors(proc.pid)
+    left = survivors(proc.pid)
     for pid in left:  # not left running after the test (they hold the command's pipes)
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
@@ -654,9 +625,9 @@ def test_stopping_the_fork_server_ends_a_worker_no_pool_knows_yet(stopping, tmp_
         worker = int(proc.stdout.readline())
         assert proc.stdout.readline().strip() == "stopped"
         deadline = time.monotonic() + 5.0
-        while worker in _session_processes(proc.pid) and time.monotonic() < deadline:
+        while worker in session_processes(proc.pid) and time.monotonic() < deadline:
             time.sleep(0.02)
-        alive = [pid for pid in _session_processes(proc.pid) if pid == worker]
+        alive = [pid for pid in session_processes(proc.pid) if pid == worker]
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate()
@@ -796,7 +767,7 @@ def test_signal_during_sweep_ends_workers_and_keeps_finished_tasks(sig, tmp_path
     cfg.write_text(SMALL + "sweep:\n  grid:\n    seed: [1, 2, 3, 4]\n")
     out = tmp_path / "out"
     proc = _clm(["sweep", cfg, "--out", out, "--quiet", "--workers", "2"], tmp_path)
-    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 2)
+    started = _wait_for(proc, lambda: len(session_processes(proc.pid)) > 2)
     time.sleep(1.0)
     os.killpg(proc.pid, sig)
     _, err = _finish(proc)
@@ -913,7 +884,7 @@ def test_a_second_ctrl_c_ends_the_command_at_once_and_cleanly(gap_s, tmp_path):
     cfg = tmp_path / "pgnn.yaml"
     cfg.write_text(SMALL + PGNN_ROWS)
     proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
-    started = _wait_for(proc, lambda: len(_session_processes(proc.pid)) > 1)
+    started = _wait_for(proc, lambda: len(session_processes(proc.pid)) > 1)
     os.killpg(proc.pid, signal.SIGINT)
     time.sleep(gap_s)
     with contextlib.suppress(ProcessLookupError):
