@@ -62,16 +62,21 @@ _SAYING = threading.Lock()  # held while the interruption's line is written (:fu
 
 def _end_now(signum, frame):
     """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
-    clean-up was doing; the workers are killed, the temporary folder and lock removed first.
+    clean-up was doing; the workers and the fork server are killed (with no lock taken:
+    :func:`experiments.worker_life.kill_now`), the temporary folder and lock removed first.
     Does nothing if the process is already being ended (:func:`_exit_now`)."""
     if not _ENDING.acquire(blocking=False):
         return
-    worker_life.kill_all()
-    worker_life.stop_server()
-    worker_life.remove_temp_dir()
-    outdir.abandon()
-    _say(signum, lambda line: os.write(2, f"{line}\n".encode()))
-    os._exit(CODES[signum])
+    try:
+        # Each step on its own: one that fails (stderr a closed pipe, say) stops none of the
+        # others, and the process ends whatever happens; it holds _ENDING, which the main
+        # thread's own ending waits for.
+        for step in (worker_life.kill_now, worker_life.remove_temp_dir, outdir.abandon,
+                     lambda: _say(signum, lambda line: os.write(2, f"{line}\n".encode()))):
+            with contextlib.suppress(BaseException):
+                step()
+    finally:
+        os._exit(CODES[signum])
 
 
 def _catch(handler) -> dict:
@@ -236,6 +241,16 @@ def _exit_done(code: int) -> None:
     os._exit(code)
 
 
+def _exit_anyway(code: int) -> None:
+    """:func:`_exit_now`'s guard: the process ends, its workers and fork server killed first
+    (the main thread may be stopping the server, which must not outlive it stopped)."""
+    try:
+        with contextlib.suppress(BaseException):
+            worker_life.kill_now()
+    finally:
+        os._exit(code)
+
+
 def _exit_now(code: int) -> None:
     """End an interrupted process without interpreter shutdown, which may wait on pool threads
     (and so hang, or print a late traceback): only multiprocessing's own exit clean-up runs
@@ -245,7 +260,7 @@ def _exit_now(code: int) -> None:
 
     _ENDING.acquire()  # not both this and a second signal's _end_now
     _state["exiting"] = True
-    guard = threading.Timer(1.0, os._exit, (code,))
+    guard = threading.Timer(1.0, _exit_anyway, (code,))
     guard.daemon = True
     guard.start()
     with contextlib.suppress(Exception):

@@ -81,19 +81,24 @@ def spawning(libraries: tuple[str, ...] | None = None):
 @contextlib.contextmanager
 def _starting():
     """Child processes started within the block start single-threaded, with Ctrl-C and SIGTERM
-    ignored. A command line process receives its signals in a thread of its own
-    (:func:`experiments.process.receive_signals`), which waits for :data:`SPAWNING` before it
-    passes one on, so none is lost."""
+    blocked (a new process inherits the signal mask, through ``exec`` too) and, where they were
+    not blocked here already, ignored. A command line process has them blocked and receives
+    them in a thread of its own (:func:`experiments.process.receive_signals`), which waits for
+    :data:`SPAWNING` before it passes one on, so none is lost; their handlers are then left as
+    they are: setting "ignore" discards a signal that is pending, one the signal thread has not
+    yet taken (a sweep's SIGTERM was lost so, when it came as the next task was submitted)."""
     main = threading.current_thread() is threading.main_thread()
     mask = main and hasattr(signal, "pthread_sigmask")
     with SPAWNING:
+        blocked = set()
         if mask:
             previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+            blocked = _STOP_SIGNALS & set(previous_mask)
             # multiprocessing's resource tracker unblocks both signals in this thread once it
             # has started it: start it before they are ignored, then block them again.
             _start_resource_tracker()
             signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-        handlers = ({sig: signal.signal(sig, signal.SIG_IGN) for sig in _STOP_SIGNALS}
+        handlers = ({sig: signal.signal(sig, signal.SIG_IGN) for sig in _STOP_SIGNALS - blocked}
                     if main else {})
         try:
             with single_threaded_children():
@@ -181,21 +186,15 @@ def stop_server() -> None:
     try:
         pid, alive = server._forkserver_pid, server._forkserver_alive_fd
         address = server._forkserver_address
+        _STOPPING.add(pid)  # for kill_now, from another thread, until it is killed
         server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
         kill_all()
         # Killed, not asked: it computes nothing and may still be importing its libraries
-        # (seconds before it reads its pipe). Stopped first, so that it forks no other
-        # process, then every process it forked is killed: the pools' workers (killed above)
-        # and one it may be forking now, which no pool knows yet and which, once this process
-        # has removed the pools' semaphores, would fail to read its task with a traceback.
-        with contextlib.suppress(OSError):
-            os.kill(pid, signal.SIGSTOP)
-            _wait_stopped(pid)
-        for child in _children(pid):
-            with contextlib.suppress(OSError):
-                os.kill(child, signal.SIGKILL)
-        with contextlib.suppress(OSError):
-            os.kill(pid, signal.SIGKILL)
+        # (seconds before it reads its pipe). With every process it forked: the pools' workers
+        # (killed above) and one it may be forking now, which no pool knows yet and which, once
+        # this process has removed the pools' semaphores, would fail to read its task with a
+        # traceback (:func:`_kill_server`).
+        _kill_server(pid)
         with contextlib.suppress(ChildProcessError):
             os.waitpid(pid, 0)
         with contextlib.suppress(OSError, TypeError):
@@ -207,6 +206,43 @@ def stop_server() -> None:
         pass
     finally:
         lock.release()
+
+
+_STOPPING: set[int] = set()  # fork servers that stop_server is ending now
+
+
+def _kill_server(pid: int) -> None:
+    """Kill fork server ``pid`` and every process it forked: stopped first (SIGSTOP), so that
+    it forks no other while its children are listed, then killed at once, whatever interrupts
+    this (a stopped server never exits by itself), then the children it had."""
+    try:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGSTOP)
+        _wait_stopped(pid)
+        children = _children(pid)
+    finally:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+        _STOPPING.discard(pid)
+    for child in children:
+        with contextlib.suppress(OSError):
+            os.kill(child, signal.SIGKILL)
+
+
+def kill_now() -> None:
+    """For a process about to end at once (``os._exit``), whatever its other threads are
+    doing: every worker of its pools killed, and its fork server (one that :func:`stop_server`
+    is ending now included) with every process it forked; no lock taken, nothing waited for
+    but the server's stop (:func:`_wait_stopped`)."""
+    from multiprocessing import forkserver
+
+    kill_all()
+    pids = set(_STOPPING)
+    with contextlib.suppress(Exception):
+        pids.add(forkserver._forkserver._forkserver_pid)
+    for pid in pids - {None}:
+        with contextlib.suppress(Exception):
+            _kill_server(pid)
 
 
 def _stat(pid: int) -> list[bytes]:

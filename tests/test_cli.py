@@ -634,6 +634,117 @@ def test_stopping_the_fork_server_ends_a_worker_no_pool_knows_yet(stopping, tmp_
     assert alive == [], "the worker forked by the server outlived it"
 
 
+SERVER_BEING_STOPPED = """\
+import pathlib, sys, time
+from experiments import process, worker_life
+
+stop = worker_life._wait_stopped
+
+def slow_stop(pid, timeout_s=0.5):  # the server stopped (SIGSTOP), not yet killed: for 3 s
+    if not pathlib.Path("stopping").exists():
+        pathlib.Path("stopping").write_text("")
+        time.sleep(3.0)
+    stop(pid, timeout_s)
+
+worker_life._wait_stopped = slow_stop
+
+def command():
+    with worker_life.spawning(("time",)):
+        pool = worker_life.new_pool(1)
+        pool.submit(time.sleep, 0).result()
+    pathlib.Path("ready").write_text("")
+    time.sleep(60)
+
+if __name__ == "__main__":
+    process.receive_signals()
+    sys.exit(process.run(command, program=True, name="test"))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_a_command_that_ends_while_it_stops_its_fork_server_leaves_it_killed(tmp_path):
+    """An interrupted command stops its fork server (SIGSTOP: it forks nothing more while its
+    children are listed) and kills it; if the command's one-second guard ends it in between
+    (here: the stop made to last 3 s), the server is killed on the way out, not left stopped for
+    good, holding the command's stderr (a stress run waited 300 s on that pipe)."""
+    proc = _script(tmp_path, SERVER_BEING_STOPPED)
+    started = _wait_for(proc, lambda: (tmp_path / "ready").exists())
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        left = survivors(proc.pid)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert started and (tmp_path / "stopping").exists(), err
+    assert (proc.returncode, err.splitlines()) == (130, ["clm-sim: interrupted"]), err
+    assert left == {}, "a process of the command outlived it"
+
+
+BUSY_WITH_STDERR_GONE = """\
+import pathlib, signal, sys, time
+from experiments import process
+
+def command():
+    # As inside a long library call: the main thread does not take the signal thread's poke,
+    # which then ends the process itself.
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGUSR1})
+    pathlib.Path("computing").write_text("")
+    time.sleep(30)
+    return 0
+
+if __name__ == "__main__":
+    process.receive_signals()
+    sys.exit(process.run(command, program=True, name="test"))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_a_command_whose_stderr_is_gone_still_ends_on_a_signal(tmp_path):
+    """Ctrl-C while the main thread is inside a long library call: the signal thread ends the
+    process. With stderr a pipe nobody reads any more (``clm-sim run … 2>&1 | head``), writing
+    the line fails; the process still ends with 130. The signal thread used to die there: the
+    command ran on, and an interrupted one waited forever for the lock that thread held (a
+    stress run left such a process)."""
+    proc = _script(tmp_path, BUSY_WITH_STDERR_GONE)
+    started = _wait_for(proc, lambda: (tmp_path / "computing").exists())
+    proc.stderr.close()
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        code = proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        code = None
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert started
+    assert code == 130, "the command hung after the signal" if code is None else code
+
+
+DISPOSITIONS_WHILE_STARTING = """\
+import signal
+from experiments import process, worker_life
+
+if __name__ == "__main__":
+    process.receive_signals()
+    before = [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)]
+    with worker_life._starting():
+        during = [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)]
+    print(before == during, signal.SIG_IGN in during, flush=True)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_starting_workers_leaves_a_commands_signal_handlers_alone(tmp_path):
+    """Workers start with Ctrl-C and SIGTERM blocked, as the command has them (its signal thread
+    takes them); setting them to "ignore" meanwhile, as the command did at every submit, discards
+    a signal that is pending: a sweep's SIGTERM, sent as a task file appeared, was lost and the
+    sweep ran to its end (exit 0)."""
+    out, err = _finish(_script(tmp_path, DISPOSITIONS_WHILE_STARTING))
+    assert out.split() == ["True", "False"], err
+
+
 WORKER_CPU = """\
 import resource, time
 from experiments import worker_life
