@@ -1,7 +1,8 @@
 """The life of a worker process: how clm-sim starts one, and how it ends.
 
 Every worker starts single-threaded (BLAS, OpenMP, numba, torch: :func:`single_threaded_children`)
-and with Ctrl-C and SIGTERM ignored (:func:`spawning`: the owner alone answers them), and exits
+and with Ctrl-C and SIGTERM blocked or ignored (:func:`spawning`: the owner alone answers
+them; :func:`watch_parent` ignores them for good), and exits
 with the process that owns it even when that process is killed (:func:`watch_parent`). Workers
 come from a fork server (:func:`context`): a clean process, started once per clm-sim process with
 the libraries the workers use already imported (torch, python-control, scipy, numba: 4 to 6 s of
@@ -52,7 +53,8 @@ SPAWNING = threading.Lock()
 @contextlib.contextmanager
 def spawning(libraries: tuple[str, ...] | None = None):
     """Around every call that may start a worker: child processes start with one thread each
-    and with Ctrl-C and SIGTERM ignored (a disposition a new process inherits), so a signal to
+    and with Ctrl-C and SIGTERM blocked or ignored (a mask and a disposition a new process
+    inherits: :func:`_starting`), so a signal to
     the process group while a worker starts cannot print a traceback in it (the owner alone
     answers, and ends its workers). With a fork server (:func:`context`) that holds for the
     server's start only: every worker is a copy of it, with its dispositions and environment,
