@@ -28,7 +28,7 @@ from clm_sim.outdir import atomic_write
 from experiments import table
 from experiments.sweeps.grid import MAX_TASKS, load_sweep, parse_path, set_path
 from experiments.sweeps.store import ResultStore, code_version, result_sources, task_key
-from experiments.sweeps.run import Outcome, execute, run_sweep
+from experiments.sweeps.run import Outcome, execute, results_line, run_sweep
 from experiments.sweeps.run import markdown as sweep_markdown
 from experiments.table import series
 
@@ -296,6 +296,17 @@ def resume_reference(tmp_path_factory) -> Path:
     test run (over xdist's workers too): what an interrupted and resumed sweep must give, bit
     for bit. Tests only read it."""
     return Path(build_once(tmp_path_factory, "resume_reference", _run_resume_grid)["out"])
+
+
+def test_the_results_line_names_figures_only_where_the_sweep_drew_them(tmp_path,
+                                                                        resume_reference):
+    """The last line of a finished sweep names what it wrote: its figures where it drew any
+    (RESUME_GRID sweeps the encoder resolution), none for a sweep over seeds alone (the line
+    named a figures/ folder that was not there)."""
+    assert (resume_reference / "figures").is_dir()
+    assert results_line(resume_reference) == (f"results in {resume_reference}/ "
+                                              "(table.md, table.json, table.csv, figures/)")
+    assert results_line(tmp_path) == f"results in {tmp_path}/ (table.md, table.json, table.csv)"
 
 
 def test_sweep_killed_by_sigkill_resumes_without_recomputing(tmp_path, resume_reference):

@@ -59,8 +59,17 @@ class Outcome:
         if self.stopped:
             lines.append(f"sweep stopped: {self.stopped}; run the same command again to resume")
         if not self.unfinished:
-            lines.append(f"results in {out}/ (table.md, table.json, figures/)")
+            lines.append(results_line(out))
         return lines
+
+
+def results_line(out: Path) -> str:
+    """The line that says where a finished sweep's results are: its tables, and its figures
+    where it drew any (a sweep over seeds alone draws none)."""
+    names = ["table.md", "table.json", "table.csv"]
+    if (out / "figures").is_dir():
+        names.append("figures/")
+    return f"results in {out}/ ({', '.join(names)})"
 
 
 def execute(config_plain: dict) -> dict:
@@ -186,7 +195,7 @@ def _run_sweep(sweep: Sweep, out: Path, say, *, backend, workers, scheduler,
         if lock is not None:
             lock.close()
     if not outcome.unfinished:
-        say(f"results in {out}/ (table.md, table.json, figures/)")
+        say(results_line(out))
     return outcome
 
 
