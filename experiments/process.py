@@ -116,7 +116,7 @@ def receive_signals() -> None:
     to the main thread as if it had come there (it unwinds the command); if the main thread has
     not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
     after the command ended, this thread ends the process at once (:func:`_end_now`), as the
-    main thread does if Python drops the signal in a finalizer (:func:`_poke_again`).
+    main thread does if Python drops the signal in a finalizer (:func:`_end_on_dropped_signal`).
     Does nothing where the platform has no thread-directed signals."""
     if not hasattr(signal, "pthread_sigmask") or _POKE is None:
         return
@@ -131,7 +131,7 @@ def receive_signals() -> None:
     # the signal as the main thread receives it.
     outdir.hold_also(_POKE)
     main = threading.main_thread().ident
-    sys.unraisablehook = _poke_again(sys.unraisablehook, main)
+    sys.unraisablehook = _end_on_dropped_signal(sys.unraisablehook, main)
 
     def receive():
         while True:
@@ -152,14 +152,13 @@ def receive_signals() -> None:
     threading.Thread(target=receive, daemon=True, name="clm-sim-signals").start()
 
 
-def _poke_again(hook, main: int):
+def _end_on_dropped_signal(hook, main: int):
     """``sys.unraisablehook`` that does not let Python drop the interruption: the poke's
     exception, raised while the main thread ran a finalizer (a ``__del__``, a weakref callback:
     a collection can run one anywhere), is printed as "Exception ignored" and dropped, and the
     command would run on to exit 0 as if no signal had come. The process ends from here, as
-    when the main thread does not answer the poke (:func:`_end_now`; nothing Python-level may
-    wait here for a new poke, which would be taken, and dropped, here again). Any other
-    unraisable exception goes to ``hook``."""
+    when the main thread does not answer the poke (:func:`_end_now`; a second poke would be
+    taken, and dropped, here again). Any other unraisable exception goes to ``hook``."""
     def unraisable(info):
         if isinstance(info.exc_value, KeyboardInterrupt) and _state["signalled"] \
                 and not _state["done"] and threading.get_ident() == main:
@@ -225,8 +224,8 @@ def _exit_done(code: int) -> None:
     """End a process whose command has ended, without the interpreter's shutdown: the exit
     handlers run (the fit pool and the fork server are stopped, multiprocessing's and the
     libraries' clean-ups run), the standard streams are flushed, and the process exits. The
-    shutdown that would follow (modules torn down, objects collected: 0.3 to 1.2 s with torch
-    loaded, ``benchmarks/bench_exit.py``) writes nothing of clm-sim's (every result file is
+    shutdown that would follow (modules torn down, objects collected: 0.2 s with the heap
+    frozen to 1.5 s without, torch loaded, ``benchmarks/bench_exit.py``) writes nothing of clm-sim's (every result file is
     closed and committed before the command returns) and ran where no thread of this process
     answered a signal any longer: a Ctrl-C or SIGTERM then was lost, and the command exited 0.
     Through the exit handlers the signal thread still answers (exit 130 or 143, one line)."""

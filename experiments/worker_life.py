@@ -9,7 +9,8 @@ the libraries the workers use already imported (torch, python-control, scipy, nu
 CPU that each fresh ``spawn`` process paid again), which forks each worker. Where the platform
 has no fork server, workers are ``spawn`` processes. Every pool is made by :func:`new_pool` and
 known here until :func:`retire`, so that a process ending at once can kill every worker it owns
-(:func:`kill_all`) and its fork server (:func:`stop_server`). What runs on the pools is
+and its fork server (:func:`kill_now`; an orderly end: :func:`stop`, :func:`stop_server`). What
+runs on the pools is
 :mod:`experiments.workers`.
 """
 
@@ -190,12 +191,11 @@ def stop_server() -> None:
         address = server._forkserver_address
         _STOPPING.add(pid)  # for kill_now, from another thread, until it is killed
         server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
-        kill_all()
         # Killed, not asked: it computes nothing and may still be importing its libraries
         # (seconds before it reads its pipe). With every process it forked: the pools' workers
-        # (killed above) and one it may be forking now, which no pool knows yet and which, once
-        # this process has removed the pools' semaphores, would fail to read its task with a
-        # traceback (:func:`_kill_server`).
+        # and one it may be forking now, which no pool knows yet and which, once this process
+        # has removed the pools' semaphores, would fail to read its task with a traceback
+        # (:func:`_kill_server`).
         _kill_server(pid)
         with contextlib.suppress(ChildProcessError):
             os.waitpid(pid, 0)
