@@ -567,3 +567,31 @@ def test_the_report_refuses_what_it_cannot_read_in_one_line(content, expected, t
     assert lambda0_report.main([str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expected in err[0], err
+
+
+def test_every_shipped_lambda_comparison_varies_lambda_alone():
+    """The product runs a continuation start at lambda = 0 by default and at no lambda > 0, so a
+    config that compares lambda = 0 with lambda > 0 must turn it off, or its pairs differ in two
+    settings (the extrapolation study, the failure map and the lambda x n_l sweep did until
+    2026-11-27). The mechanism studies and the paper table's rows say it row by row."""
+    from experiments.config import load_config
+    from experiments.studies.extrapolation import load_study
+    from experiments.studies.failure_map import load_failure_map
+    from experiments.studies.mechanism import load_mechanism
+    from experiments.sweeps.grid import load_sweep
+
+    configs = ROOT / "experiments" / "configs"
+    assert load_study(configs / "extrapolation_study.yaml")[1].pgnn.continuation_lam == 0
+    assert load_failure_map(configs / "failure_map.yaml")[1].pgnn.continuation_lam == 0
+    for name in ("lambda0_mechanism", "lambda0_iii_ten_draws", "lambda0_mechanism_variants",
+                 "lambda0_mechanism_track_end"):
+        assert load_mechanism(configs / f"{name}.yaml")[1].pgnn.continuation_lam == 0, name
+    sweep = load_sweep(configs / "sweep_lambda_hidden.yaml")
+    assert 0.0 in sweep.grid["feedforwards[0].lambda"]
+    assert sweep.base["feedforwards"][0]["pgnn"]["continuation_lambda"] == 0
+    paper = load_config(configs / "paper_table.yaml").feedforwards
+    by_name = {f.label(): f for f in paper}
+    for n_l in (16, 8):
+        zero = by_name[f"PGNN simultaneous, lambda=0, weight decay 1e-5, n_l={n_l}"]
+        pulled = by_name[f"PGNN simultaneous, lambda=0.01, weight decay 1e-5, n_l={n_l}"]
+        assert zero.pgnn.continuation_lam == 0 and zero.pgnn.weight_decay == pulled.pgnn.weight_decay
