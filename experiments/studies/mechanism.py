@@ -353,6 +353,12 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
                      for f in fits if f["lambda"] == lam])),
                 "remainder_cubic": med(lam, "remainder_cubic"),
                 "model_cubic": med(lam, "model_cubic"),
+                # how far each parameter travelled (median |theta - theta_LIP| over the fits):
+                # a control that holds one parameter shows here where the drift went instead
+                "theta_moved": {k: float(np.median(
+                    [abs(f["theta"][k] - r["lip"]["theta"][k])
+                     for r in cell_list for f in r["fits"] if f["lambda"] == lam]))
+                    for k in cell_list[0]["lip"]["theta"]},
                 "converged": sum(f["stop"] == "converged" for f in fits if f["lambda"] == lam),
                 "fits": sum(f["lambda"] == lam for f in fits)}
         lip = {"mae_inside_um": float(np.median([r["lip"]["mae"][settings.inside]
@@ -509,6 +515,14 @@ def report(s: dict) -> str:
         out.append(f"| {case} | {lip['need_along_rms_n']:.2f} | {lip['error_along_rms_n']:.2f} | "
                    + " | ".join(f"{row['error_along_rms_n']:.2f}" for row in c["rows"].values())
                    + " |")
+    moved = [(case, name, row["theta_moved"]) for case, c in s["cases"].items()
+             for name, row in c["rows"].items() if "theta_moved" in row]
+    if moved:
+        out += ["", "How far θ_phy travelled (median over the fits of |θ − θ_LIP|; mass kg, "
+                "viscous N·s/m, Coulomb N, stiffness N/m): "
+                + "; ".join(f"{case}, {z if name == 'lambda=0' else name.replace('lambda=', 'λ = ')}"
+                            ": " + ", ".join(f"{k} {v:.3g}" for k, v in m.items())
+                            for case, name, m in moved) + "."]
     out += ["", "Figure: `figures/force_beyond.png` (first record, draw 0 of each case)."]
     return "\n".join(out) + "\n"
 
