@@ -379,6 +379,24 @@ def test_cluster_bootstrap_covers_the_spread_between_records():
     assert b["mean"] == pytest.approx(np.mean([np.mean(v) for v in spread]))
 
 
+def test_the_record_t_interval_is_scipys_and_wider_than_the_bootstrap_over_five_records():
+    """The t-interval printed beside the bootstrap is the one-sample t-interval of the record
+    means (scipy's, computed another way), and over five records the percentile bootstrap is the
+    narrower of the two: why the report prints both."""
+    import scipy.stats
+    from experiments.studies.mechanism import cluster_bootstrap, record_t_interval
+
+    rng = np.random.default_rng(3)
+    values = [[0.2 + 0.1 * k + 0.02 * rng.standard_normal() for _ in range(2)] for k in range(5)]
+    means = [np.mean(v) for v in values]
+    ci = record_t_interval(values, 0.95)
+    ref = scipy.stats.t.interval(0.95, 4, loc=np.mean(means), scale=scipy.stats.sem(means))
+    assert ci == pytest.approx(list(ref), rel=1e-12)
+    boot = cluster_bootstrap(values, 4000, 0.95, np.random.default_rng(0))
+    assert boot["ci"][1] - boot["ci"][0] < ci[1] - ci[0]
+    assert record_t_interval([[1.0, 2.0]], 0.95) is None
+
+
 def test_cubic_recovers_the_cable_term():
     from experiments.studies.mechanism import cubic
 
@@ -423,6 +441,38 @@ def test_mechanism_study_runs_and_reports(tmp_path):
             for f in c["fits"])
     assert "Largest static force error beyond the range" in text
     assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_lambda0_diag_holds_the_named_parameter_of_the_lambda0_row_only(tmp_path):
+    """``lambda0_diag: {stiffness: ...}`` (the stiffness control of lambda0.md section 4): the
+    lambda = 0 row's stiffness stays at theta_LIP while its mass and friction still move, the
+    lambda = 0.01 row is the fit without the setting bit for bit, and the report names the row
+    by what it holds. A bad value is refused naming the key."""
+    from experiments.studies.mechanism import load_mechanism, run_cell, cells
+
+    one_case = ("  cases:\n    cable_cubic:\n"
+                "      - {type: cable_slab, coefficients: [0.0, 10.0, 0.0, 2000.0]}\n")
+    plain, held = tmp_path / "plain.yaml", tmp_path / "held.yaml"
+    plain.write_text(tiny_mechanism(records=2, draws=1, cases=one_case))
+    held.write_text(tiny_mechanism(records=2, draws=1, cases=one_case)
+                    + "  lambda0_diag: {stiffness: 100.0}\n")
+    (cp, sp), (ch, sh) = load_mechanism(plain), load_mechanism(held)
+    a, b = run_cell(cells(cp, sp)[0]), run_cell(cells(ch, sh)[0])
+    lip = a["lip"]["theta"]
+    free0, held0 = (next(f for f in r["fits"] if f["lambda"] == 0.0) for r in (a, b))
+    assert abs(free0["drift_stiffness"]) > 1e3 * abs(held0["drift_stiffness"])
+    assert held0["theta"]["viscous"] != pytest.approx(lip["viscous"], rel=1e-6)
+    assert [f["theta"] for f in a["fits"] if f["lambda"] > 0] == \
+        [f["theta"] for f in b["fits"] if f["lambda"] > 0]
+    from experiments.studies.mechanism import report, summarize
+    text = report(summarize(sh, [b, run_cell(cells(ch, sh)[1])]))
+    assert "| cable_cubic | λ = 0, stiffness held |" in text
+    assert "λ = 0.01 − λ = 0, stiffness held" in text
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(tiny_mechanism() + "  lambda0_diag: {stifness: 1.0}\n")
+    with pytest.raises(UserError, match=r"lambda0_diag"):
+        load_mechanism(bad)
 
 
 def test_one_exploded_pair_moves_the_mean_force_error_but_not_its_median():

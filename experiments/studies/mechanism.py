@@ -52,7 +52,7 @@ from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
 from clm_sim.schema import to_plain
-from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
+from controllers.pgnn_settings import LAMBDA_KEYS, PerParameter, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study, run_checked
 from experiments.table import holm
@@ -74,7 +74,10 @@ class MechanismSettings:
     >= 1; hidden: n_l; lam: the lambda compared with 0 (> 0); inside / outside: the training
     reference and the one that leaves its range; pgnn: the fit settings shared by both rows
     (default: the paper's cost); bootstrap: resamples of the two-level bootstrap; confidence:
-    level of the intervals; grid_points: positions of the static force curve.
+    level of the intervals; grid_points: positions of the static force curve; lam0_diag
+    (``lambda0_diag:`` in a config): per-parameter pulls toward theta_LIP given to the lambda = 0
+    row only, e.g. ``{stiffness: 0.01}``: that row then holds those parameters and leaves the rest
+    free, a control that acts on one parameter's drift and keeps the plant (None: none).
     """
 
     cases: dict[str, tuple[Effect, ...]] = field(default_factory=_default_cases)
@@ -89,7 +92,9 @@ class MechanismSettings:
     bootstrap: int = 4000
     confidence: float = 0.95
     grid_points: int = 69
-    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"]}  # config -> field
+    lam0_diag: dict[str, float] | None = None
+    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"],  # config -> field
+                                         "lambda0_diag": "lam0_diag"}
 
     def __post_init__(self):
         if not self.cases:
@@ -103,6 +108,9 @@ class MechanismSettings:
             raise UserError(f"lambda: expected a number > 0, got {self.lam!r}")
         if not 0.5 <= self.confidence < 1:
             raise UserError(f"confidence: expected a level in [0.5, 1), got {self.confidence!r}")
+        if not PerParameter().accepts(self.lam0_diag) or self.lam0_diag == {}:
+            raise UserError(f"lambda0_diag: expected {PerParameter().describe()}, got "
+                            f"{self.lam0_diag!r}")
 
 
 def load_mechanism(path) -> tuple[ExperimentConfig, MechanismSettings]:
@@ -191,8 +199,10 @@ def _cell(cell: Cell) -> dict:
            "truth_cubic": cubic(y[within], truth[within]), "fits": []}
     for draw in range(st.draws) if cell.draws is None else cell.draws:
         for lam in (0.0, st.lam):
-            model = tb.fit_pgnn(run, hidden=st.hidden, lam=lam, seed=draw, lip=lip,
-                                **{k: v for k, v in settings.items() if k != "lam"})
+            fit = {k: v for k, v in settings.items() if k != "lam"}
+            if lam == 0.0 and st.lam0_diag:
+                fit["lam_diag"] = dict(st.lam0_diag)
+            model = tb.fit_pgnn(run, hidden=st.hidden, lam=lam, seed=draw, lip=lip, **fit)
             phys, net = static_parts(model, y)
             coef = linear_part(model, data.phi)
             lin = coef[3] * y + coef[4]
@@ -283,6 +293,19 @@ def _record_t(values: list[list[float]]) -> float | None:
     return float(scipy.stats.ttest_1samp(per_record, 0.0).pvalue)
 
 
+def record_t_interval(values: list[list[float]], confidence: float) -> list[float] | None:
+    """The t-interval of the mean over the per-record means of ``values[record][draw]``: the
+    interval of the p column's test. With few records a percentile bootstrap over them is
+    narrower than it should be (it never sees a record mean beyond the ones it has), so this
+    one is printed beside it."""
+    per_record = np.array([float(np.mean(v)) for v in values])
+    if len(per_record) < 2:
+        return None
+    half = (scipy.stats.t.ppf(0.5 + confidence / 2, len(per_record) - 1)
+            * per_record.std(ddof=1) / np.sqrt(len(per_record)))
+    return [float(per_record.mean() - half), float(per_record.mean() + half)]
+
+
 def paired_median(values: list[list[float]]) -> dict:
     """Median of paired differences ``values[record][draw]`` and how many are above zero: the
     force error beyond the range is heavy-tailed (one network that explodes beyond the range
@@ -330,6 +353,12 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
                      for f in fits if f["lambda"] == lam])),
                 "remainder_cubic": med(lam, "remainder_cubic"),
                 "model_cubic": med(lam, "model_cubic"),
+                # how far each parameter travelled (median |theta - theta_LIP| over the fits):
+                # a control that holds one parameter shows here where the drift went instead
+                "theta_moved": {k: float(np.median(
+                    [abs(f["theta"][k] - r["lip"]["theta"][k])
+                     for r in cell_list for f in r["fits"] if f["lambda"] == lam]))
+                    for k in cell_list[0]["lip"]["theta"]},
                 "converged": sum(f["stop"] == "converged" for f in fits if f["lambda"] == lam),
                 "fits": sum(f["lambda"] == lam for f in fits)}
         lip = {"mae_inside_um": float(np.median([r["lip"]["mae"][settings.inside]
@@ -359,7 +388,8 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
                                                      settings.confidence, rng),
                                  "per_record": [float(np.mean(d)) for d in diff],
                                  "lam_lower": int(sum(x < 0 for d in diff for x in d)),
-                                 "n": int(sum(len(d) for d in diff)), "p_records_t": p},
+                                 "n": int(sum(len(d) for d in diff)), "p_records_t": p,
+                                 "ci_records_t": record_t_interval(diff, settings.confidence)},
             "mae_outside_ratio": {"ratio": float(np.exp(boot_lr["mean"])),
                                   "ci": [float(np.exp(c)) for c in boot_lr["ci"]]},
             "error_beyond_diff": {**cluster_bootstrap(err, settings.bootstrap,
@@ -385,21 +415,36 @@ def _p(p) -> str:
     return "–" if p is None else f"{p:.2g}"
 
 
+def zero_label(settings: dict) -> str:
+    """How the report names the lambda = 0 row: "λ = 0", or with the parameters that
+    ``lambda0_diag`` holds, "λ = 0, stiffness held"."""
+    diag = settings.get("lambda0_diag", settings.get("lam0_diag")) or {}
+    held = [k for k, v in diag.items() if v > 0]
+    return "λ = 0" + (f", {' and '.join(held)} held" if held else "")
+
+
 def report(s: dict) -> str:
     """The study's Markdown report: finding (iii) per case, then the mechanism table."""
     st = dict(s["settings"])
     st["lam"] = st.get("lam", st.get("lambda"))  # to_plain writes the config's name
+    z = zero_label(st)
+    diag = st.get("lambda0_diag", st.get("lam0_diag"))
     out = [f"# Finding (iii) over training records, and its mechanism", "",
            f"Per case: {st['records']} training records (dither seeds) x {st['draws']} network "
-           f"draws, n_l = {st['hidden']}; λ = 0 and λ = {st['lam']:g} on one cost "
+           f"draws, n_l = {st['hidden']}; {z} and λ = {st['lam']:g} on one cost "
            f"(weight decay {st['pgnn']['weight_decay']:g}, continuation "
-           f"{st['pgnn']['continuation_lambda']:g}), paired by record and draw. Intervals: "
+           f"{st['pgnn']['continuation_lambda']:g}), paired by record and draw. "
+           + ("" if not diag else
+              f"The row {z} is λ = 0 with the pull toward θ_LIP on "
+              + ", ".join(f"{k} {v:g}" for k, v in diag.items())
+              + " only (lambda0_diag): the other parameters are free. ")
+           + f"Intervals: "
            f"{100 * st['confidence']:g} % two-level bootstrap (records, then draws within "
            f"them; {st['bootstrap']} resamples). p: t-test on the per-record means, Holm over "
            f"the cases.", "",
-           f"| case | MAE {st['outside']}: λ = {st['lam']:g} − λ = 0 [µm] | ratio λ = "
-           f"{st['lam']:g} / λ = 0 | per-record means [µm] | pairs with λ = {st['lam']:g} "
-           f"lower | p (Holm) | static force error beyond the range, λ = {st['lam']:g} − λ = 0 "
+           f"| case | MAE {st['outside']}: λ = {st['lam']:g} − {z} [µm] | ratio λ = "
+           f"{st['lam']:g} / {z} | per-record means [µm] | pairs with λ = {st['lam']:g} "
+           f"lower | p (Holm) | static force error beyond the range, λ = {st['lam']:g} − {z} "
            f"[N]: median (pairs with λ = {st['lam']:g} higher); mean [interval] | "
            f"Spearman(MAE {st['outside']}, force error) |",
            "|---|---|---|---|---|---|---|---|"]
@@ -413,6 +458,13 @@ def report(s: dict) -> str:
                    f"({_p(d.get('p_holm'))}) | {e['median']:+.2f} ({e['higher']}/{e['n']}); "
                    f"mean {e['mean']:+.2f} [{e['ci'][0]:+.2f}, {e['ci'][1]:+.2f}] | "
                    f"{c['spearman_mae_vs_force_error']:.2f} |")
+    t_cis = [(case, c["mae_outside_diff"].get("ci_records_t")) for case, c in s["cases"].items()]
+    if all(ci is not None for _, ci in t_cis):
+        out += ["", f"The same difference's {100 * st['confidence']:g} % t-interval on the "
+                f"per-record means (the p column's test; with {st['records']} records the "
+                "bootstrap's percentile interval is the narrower of the two): "
+                + "; ".join(f"{case} [{ci[0] * 1e6:+.3f}, {ci[1] * 1e6:+.3f}] µm"
+                            for case, ci in t_cis) + "."]
     out += ["", "Largest static force error beyond the range, per case (the fit that a mean "
             "of the column above can rest on): "
             + "; ".join(f"{case}: record {w['record']}, draw {w['draw']}, λ = {w['lambda']:g}, "
@@ -440,7 +492,8 @@ def report(s: dict) -> str:
                    f"| {lip['error_beyond_rms_n']:.2f} | – | 0 | – | – | – | 0 | – |")
         for name, row in c["rows"].items():
             out.append(
-                f"| {case} | {name.replace('lambda=', 'λ = ')} | {row['mae_inside_um']:.3f} | "
+                f"| {case} | {z if name == 'lambda=0' else name.replace('lambda=', 'λ = ')} | "
+                f"{row['mae_inside_um']:.3f} | "
                 f"{row['mae_outside_um']:.3f} | {row['error_beyond_rms_n']:.2f} | "
                 f"{row['dwell_force_n']:.2f} | {row['drift_stiffness']:+.4g} | "
                 f"{row['network_linear_stiffness']:+.4g} | "
@@ -452,7 +505,7 @@ def report(s: dict) -> str:
             "feedforward minus the motor command the reference's exact motion needs, "
             "accelerations included; the static curve above holds v = a = 0):", "",
             "| case | rms of the needed command [N] | LIP error [N] | "
-            + " | ".join(f"{n.replace('lambda=', 'λ = ')} error [N]"
+            + " | ".join(f"{z if n == 'lambda=0' else n.replace('lambda=', 'λ = ')} error [N]"
                          for n in next(iter(s["cases"].values()))["rows"]) + " |",
             "|---|---|---|" + "---|" * len(next(iter(s["cases"].values()))["rows"])]
     for case, c in s["cases"].items():
@@ -462,6 +515,14 @@ def report(s: dict) -> str:
         out.append(f"| {case} | {lip['need_along_rms_n']:.2f} | {lip['error_along_rms_n']:.2f} | "
                    + " | ".join(f"{row['error_along_rms_n']:.2f}" for row in c["rows"].values())
                    + " |")
+    moved = [(case, name, row["theta_moved"]) for case, c in s["cases"].items()
+             for name, row in c["rows"].items() if "theta_moved" in row]
+    if moved:
+        out += ["", "How far θ_phy travelled (median over the fits of |θ − θ_LIP|; mass kg, "
+                "viscous N·s/m, Coulomb N, stiffness N/m): "
+                + "; ".join(f"{case}, {z if name == 'lambda=0' else name.replace('lambda=', 'λ = ')}"
+                            ": " + ", ".join(f"{k} {v:.3g}" for k, v in m.items())
+                            for case, name, m in moved) + "."]
     out += ["", "Figure: `figures/force_beyond.png` (first record, draw 0 of each case)."]
     return "\n".join(out) + "\n"
 
@@ -489,10 +550,11 @@ def draw(results: list[dict], settings: MechanismSettings, path: Path) -> None:
         top, bottom = axes[0, j], axes[1, j]
         top.plot(y, r["truth"], color=plots.PALETTE[0], ls="--", label="true force")
         top.plot(y, lip, color=plots.PALETTE[7], label="LIP")
-        top.plot(y, tot["0"], color=plots.PALETTE[4], label="PGNN λ = 0")
+        z = zero_label(asdict(settings))
+        top.plot(y, tot["0"], color=plots.PALETTE[4], label=f"PGNN {z}")
         top.plot(y, tot["1"], color=plots.PALETTE[5], label=f"PGNN λ = {settings.lam:g}")
         bottom.plot(y, np.asarray(f0["static"]["physical"]) - lip, color=plots.PALETTE[1],
-                    label="λ = 0: θ·T − LIP")
+                    label=f"{z}: θ·T − LIP")
         bottom.plot(y, f0["static"]["network_linear"], color=plots.PALETTE[2],
                     label="network, linear part")
         bottom.plot(y, f0["static"]["remainder"], color=plots.PALETTE[3],
@@ -507,7 +569,7 @@ def draw(results: list[dict], settings: MechanismSettings, path: Path) -> None:
             ax.set_ylabel("force [N]")
         top.set_title(f"{case}, record {r['record']}: static force at rest", fontsize=9,
                       loc="left")
-        bottom.set_title("λ = 0 fit, split", fontsize=9, loc="left")
+        bottom.set_title(f"{zero_label(asdict(settings))} fit, split", fontsize=9, loc="left")
         bottom.set_xlabel("position [mm]")
         top.legend(fontsize=7, loc="upper left")
         bottom.legend(fontsize=7, loc="upper left")
