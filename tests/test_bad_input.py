@@ -302,7 +302,7 @@ def _write(path: Path, content) -> None:
         path.write_text(content)
 
 
-def _check_refused(argv, tmp_path, capsys, expected: str, name: str) -> None:
+def _check_refused(argv, tmp_path, capsys, expected: str | list[str], name: str) -> None:
     before = sorted(p.name for p in tmp_path.iterdir())
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a warning would be a second stderr line in a terminal
@@ -312,7 +312,8 @@ def _check_refused(argv, tmp_path, capsys, expected: str, name: str) -> None:
     assert code == 2, captured.err
     assert len(lines) == 1, lines
     assert lines[0].startswith("clm-sim: error: ") and name in lines[0], lines[0]
-    assert expected in lines[0], lines[0]
+    for text in [expected] if isinstance(expected, str) else expected:
+        assert text in lines[0], lines[0]
     assert captured.out == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no partial output at all
 
@@ -463,3 +464,57 @@ def test_unusable_out_is_refused_before_the_work(case, command, tmp_path, capsys
     argv = (CONFIG_COMMANDS[command](str(cfg), out, str(valid_record)) if command in
             ("run", "sweep") else DATA_COMMANDS[command](str(valid_record), out))
     _check_refused(argv, tmp_path, capsys, expected, out)
+
+
+# --columns and --scale that cannot mean what they say, on a record holding t, r, y, u and also
+# qm (a position) and gtau (a gain): (options, texts the one line must hold).
+BAD_MAPS = {
+    "misspelled signal": (["--columns", "Y=qm"], ["'Y'", "t, r, y, y_true, u"]),
+    "unknown signal": (["--columns", "q=y"], ["'q'", "t, r, y, y_true, u"]),
+    "column not in the file": (["--columns", "u_ff=pulsez"], ["'pulsez'", "u_ff"]),
+    "scaled column not in the file": (["--columns", "u_ff=pulsez", "--scale", "u_ff=gtau"],
+                                      ["'pulsez'"]),
+    "signal mapped twice": (["--columns", "y=qm,y=y"], ["--columns", "'y' given twice"]),
+    "signal scaled twice": (["--scale", "u=2,u=1"], ["--scale", "'u' given twice"]),
+    "scale of an unknown signal": (["--scale", "x=2"], ["'x'", "t, r, y, y_true, u"]),
+    "scale of a signal the file lacks": (["--scale", "u_ff=2"], ["'u_ff'", "no column"]),
+    "scale that underflows": (["--scale", "u=1e-200"], ["scale for 'u'", "1e-200"]),
+    "scale that overflows": (["--scale", "u=1e308"], ["scale for 'u'", "1e+308"]),
+}
+
+
+@pytest.fixture(scope="session")
+def mapped_record(tmp_path_factory) -> Path:
+    """A valid record with an extra position column ``qm`` and a scalar gain ``gtau``."""
+    path = tmp_path_factory.mktemp("mapped") / "rec.npz"
+    sig = _signals(4000)
+    path.write_bytes(_npz_bytes(**sig, qm=sig["y"], gtau=np.array(35.15)))
+    return path
+
+
+@pytest.mark.parametrize("command", [c for c in DATA_COMMANDS if c != "export"])
+@pytest.mark.parametrize("case", list(BAD_MAPS))
+def test_a_column_map_that_cannot_be_meant_is_refused(case, command, tmp_path, capsys,
+                                                       monkeypatch, mapped_record):
+    """A misspelled signal or column, a duplicate or a scale out of float range is one line
+    naming it, never ignored (a typo in ``u_ff`` ran the twin without its known input)."""
+    options, texts = BAD_MAPS[case]
+    monkeypatch.chdir(tmp_path)
+    argv = DATA_COMMANDS[command](str(mapped_record), str(tmp_path / "out")) + options
+    name = "--" if case.endswith("twice") else str(mapped_record)
+    _check_refused(argv, tmp_path, capsys, texts, name)
+
+
+@pytest.mark.parametrize("section, expected", [
+    ("columns: {yy: y}", ["'yy'", "t, r, y, y_true, u"]),
+    ("columns: {u_ff: pulsez}", ["missing column 'pulsez'"]),
+    ("scale: {u: 1.0e-200}", ["scale for 'u'"])])
+def test_a_run_config_maps_columns_as_strictly_as_the_options(section, expected, tmp_path, capsys,
+                                                              monkeypatch, valid_record):
+    """``data: {columns: ...}`` goes through the same check as ``--columns``."""
+    monkeypatch.chdir(tmp_path)
+    cfg = tmp_path / "dat.yaml"
+    cfg.write_text(f"name: dat\nseed: 1\ndata:\n  training: {valid_record}\n  {section}\n"
+                   f"feedforwards:\n  - kind: lip\n")
+    _check_refused(["run", str(cfg), "--out", str(tmp_path / "out"), "--quiet"], tmp_path,
+                   capsys, expected, str(valid_record))
