@@ -180,12 +180,18 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             return {n: data[:, i] for i, n in enumerate(names)}, {}
         if suffix == ".npz":
             # Our own handle, closed even when a truncated archive makes np.load raise.
-            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-                unpacked = sum(i.file_size for i in z.zip.infolist())
-                if unpacked > MAX_RECORD_BYTES:  # a small archive may unpack to terabytes
-                    raise UserError(f"{path}: its arrays unpack to {unpacked / 2 ** 30:.3g} GB, "
-                                    f"above the {MAX_RECORD_BYTES / 2 ** 30:g} GB of a record")
-                raw = {k: np.asarray(z[k]) for k in z.files}
+            with open(path, "rb") as fh:
+                z = np.load(fh, allow_pickle=False)
+                if not isinstance(z, np.lib.npyio.NpzFile):  # one array saved by np.save
+                    raise UserError(f"{path}: not an .npz archive (it holds a single .npy "
+                                    f"array); save the signals by name with numpy.savez")
+                with z:
+                    unpacked = sum(i.file_size for i in z.zip.infolist())
+                    if unpacked > MAX_RECORD_BYTES:  # a small archive may unpack to terabytes
+                        raise UserError(f"{path}: its arrays unpack to "
+                                        f"{unpacked / 2 ** 30:.3g} GB, above the "
+                                        f"{MAX_RECORD_BYTES / 2 ** 30:g} GB of a record")
+                    raw = {k: np.asarray(z[k]) for k in z.files}
             return raw, _meta(raw.pop("meta", None))
         if suffix == ".mat":
             import scipy.io

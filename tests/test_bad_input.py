@@ -62,6 +62,12 @@ def _npz_bytes(**arrays) -> bytes:
     return buf.getvalue()
 
 
+def _npy_bytes(array) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
 def _mat_bytes(**arrays) -> bytes:
     buf = io.BytesIO()
     scipy.io.savemat(buf, arrays)
@@ -117,6 +123,7 @@ BAD_DATA = {
     "time step of 1e-12 s": ("rec.csv", _with(t=lambda t: t * 1e-8), "faster than any servo"),
     "force of 1e308": ("rec.csv", _with(u=_set(7, 1e308)), "must be a force in N"),
     "missing file": ("rec.csv", None, "not found"),
+    "npy renamed npz": ("rec.npz", _npy_bytes(_signals()["u"]), "not an .npz archive"),
 }
 
 # Config parts that every config command reads (diagnose reads only plant and controller).
@@ -128,6 +135,7 @@ BAD_CONFIGS = {
     "unknown top-level key": ("name: x\nsede: 3\n", "sede", "all"),
     "unknown nested key": ("name: x\nplant:\n  mas: 18.8\n", "plant.mas", "all"),
     "wrong type": ("name: x\nplant:\n  mass: heavy\n", "plant.mass", "all"),
+    "number without a dot": ("name: x\nplant:\n  mass: 2e1\n", "write 2.0e+1", "all"),
     "negative mass": ("name: x\nplant:\n  mass: -18.8\n", "mass must be > 0", "all"),
     "zero mass": ("name: x\nplant:\n  mass: 0\n", "mass must be > 0", "all"),
     "negative viscous friction": ("name: x\nplant:\n  viscous: -1.0\n", "viscous", "all"),
