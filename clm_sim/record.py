@@ -32,6 +32,9 @@ MAX_POSITION_M = 10.0  # m: longer than any linear-motor stroke; larger values a
 MAX_FORCE_N = 1e6  # N: 50 times the peak force of the largest linear motors; larger is not N
 MAX_RECORD_BYTES = 2 ** 30  # a record file (or an .npz's arrays) larger is refused before reading
 GENFROMTXT_BYTES = 50 * 2 ** 20  # CSVs with empty cells are read by genfromtxt up to this size
+# A scaled signal's peak must lie here (about 1.5e-154 to 1.3e154) so its squares are finite and
+# not zero: a scale outside gives a fit of NaN, not a refusal.
+SQUARE_RANGE = (float(np.sqrt(np.finfo(float).tiny)), float(np.sqrt(np.finfo(float).max)))
 
 
 @dataclass(frozen=True)
@@ -177,12 +180,18 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             return {n: data[:, i] for i, n in enumerate(names)}, {}
         if suffix == ".npz":
             # Our own handle, closed even when a truncated archive makes np.load raise.
-            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-                unpacked = sum(i.file_size for i in z.zip.infolist())
-                if unpacked > MAX_RECORD_BYTES:  # a small archive may unpack to terabytes
-                    raise UserError(f"{path}: its arrays unpack to {unpacked / 2 ** 30:.3g} GB, "
-                                    f"above the {MAX_RECORD_BYTES / 2 ** 30:g} GB of a record")
-                raw = {k: np.asarray(z[k]) for k in z.files}
+            with open(path, "rb") as fh:
+                z = np.load(fh, allow_pickle=False)
+                if not isinstance(z, np.lib.npyio.NpzFile):  # one array saved by np.save
+                    raise UserError(f"{path}: not an .npz archive (it holds a single .npy "
+                                    f"array); save the signals by name with numpy.savez")
+                with z:
+                    unpacked = sum(i.file_size for i in z.zip.infolist())
+                    if unpacked > MAX_RECORD_BYTES:  # a small archive may unpack to terabytes
+                        raise UserError(f"{path}: its arrays unpack to "
+                                        f"{unpacked / 2 ** 30:.3g} GB, above the "
+                                        f"{MAX_RECORD_BYTES / 2 ** 30:g} GB of a record")
+                    raw = {k: np.asarray(z[k]) for k in z.files}
             return raw, _meta(raw.pop("meta", None))
         if suffix == ".mat":
             import scipy.io
@@ -252,6 +261,24 @@ def _numbers(value, path: Path, key: str) -> np.ndarray:
     return np.asarray(value, dtype=np.float64)
 
 
+def _scaled(value: np.ndarray, factor: float, path: Path, name: str) -> np.ndarray:
+    """``value * factor``, refused in one line where the factor takes the signal out of the
+    range in which its squares (every fit's residual and norm) are finite and non-zero."""
+    with np.errstate(over="ignore", under="ignore"):
+        scaled = value * factor
+    finite = np.isfinite(value)
+    peak = float(np.max(np.abs(scaled[finite]), initial=0.0))
+    if not np.isfinite(scaled[finite]).all() or peak > SQUARE_RANGE[1]:
+        raise UserError(f"{path}: scale for {name!r} is {factor:g}; it takes {name} to "
+                        f"{peak:.3g}, beyond float64 once squared; expected a unit factor "
+                        f"(e.g. 35.15 for V to N, 0.001 for mm to m)")
+    if np.any(value[finite]) and peak < SQUARE_RANGE[0]:
+        raise UserError(f"{path}: scale for {name!r} is {factor:g}; it shrinks {name} to "
+                        f"{peak:.3g} at most, whose squares underflow float64 to 0; expected a "
+                        f"unit factor (e.g. 35.15 for V to N, 0.001 for mm to m)")
+    return scaled
+
+
 def parse_pairs(text: str | None, option: str, number: bool) -> dict:
     """``"y=qm,u=vir"`` -> ``{"y": "qm", "u": "vir"}``: the ``--columns`` and ``--scale`` of a
     command (values as numbers where they parse and ``number``); ``option`` names it in errors."""
@@ -261,13 +288,15 @@ def parse_pairs(text: str | None, option: str, number: bool) -> dict:
         if not sep or not key.strip() or not value.strip():
             raise UserError(f"{option}: expected NAME=VALUE pairs separated by commas, "
                             f"got {item!r}")
-        value = value.strip()
+        key, value = key.strip(), value.strip()
+        if key in out:  # the last one would win silently
+            raise UserError(f"{option}: {key!r} given twice; give each signal once")
         if number:
             try:
                 value = float(value)
             except ValueError:
                 pass
-        out[key.strip()] = value
+        out[key] = value
     return out
 
 
@@ -288,7 +317,8 @@ def load_record(path, columns: dict[str, str] | None = None,
     and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
     ``MIN_TS``, a position beyond ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``;
     a variable that is not numbers (text, MATLAB cells, structs, sparse matrices, complex values
-    with an imaginary part) is refused by name.
+    with an imaginary part) is refused by name; so is a ``columns`` or ``scale`` name that is no
+    signal, a mapped column the file lacks, and a scale whose result squares to inf or 0.
     """
     path = Path(path)
     if not path.exists():
@@ -301,12 +331,19 @@ def load_record(path, columns: dict[str, str] | None = None,
                         f"GB a record may have (1e7 samples of t, r, y, u as CSV are ~0.8 GB)")
     raw, file_meta = _read_columns(path)
     columns = dict(columns or {})
+    have = ", ".join(sorted(raw)) or "none"
+    for name, key in columns.items():  # a typo would silently leave a signal out (or default)
+        if name not in SIGNALS:
+            raise UserError(f"{path}: cannot map {name!r} to a column: no such signal; the "
+                            f"signals are {', '.join(SIGNALS)}")
+        if key not in raw:
+            raise UserError(f"{path}: missing column {key!r} (signal {name}); "
+                            f"columns present: {have}")
     out = {}
     for name in SIGNALS:
         key = columns.get(name, name)
         if key not in raw:
             if name in REQUIRED:
-                have = ", ".join(sorted(raw)) or "none"
                 raise UserError(f"{path}: missing column {key!r} (signal {name}); "
                                 f"columns present: {have}")
             continue
@@ -321,8 +358,12 @@ def load_record(path, columns: dict[str, str] | None = None,
             value = value.ravel()
         out[name] = value
     for name, factor in (scale or {}).items():
+        if name not in SIGNALS:
+            raise UserError(f"{path}: cannot scale {name!r}: no such signal; the signals are "
+                            f"{', '.join(SIGNALS)}")
         if name not in out:
-            raise UserError(f"{path}: cannot scale {name!r}: no such signal")
+            raise UserError(f"{path}: cannot scale {name!r}: no column {name!r} in the file "
+                            f"(map it to one: {name}=COLUMN); columns present: {have}")
         if isinstance(factor, str):
             if factor not in raw or not isinstance(raw[factor], np.ndarray) \
                     or raw[factor].dtype.kind not in "biufc" or np.size(raw[factor]) != 1:
@@ -332,8 +373,7 @@ def load_record(path, columns: dict[str, str] | None = None,
         if not (np.isfinite(factor) and factor != 0):
             raise UserError(f"{path}: scale for {name!r} is {factor:g}; expected a finite, "
                             f"non-zero factor")
-        with np.errstate(over="ignore"):  # an overflow is reported as inf just below
-            out[name] = out[name] * float(factor)
+        out[name] = _scaled(out[name], float(factor), path, name)
     n = len(out["t"])
     for name, value in out.items():
         if len(value) != n:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 import reprlib
 import types
 import typing
@@ -132,6 +133,21 @@ def _type_name(tp) -> str:
     return getattr(tp, "__name__", str(tp)).replace("typing.", "")
 
 
+# A number PyYAML (YAML 1.1) reads as text: an exponent without a dot in the mantissa or without
+# a sign (1e-4, 1.0e4); Python's float() reads it.
+_YAML_TEXT_NUMBER = re.compile(r"([-+]?)(\d*)\.?(\d*)[eE]([-+]?)(\d+)")
+
+
+def _yaml_text_hint(value) -> str:
+    """For text such as ``1e-4`` that YAML read as a string: how to write it as a number."""
+    match = _YAML_TEXT_NUMBER.fullmatch(value.strip()) if isinstance(value, str) else None
+    if match is None or not (match[2] or match[3]):
+        return ""
+    sign, whole, frac, exp_sign, exp = match.groups()
+    return (f" (YAML 1.1 reads {value.strip()} as text: write {sign}{whole or '0'}."
+            f"{frac or '0'}e{exp_sign or '+'}{exp}, with a dot and a signed exponent)")
+
+
 def _convert(tp, value, key: str):
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
@@ -155,7 +171,7 @@ def _convert(tp, value, key: str):
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise UserError(f"{key}: expected a number, got {show(value)}")
+            raise UserError(f"{key}: expected a number, got {show(value)}{_yaml_text_hint(value)}")
         if not math.isfinite(value):
             raise UserError(f"{key}: expected a finite number, got {show(value)}")
         return float(value)

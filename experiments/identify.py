@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write, write_error
 from clm_sim.record import Run
@@ -60,7 +62,8 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
 
     refuse_unidentifiable(run, source)
     try:
-        result = fit(y=run.y, u=run.u, ts=run.ts, protocol=protocol)
+        with np.errstate(invalid="ignore", divide="ignore"):  # non-finite: refused just below
+            result = fit(y=run.y, u=run.u, ts=run.ts, protocol=protocol)
     except UserError as exc:  # name the file, and the option of a filter setting
         text = f"{source}: {exc}"
         for key in ("regression_lowpass_hz", "position_lowpass_hz"):
@@ -68,11 +71,13 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
                 text += f" (--{key.replace('_', '-')})"
         raise UserError(text) from None
     values = {**result.coefficients, **result.std}
+    values.update(residual=result.residual_rms_n, **{"relative error": result.relative_error})
     bad = [name for name, value in values.items() if not math.isfinite(value)]
-    if bad or not math.isfinite(result.residual_rms_n):
+    if bad:
         raise UserError(f"{source}: the fit gives non-finite parameters "
-                        f"({', '.join(sorted(set(bad))) or 'residual'}); the record's values are "
-                        f"too large or degenerate for a least-squares fit")
+                        f"({', '.join(sorted(set(bad)))}); the record's values are too large, "
+                        f"too small or degenerate for a least-squares fit (check how u and y are "
+                        f"scaled)")
     cross = None
     if validation is not None:
         if abs(validation.ts / run.ts - 1) > 1e-3:

@@ -62,6 +62,12 @@ def _npz_bytes(**arrays) -> bytes:
     return buf.getvalue()
 
 
+def _npy_bytes(array) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
 def _mat_bytes(**arrays) -> bytes:
     buf = io.BytesIO()
     scipy.io.savemat(buf, arrays)
@@ -117,6 +123,7 @@ BAD_DATA = {
     "time step of 1e-12 s": ("rec.csv", _with(t=lambda t: t * 1e-8), "faster than any servo"),
     "force of 1e308": ("rec.csv", _with(u=_set(7, 1e308)), "must be a force in N"),
     "missing file": ("rec.csv", None, "not found"),
+    "npy renamed npz": ("rec.npz", _npy_bytes(_signals()["u"]), "not an .npz archive"),
 }
 
 # Config parts that every config command reads (diagnose reads only plant and controller).
@@ -128,6 +135,7 @@ BAD_CONFIGS = {
     "unknown top-level key": ("name: x\nsede: 3\n", "sede", "all"),
     "unknown nested key": ("name: x\nplant:\n  mas: 18.8\n", "plant.mas", "all"),
     "wrong type": ("name: x\nplant:\n  mass: heavy\n", "plant.mass", "all"),
+    "number without a dot": ("name: x\nplant:\n  mass: 2e1\n", "write 2.0e+1", "all"),
     "negative mass": ("name: x\nplant:\n  mass: -18.8\n", "mass must be > 0", "all"),
     "zero mass": ("name: x\nplant:\n  mass: 0\n", "mass must be > 0", "all"),
     "negative viscous friction": ("name: x\nplant:\n  viscous: -1.0\n", "viscous", "all"),
@@ -302,7 +310,7 @@ def _write(path: Path, content) -> None:
         path.write_text(content)
 
 
-def _check_refused(argv, tmp_path, capsys, expected: str, name: str) -> None:
+def _check_refused(argv, tmp_path, capsys, expected: str | list[str], name: str) -> None:
     before = sorted(p.name for p in tmp_path.iterdir())
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a warning would be a second stderr line in a terminal
@@ -312,7 +320,8 @@ def _check_refused(argv, tmp_path, capsys, expected: str, name: str) -> None:
     assert code == 2, captured.err
     assert len(lines) == 1, lines
     assert lines[0].startswith("clm-sim: error: ") and name in lines[0], lines[0]
-    assert expected in lines[0], lines[0]
+    for text in [expected] if isinstance(expected, str) else expected:
+        assert text in lines[0], lines[0]
     assert captured.out == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no partial output at all
 
@@ -463,3 +472,57 @@ def test_unusable_out_is_refused_before_the_work(case, command, tmp_path, capsys
     argv = (CONFIG_COMMANDS[command](str(cfg), out, str(valid_record)) if command in
             ("run", "sweep") else DATA_COMMANDS[command](str(valid_record), out))
     _check_refused(argv, tmp_path, capsys, expected, out)
+
+
+# --columns and --scale that cannot mean what they say, on a record holding t, r, y, u and also
+# qm (a position) and gtau (a gain): (options, texts the one line must hold).
+BAD_MAPS = {
+    "misspelled signal": (["--columns", "Y=qm"], ["'Y'", "t, r, y, y_true, u"]),
+    "unknown signal": (["--columns", "q=y"], ["'q'", "t, r, y, y_true, u"]),
+    "column not in the file": (["--columns", "u_ff=pulsez"], ["'pulsez'", "u_ff"]),
+    "scaled column not in the file": (["--columns", "u_ff=pulsez", "--scale", "u_ff=gtau"],
+                                      ["'pulsez'"]),
+    "signal mapped twice": (["--columns", "y=qm,y=y"], ["--columns", "'y' given twice"]),
+    "signal scaled twice": (["--scale", "u=2,u=1"], ["--scale", "'u' given twice"]),
+    "scale of an unknown signal": (["--scale", "x=2"], ["'x'", "t, r, y, y_true, u"]),
+    "scale of a signal the file lacks": (["--scale", "u_ff=2"], ["'u_ff'", "no column"]),
+    "scale that underflows": (["--scale", "u=1e-200"], ["scale for 'u'", "1e-200"]),
+    "scale that overflows": (["--scale", "u=1e308"], ["scale for 'u'", "1e+308"]),
+}
+
+
+@pytest.fixture(scope="session")
+def mapped_record(tmp_path_factory) -> Path:
+    """A valid record with an extra position column ``qm`` and a scalar gain ``gtau``."""
+    path = tmp_path_factory.mktemp("mapped") / "rec.npz"
+    sig = _signals(4000)
+    path.write_bytes(_npz_bytes(**sig, qm=sig["y"], gtau=np.array(35.15)))
+    return path
+
+
+@pytest.mark.parametrize("command", [c for c in DATA_COMMANDS if c != "export"])
+@pytest.mark.parametrize("case", list(BAD_MAPS))
+def test_a_column_map_that_cannot_be_meant_is_refused(case, command, tmp_path, capsys,
+                                                       monkeypatch, mapped_record):
+    """A misspelled signal or column, a duplicate or a scale out of float range is one line
+    naming it, never ignored (a typo in ``u_ff`` ran the twin without its known input)."""
+    options, texts = BAD_MAPS[case]
+    monkeypatch.chdir(tmp_path)
+    argv = DATA_COMMANDS[command](str(mapped_record), str(tmp_path / "out")) + options
+    name = "--" if case.endswith("twice") else str(mapped_record)
+    _check_refused(argv, tmp_path, capsys, texts, name)
+
+
+@pytest.mark.parametrize("section, expected", [
+    ("columns: {yy: y}", ["'yy'", "t, r, y, y_true, u"]),
+    ("columns: {u_ff: pulsez}", ["missing column 'pulsez'"]),
+    ("scale: {u: 1.0e-200}", ["scale for 'u'"])])
+def test_a_run_config_maps_columns_as_strictly_as_the_options(section, expected, tmp_path, capsys,
+                                                              monkeypatch, valid_record):
+    """``data: {columns: ...}`` goes through the same check as ``--columns``."""
+    monkeypatch.chdir(tmp_path)
+    cfg = tmp_path / "dat.yaml"
+    cfg.write_text(f"name: dat\nseed: 1\ndata:\n  training: {valid_record}\n  {section}\n"
+                   f"feedforwards:\n  - kind: lip\n")
+    _check_refused(["run", str(cfg), "--out", str(tmp_path / "out"), "--quiet"], tmp_path,
+                   capsys, expected, str(valid_record))

@@ -218,3 +218,20 @@ def test_an_internal_error_in_a_real_process_is_one_line_exit_1(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 1 and len(lines) == 1, proc.stderr
     assert "internal error in 'identify'" in lines[0] and "KeyError" in lines[0]
+
+
+def test_a_fit_that_is_not_finite_is_refused_in_one_line(record):
+    """A run built in Python (no ``load_record`` scale check) whose force is so small that the
+    residual's squares underflow: the relative error 0/0 is a ``UserError`` naming the source,
+    not a NumPy warning and an internal error when ``lip.json`` refuses NaN."""
+    import warnings
+
+    from clm_sim.errors import UserError
+    from controllers.idim import IDIMProtocol
+    from experiments.identify import identify
+
+    tiny = Run(t=record.t, r=record.r, y=record.y, u=record.u * 1e-200)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning would be a second stderr line
+        with pytest.raises(UserError, match="^src: the fit gives non-finite .*relative error"):
+            identify(tiny, IDIMProtocol(), source="src")
