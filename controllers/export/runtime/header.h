@@ -54,10 +54,10 @@ ${trace}
 #define CLM_FF_HALF ${half} /* half-length of the network's feature filter (0: none) */
 #define CLM_FF_NSEC ${nsec} /* second-order sections of that filter (state of the stream) */
 #ifndef CLM_FF_MAX_FORCE
-#define CLM_FF_MAX_FORCE ${max_force} /* N: |force| limit (export default) */
+#define CLM_FF_MAX_FORCE ${max_force} /* N: |force| limit, as exported (a -D overrides it) */
 #endif
 #ifndef CLM_FF_MAX_SLEW
-#define CLM_FF_MAX_SLEW ${max_slew} /* N/s: the stream's rate limit (export default) */
+#define CLM_FF_MAX_SLEW ${max_slew} /* N/s: the stream's rate limit, as exported (a -D overrides it) */
 #endif
 #ifndef CLM_FF_R_MAX
 #define CLM_FF_R_MAX 1e6 /* m: a stream sample beyond +-this is rejected as not finite is */
