@@ -429,7 +429,7 @@ def _rule_c(pub: Row, candidates: list[Row], settings: BenchmarkSettings) -> lis
         f"(lowest mean: {best}, {scored[best].mean * 1e3:.2f} ± {scored[best].se * 1e3:.2f} "
         f"mm), {pick.cycles.parameters} fitted parameters; {mm:.2f} mm on test, "
         f"{'better' if mm < p_mm else 'worse'} than the published model by "
-        f"{abs(100 * (mm / p_mm - 1)):.0f} % ({mm - p_mm:+.2f} mm).", "", *table, "",
+        f"{abs(100 * (mm / p_mm - 1)):.1f} % ({mm - p_mm:+.3f} mm).", "", *table, "",
         *([] if not any(r.cycles.remade for r in candidates if r.cycles) else [
             "Made without each cycle (rule C's folds):", "",
             *(f"- {r.name}, without cycle {j + 1}: {d}" for r in candidates if r.cycles
@@ -492,7 +492,7 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
         f"physical model is **{by_held.name}**: held-out {ho(by_held)} mm; fitted on the whole "
         f"training record, {mm(by_held):.2f} mm on test, "
         f"{'better' if rel(by_held) < 0 else 'worse'} than the published model by "
-        f"{abs(rel(by_held)):.0f} % ({mm(by_held) - mm(pub):+.2f} mm).",
+        f"{abs(rel(by_held)):.1f} % ({mm(by_held) - mm(pub):+.3f} mm).",
         f"Held-out ranking (mm): {ranking(lambda r: r.held_out.score.rmse, candidates)}; the "
         f"published model {ho(pub)}. The two parts: estimation "
         f"{_span(pub.train.y_measured[:n_est], pub.train.u[:n_est], pub.train.t)}, held out "
@@ -505,7 +505,7 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
             f"RMSEs), the choice is **{by_both.name}**: {both(by_both) * 1e3:.2f} mm mean "
             f"held-out, {mm(by_both):.2f} mm on test, "
             f"{'better' if rel(by_both) < 0 else 'worse'} than the published model by "
-            f"{abs(rel(by_both)):.0f} % ({mm(by_both) - mm(pub):+.2f} mm). Ranking (mm): "
+            f"{abs(rel(by_both)):.1f} % ({mm(by_both) - mm(pub):+.3f} mm). Ranking (mm): "
             f"{ranking(both, [r for r in candidates if r.held_out_back is not None])}; the "
             f"published model {both(pub) * 1e3 if pub.held_out_back else float('nan'):.2f}."]),
         *_rule_c(pub, candidates, settings),
