@@ -156,13 +156,15 @@ def _convert(tp, value, key: str):
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
-        errors = []
+        errors = {}
         for arg in (a for a in args if a is not type(None)):
             try:
                 return _convert(arg, value, key)
             except UserError as exc:
-                errors.append(str(exc))
-        raise UserError(errors[0] if len(errors) == 1 else
+                errors[arg] = str(exc)
+        if len(errors) == 1:
+            raise UserError(next(iter(errors.values())))
+        raise UserError(_form_error(errors, value, key) or
                         f"{key}: expected {' or '.join(_type_name(a) for a in args)}, "
                         f"got {show(value)}")
     if origin is typing.Literal:
@@ -204,6 +206,30 @@ def _convert(tp, value, key: str):
     raise TypeError(f"schema: unsupported annotation {tp!r} at {key}")
 
 
+def _form_error(errors: dict, value, key: str) -> str | None:
+    """Of a mapping that none of several dataclass forms takes (``errors``: form -> its error),
+    the error of the one form whose keys it uses most, or, where two forms' keys are mixed, a
+    line naming the keys of each; None where its keys tell no form."""
+    if not isinstance(value, dict):
+        return None
+    used = {}
+    for form in errors:
+        if dataclasses.is_dataclass(form):
+            keys = {f.name for f in dataclasses.fields(form) if f.init}
+            used[form] = [k for k in value if k in keys | set(getattr(form, "aliases", {}))]
+    most = max((len(k) for k in used.values()), default=0)
+    if not most:
+        return None
+    best = [form for form, keys in used.items() if len(keys) == most]
+    if len(best) == 1:
+        return errors[best[0]]
+    if len({tuple(used[form]) for form in best}) == 1:  # keys every form takes: no telling
+        return None
+    return (f"{key}: keys of different forms mixed: "
+            + " and ".join(f"{', '.join(used[f])} ({_type_name(f)})" for f in best)
+            + "; give the keys of one")
+
+
 @functools.lru_cache(maxsize=None)
 def _type_hints(cls) -> dict:
     # Resolving string annotations compiles them each time; sweeps build thousands of configs.
@@ -226,6 +252,11 @@ def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
             known = ", ".join(sorted(set(fields) - set(aliases.values()) | set(aliases)))
             raise UserError(f"{key}.{name}: unknown key; known keys: {known}")
         kwargs[attr] = _convert(hints[attr], value, f"{key}.{name}")
+    missing = [name for name, f in fields.items() if name not in kwargs
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise UserError(f"{key}.{missing[0]}: missing; {_type_name(cls)} needs "
+                        f"{', '.join(missing)}")
     try:
         return cls(**kwargs)
     except UserError as exc:

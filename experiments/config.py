@@ -252,6 +252,25 @@ class RecordData:
         return load_record(path, columns=self.columns, scale=self.scale)
 
 
+# The keys only a simulation reads: a run with a data: section has its records' sample time and
+# simulates nothing, so any of them there would be ignored (refused instead: refuse_unused).
+SIMULATION_KEYS = ("ts", "plant", "truth", "controller", "references", "training", "replay")
+
+
+def refuse_unused(data: dict, keys=None, where: str = "") -> None:
+    """Refuse (one line naming it) a key of :data:`SIMULATION_KEYS` in the YAML ``data`` of a
+    config with a ``data:`` section (``keys``: the key paths set, default those of ``data``;
+    ``where``: what the message puts before the key)."""
+    if not isinstance(data, dict) or data.get("data") is None:
+        return
+    for key in data if keys is None else keys:
+        top = key.split(".")[0].split("[")[0]
+        if top in SIMULATION_KEYS:
+            why = ("the records carry their own sample time" if top == "ts" else
+                   "a run on records simulates nothing")
+            raise UserError(f"{where}{key}: has no effect with data: ({why}); remove it")
+
+
 def _default_feedforwards() -> tuple[FeedforwardSpec, ...]:
     return (FeedforwardSpec(kind="none"), FeedforwardSpec(kind="lip"))
 
@@ -294,6 +313,9 @@ class ExperimentConfig:
                 if spec.kind == "none":
                     raise UserError(f"feedforwards[{i}]: kind none has nothing to identify "
                                     f"from a record (data:)")
+                if spec.kind == "lip" and spec.seeds != 1:
+                    raise UserError(f"feedforwards[{i}].seeds: the least-squares LIP of a "
+                                    f"record is one fit, without a seed (data:); remove seeds")
         check_limits(self)
 
 
@@ -321,11 +343,17 @@ def load_config(path, data: dict | None = None) -> ExperimentConfig:
     path = Path(path)
     data = load_yaml(path) if data is None else data
     try:
+        refuse_unused(data)
         return build(ExperimentConfig, data, "config")
     except UserError as exc:
         raise in_file(path, exc) from None
 
 
 def resolved(config: ExperimentConfig) -> dict:
-    """The config with every default filled in, as plain data (written next to every result)."""
-    return to_plain(config)
+    """The config with every default filled in, as plain data (written next to every result);
+    that of a run on records (``data:``) without the keys it does not use
+    (:data:`SIMULATION_KEYS`: a sample time there would claim what the records contradict)."""
+    plain = to_plain(config)
+    if config.data is not None:
+        plain = {k: v for k, v in plain.items() if k not in SIMULATION_KEYS}
+    return plain

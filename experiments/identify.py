@@ -57,7 +57,8 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
              ) -> Identified:
     """Fit ``run`` by ``protocol``; cross-test on ``validation`` (same sample time) if given.
     Errors name ``source`` (or ``validation_source``)."""
-    from experiments.record_guards import fit_warnings, refuse_unidentifiable
+    from experiments.record_guards import (fit_warnings, refuse_other_rate,
+                                           refuse_unidentifiable)
     from experiments.suspicions import record_warnings
 
     refuse_unidentifiable(run, source)
@@ -80,9 +81,7 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
                         f"scaled)")
     cross = None
     if validation is not None:
-        if abs(validation.ts / run.ts - 1) > 1e-3:
-            raise UserError(f"{validation_source}: sampled at {validation.ts:g} s, the record at "
-                            f"{run.ts:g} s; the cross-test needs the same rate")
+        refuse_other_rate(validation, run, validation_source)
         try:
             cross = cross_test(result, y=validation.y, u=validation.u, ts=validation.ts)
         except UserError as exc:

@@ -305,13 +305,15 @@ def compute(config: ExperimentConfig, progress, warn=None) -> dict:
     from experiments.suspicions import warn as stderr_warn
 
     warn = warn or stderr_warn
-    from experiments.record_guards import refuse_unidentifiable
+    from experiments.record_guards import refuse_other_rate, refuse_unidentifiable
 
     recs = [("training", config.data.load("training"))]
     source = f"data.training ({config.data.training})"
     refuse_unidentifiable(recs[0][1], source)
     if config.data.validation is not None:
         recs.append(("validation", config.data.load("validation")))
+        refuse_other_rate(recs[1][1], recs[0][1],
+                          f"data.validation ({config.data.validation})")
     for name, run in recs:
         progress(f"{name} record: {len(run)} samples at {1 / run.ts:g} Hz")
     prepared = []

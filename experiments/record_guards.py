@@ -4,6 +4,7 @@ that cannot carry it.
 
 - :func:`refuse_unidentifiable`: a record that identifies nothing (no force, a constant force,
   no motion, too few samples in the training window) is refused in one line;
+- :func:`refuse_other_rate`: a validation record at another sample rate, likewise;
 - :func:`fit_warnings`: a result that may be wrong is said in one line each: a filter cut-off near
   the Nyquist frequency or below what the record can resolve, a position quantized so coarsely
   that its acceleration is noisy enough to bias the mass low (errors in the regressor: measured
@@ -44,6 +45,15 @@ def refuse_unidentifiable(run, source) -> None:
     if len(np.unique(y[:100_000])) < 3 and len(np.unique(y)) < 3:
         raise UserError(f"{source}: y takes only two values; its quantization is coarser than "
                         f"the motion (is y the position in m?)")
+
+
+def refuse_other_rate(validation, run, source) -> None:
+    """Raise ``UserError`` (one line naming ``source``) where the ``validation`` record is
+    sampled at another rate than the record ``run`` it checks: the same filters and differences
+    at another rate score another quantity."""
+    if abs(validation.ts / run.ts - 1) > 1e-3:
+        raise UserError(f"{source}: sampled at {validation.ts:g} s, the record at {run.ts:g} s; "
+                        f"a validation record needs the same rate")
 
 
 def refuse_small_window(count: int, total: int, source: str) -> None:

@@ -59,8 +59,11 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
         preflight(config)
     except UserError as exc:  # name the file: the config loaded fine, its values do not fit
         raise UserError(f"{config_path}: {exc}" if config_path else str(exc)) from None
+    subdirs = ("runs", "params", "figures")
+    if config.data is not None:  # a run on records saves only its PGNN models
+        subdirs = ("params",) if any(s.kind == "pgnn" for s in config.feedforwards) else ()
     with atomic_folder(out, marker="config.resolved.yaml", what="clm-sim results",
-                       subdirs=("runs", "params", "figures")) as tmp:
+                       subdirs=subdirs) as tmp:
         try:
             rows = _run(config, tmp, progress, config_path)
         except UserError as exc:  # a diverged loop, a record too short: name the config

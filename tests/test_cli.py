@@ -359,7 +359,9 @@ def test_study_trains_every_seed_it_reports(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(experiments.workers, "cores", lambda: 1)
     cfg = tmp_path / "study.yaml"
     # Five LM iterations: the test is about which seeds the summary reports, not the fits.
-    cfg.write_text(SMALL + "study:\n  lambdas: [0, 0.01]\n  hidden: 4\n  seeds: 2\n"
+    # SMALL without its feedforwards: a study trains its own models and refuses them.
+    cfg.write_text(SMALL.split("feedforwards:")[0]
+                   + "study:\n  lambdas: [0, 0.01]\n  hidden: 4\n  seeds: 2\n"
                    "  outside: [r2]\n  pgnn: {max_iter: 5}\n")
     code, _, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 0, err

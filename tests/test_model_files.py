@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from clm_sim.errors import UserError
+from clm_sim.record import Run, save_npz
 from controllers.lip import LIPFeedforward
 from controllers.pgnn import PGNNFeedforward
 from experiments.cli import main
@@ -170,3 +171,43 @@ def test_the_saved_models_load_unchanged(saved):
     assert lip.theta_ == {k: stored[k] for k in lip.theta_}
     pgnn = PGNNFeedforward.load(saved / "net")
     assert pgnn.network_.mlp.input_std.min() > 0
+
+
+# A model file's controller: a linear law (b, a, reference_b, ts) or a PID design; what is wrong
+# with it is said by key, from the form whose keys the file uses, never "expected one or the other".
+CONTROLLER_CASES = {
+    "a[0] zero": ("{b: [1.0], a: [0.0]}", ["controller", "a[0] must not be 0"]),
+    "no b": ("{a: [1.0]}", ["controller.b: missing", "LinearController"]),
+    "exponent without sign": ("{b: [1.0e30]}", ["controller.b[0]: expected a number",
+                                                 "1.0e+30"]),
+    "extra key": ("{b: [1.0], extra: 3}", ["controller.extra: unknown key"]),
+    "empty b": ("{b: []}", ["controller", "b must be non-empty"]),
+    "two forms mixed": ("{b: [1.0], crossover_hz: 30.0}", [
+        "controller: keys of different forms mixed", "b (LinearController)",
+        "crossover_hz (PIDDesign)"]),
+    "unknown key of a PID": ("{crossover_hz: 30.0, extra: 1}", ["controller.extra: unknown key",
+                                                                "crossover_hz"]),
+}
+
+
+@pytest.mark.parametrize("case", list(CONTROLLER_CASES))
+def test_a_bad_controller_is_named_by_its_key(case, tmp_path, capsys):
+    """The model file alone (load_model) and through diagnose --model: the same one line."""
+    from experiments.diagnosis.model import load_model
+
+    text, expected = CONTROLLER_CASES[case]
+    path = tmp_path / "model.yaml"
+    path.write_text(f"ts: 1.0e-4\nplant: {{mass: 18.8}}\ncontroller: {text}\n")
+    with pytest.raises(UserError) as info:
+        load_model(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and "expected LinearController or" not in message
+    for text in expected:
+        assert text in message, message
+    record = tmp_path / "rec.npz"
+    t = np.arange(4000) * TS
+    y = 0.01 * np.sin(2 * np.pi * 5 * t)
+    save_npz(Run(t=t, r=y, y=y + 1e-7, u=10 * np.cos(2 * np.pi * 5 * t)), record)
+    code, lines = _cli(["diagnose", record, "--model", path, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and lines == [f"clm-sim: error: {message}"], lines
+    assert not (tmp_path / "out").exists()

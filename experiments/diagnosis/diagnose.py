@@ -11,6 +11,7 @@ from experiments.diagnosis.outcome import (DiagnosisInfo, Gain, GainSignals, Rec
                                            SignificanceRule)
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
 from experiments.diagnosis.search import forward_select
+from experiments.record_guards import refuse_other_rate
 from clm_sim.effects import Effect
 from clm_sim.errors import UserError, check_ts
 from clm_sim.numerics import single_threaded
@@ -111,9 +112,8 @@ def _diagnose(record: Run, model: SimulationModel, *, validation: Run | None,
         if len(val) < 200:
             raise UserError(f"{source_of(record)}: record too short to hold out a validation "
                             f"part ({len(record)} samples); give --validate")
-    elif abs(validation.ts / record.ts - 1) > 1e-3:
-        raise UserError(f"{source_of(validation)}: sampled at {validation.ts:g} s, the record "
-                        f"at {record.ts:g} s; they must match")
+    else:
+        refuse_other_rate(validation, record, source_of(validation))
     res = Residual(est, model.plant, settings)
     selection = forward_select(res)
     steps = list(selection.steps)

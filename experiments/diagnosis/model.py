@@ -48,8 +48,12 @@ class LinearController:
     ts: float | None = None
 
     def __post_init__(self):
-        if not self.b or not self.a or self.a[0] == 0:
-            raise UserError("controller: b and a must be non-empty and a[0] must not be 0")
+        if not self.b:
+            raise UserError("controller: b must be non-empty (the numerator of C(z), N/m), "
+                            "got []")
+        if not self.a or self.a[0] == 0:
+            raise UserError(f"controller: a must be non-empty and a[0] must not be 0 (the "
+                            f"denominator of C(z)), got a = {list(self.a)}")
         if self.ts is not None and not (math.isfinite(self.ts) and self.ts > 0):
             raise UserError(f"controller: ts must be > 0 s, got {self.ts!r}")
 

@@ -3,10 +3,11 @@ badly, and what lambda changes. ``clm-sim study CONFIG --out DIR`` writes ``repo
 ``study.json`` and ``figures/*.png``.
 
 The config is an experiment config (plant, controller, references, training, features; its
-``feedforwards`` are not used) plus a ``study:`` section (:class:`StudySettings`). One training run
-and one LIP are shared by every model; per lambda of the sweep a simultaneous PGNN is trained per
-seed, beside a sequential PGNN, and all are replayed on the training reference (r1) and on the
-reference that leaves the training range (r2).
+``feedforwards``, ``replay`` and ``data``, which it does not use, are refused) plus a ``study:``
+section (:class:`StudySettings`). One training run and one LIP are shared by every model; per
+lambda of the sweep a simultaneous PGNN is trained per seed, beside a sequential PGNN, and all
+are replayed on the training reference (r1) and on the reference that leaves the training range
+(r2).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from experiments.runner import preflight
 from experiments.studies.extrapolation_result import (
     FEEDBACK, LIP, SEQUENTIAL, Costs, ExtrapolationResult, NetworkParts, Spread, Trained,
     Variant, variant_key, variant_label)
-from experiments.studies.kinds import take_kind
+from experiments.studies.kinds import refuse_unread, take_kind
 from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Progress, Testbed
 
@@ -64,6 +65,9 @@ class StudySettings:
                             f"({self.paper_lam:g})")
         if not (isinstance(self.seeds, int) and self.seeds >= 1) or self.hidden < 1:
             raise UserError("seeds and hidden: expected integers >= 1")
+        if self.inside in self.outside:
+            raise UserError(f"outside: {self.inside!r} is the inside reference; an outside "
+                            f"reference leaves the training range")
 
 
 def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
@@ -75,11 +79,14 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
     has_study = "study" in data  # an empty 'study:' takes every default
     settings = data.pop("study", None)
     try:
+        if has_study:  # before the build, whose checks assume a run on the records
+            refuse_unread(data, "extrapolation", ("data",))
         config = build(ExperimentConfig, data, "config")
         preflight(config)
         if not has_study:
             raise UserError("needs a 'study:' section (lambdas, seeds, ...); a plain experiment "
                             "runs with 'clm-sim run'")
+        refuse_unread(data, "extrapolation")
         study = build(StudySettings, settings, "study")
     except UserError as exc:
         raise in_file(path, exc) from None

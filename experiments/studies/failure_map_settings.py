@@ -50,6 +50,10 @@ class FailureMapSettings:
             raise UserError("cases: expected at least one case")
         if not self.outside:
             raise UserError("outside: expected at least one direction: reference")
+        for direction, key in self.outside.items():
+            if key == self.inside:
+                raise UserError(f"outside.{direction}: {key!r} is the inside reference; an "
+                                f"outside reference leaves the training range")
         if not self.hidden or any(h < 1 for h in self.hidden) or len(set(self.hidden)) < len(
                 self.hidden):
             raise UserError(f"hidden: expected distinct integers >= 1, got {list(self.hidden)}")

@@ -32,11 +32,12 @@ def kind_of(data: dict, path) -> str:
     kind = data.get("kind")
     sections = [s for s in KINDS.values() if s in data]
     if kind is None:  # as before kind: existed; without a section, load_study says what is missing
-        if len(sections) > 1:
-            raise UserError(f"{path}: kind: missing; a config with both 'study:' and "
-                            f"'failure_map:' says which study it is with 'kind: extrapolation' "
-                            f"or 'kind: failure_map'")
         by_section = {section: name for name, section in KINDS.items()}
+        if len(sections) > 1:
+            a, b = sections[:2]
+            raise UserError(f"{path}: kind: missing; a config with both '{a}:' and '{b}:' says "
+                            f"which study it is with 'kind: {by_section[a]}' or "
+                            f"'kind: {by_section[b]}'")
         return by_section[sections[0]] if sections else "extrapolation"
     if not isinstance(kind, str) or kind not in KINDS:
         raise UserError(f"{path}: kind: expected one of {', '.join(KINDS)}, got {kind!r}")
@@ -45,6 +46,25 @@ def kind_of(data: dict, path) -> str:
         raise UserError(f"{path}: {other[0]}: not a setting of 'kind: {kind}' (its settings go "
                         f"under '{KINDS[kind]}:')")
     return kind
+
+
+# Sections of an experiment config that no study reads (each study sets its own models, the
+# references it replays and its simulated records under its section): refused, not ignored.
+NOT_READ = {
+    "feedforwards": "it trains the models its '{section}:' section sets",
+    "replay": "the references it uses are named under '{section}:'",
+    "data": "it simulates its records; identification from measured records is 'clm-sim run' "
+            "with a data: section",
+}
+
+
+def refuse_unread(data: dict, kind: str, keys=tuple(NOT_READ)) -> None:
+    """Refuse (one line naming it) a section of :data:`NOT_READ` among ``keys`` of the study
+    config ``data`` of ``kind``."""
+    for key in keys:
+        if key in data:
+            why = NOT_READ[key].format(section=KINDS[kind])
+            raise UserError(f"{key}: not used by the {kind} study ({why}); remove it")
 
 
 def take_kind(data: dict, path, expected: str) -> dict:
@@ -72,7 +92,9 @@ def load_case_study(path, kind: str, settings_type, references):
             raise UserError(f"plant.effects: the effects are set per case under {section}.cases")
         if data.get("truth") is not None:
             raise UserError(f"truth: not supported by the {kind} study (the cases set the plant)")
+        refuse_unread(data, kind, ("data",))  # before the build: its checks assume a run on it
         config = build(ExperimentConfig, data, "config")
+        refuse_unread(data, kind)
         settings = build(settings_type, raw, section)
     except UserError as exc:
         raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \

@@ -111,6 +111,9 @@ class MechanismSettings:
         if not PerParameter().accepts(self.lam0_diag) or self.lam0_diag == {}:
             raise UserError(f"lambda0_diag: expected {PerParameter().describe()}, got "
                             f"{self.lam0_diag!r}")
+        if self.outside == self.inside:
+            raise UserError(f"outside: {self.inside!r} is the inside reference; an outside "
+                            f"reference leaves the training range")
 
 
 def load_mechanism(path) -> tuple[ExperimentConfig, MechanismSettings]:

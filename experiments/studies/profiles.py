@@ -50,7 +50,7 @@ from experiments.config import ExperimentConfig, resolved
 from experiments.profiles_result import (Check, FirstStop, LipIntervals, MarkedFit, Point,
                                          RecordFit, SizeRecord, Walk, WalkSettings,
                                          study_to_json)
-from experiments.studies.kinds import run_checked, take_kind
+from experiments.studies.kinds import refuse_unread, run_checked, take_kind
 from experiments.studies.profiles_report import to_markdown
 from experiments.testbed import STREAM_NETWORK, Progress, Testbed, stream
 from experiments.workers import cores
@@ -123,7 +123,9 @@ def load_profiles(path) -> tuple[ExperimentConfig, ProfileSettings]:
     data = take_kind(load_yaml(path), path, "identifiability")
     raw = data.pop("identifiability", None)
     try:
+        refuse_unread(data, "identifiability", ("data",))  # before the build: it assumes a run
         config = build(ExperimentConfig, data, "config")
+        refuse_unread(data, "identifiability")
         settings = build(ProfileSettings, raw, "identifiability")
     except UserError as exc:
         raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \

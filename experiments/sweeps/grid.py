@@ -27,7 +27,7 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.schema import build, load_yaml
-from experiments.config import ExperimentConfig, in_file, resolved
+from experiments.config import ExperimentConfig, in_file, refuse_unused, resolved
 from experiments.runner import preflight
 from experiments.sweeps.store import code_version, task_key
 
@@ -200,6 +200,8 @@ def load_sweep(path, *, max_tasks: int | None = None) -> Sweep:
             raise UserError(f"{path}: {where}: {exc}") from None
         grid[key] = _axis(values, f"{path}: {where}")
     try:
+        refuse_unused(data)
+        refuse_unused(data, grid, "sweep.grid.")
         base_config = build(ExperimentConfig, data, "config")
         preflight(base_config)
     except UserError as exc:
