@@ -199,6 +199,10 @@ def load_sweep(path, *, max_tasks: int | None = None) -> Sweep:
         except ValueError as exc:
             raise UserError(f"{path}: {where}: {exc}") from None
         grid[key] = _axis(values, f"{path}: {where}")
+    if "data" in data:
+        # A run on measured records scores force errors, not the tracking a sweep's table holds.
+        raise UserError(f"{path}: data: a sweep runs the simulated testbed; a config on measured "
+                        f"records (data:) is run one at a time with 'clm-sim run'")
     try:
         refuse_unused(data)
         refuse_unused(data, grid, "sweep.grid.")
