@@ -201,8 +201,9 @@ def export(model_path, to: str, out, *, ts: float | None = None,
     options = ExportOptions.traced(model_path, prefix=options.prefix, **limits)
     out = Path(out)
     try:
+        # the model (and the .pt or .json beside it) would be deleted with an earlier export
         with atomic_folder(out, marker="export.json", what="an exported feedforward",
-                           subdirs=()) as tmp:
+                           subdirs=(), inputs=(model_path,)) as tmp:
             names = [p.name for p in writer(wf, tmp, options)]
             (tmp / "export.json").write_text(json.dumps({
                 "model": options.model_name, "kind": wf.kind, "to": to, "ts": wf.ts,

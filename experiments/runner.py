@@ -59,8 +59,10 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
         preflight(config)
     except UserError as exc:  # name the file: the config loaded fine, its values do not fit
         raise UserError(f"{config_path}: {exc}" if config_path else str(exc)) from None
+    records = (config.data.training, config.data.validation) if config.data else ()
     with atomic_folder(out, marker="config.resolved.yaml", what="clm-sim results",
-                       subdirs=("runs", "params", "figures")) as tmp:
+                       subdirs=("runs", "params", "figures"),
+                       inputs=(config_path, *records)) as tmp:
         try:
             rows = _run(config, tmp, progress, config_path)
         except UserError as exc:  # a diverged loop, a record too short: name the config

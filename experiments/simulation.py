@@ -253,7 +253,8 @@ def command(args, *, load) -> int:
     from clm_sim.outdir import check_output_folder
 
     out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
-    check_output_folder(out, marker="scores.json", what="a simulation")  # before the work
+    check_output_folder(out, marker="scores.json", what="a simulation",  # before the work
+                        inputs=(args.model, args.data))
     model = load_simulation_model(args.model)
     try:
         run = load(args.data, args)

@@ -463,3 +463,63 @@ def test_unusable_out_is_refused_before_the_work(case, command, tmp_path, capsys
     argv = (CONFIG_COMMANDS[command](str(cfg), out, str(valid_record)) if command in
             ("run", "sweep") else DATA_COMMANDS[command](str(valid_record), out))
     _check_refused(argv, tmp_path, capsys, expected, out)
+
+
+# An input inside the --out folder it would replace: the earlier result there (its marker file)
+# is deleted with everything beside it, the input included. (command, marker, argv from
+# (input folder = out, valid record, input file)).
+_LIP_MODEL = "{" + _LIP + ', "ts": 0.0001}'
+INPUT_INSIDE_OUT = {
+    "run": ("config.resolved.yaml", "my.yaml", None,
+            lambda out, rec, inp: ["run", inp, "--out", out, "--quiet"]),
+    "study": ("mechanism.json", "my.yaml", "mechanism",
+              lambda out, rec, inp: ["study", inp, "--out", out, "--quiet"]),
+    "simulate": ("scores.json", "lip.json", "lip",
+                 lambda out, rec, inp: ["simulate", inp, rec, "--out", out]),
+    "diagnose": ("diagnosis.json", "lip.json", "lip",
+                 lambda out, rec, inp: ["diagnose", rec, "--model", inp, "--out", out]),
+    "diagnose-record": ("diagnosis.json", "rec.npz", "record",
+                        lambda out, rec, inp: ["diagnose", inp, "--out", out]),
+    "export-ff": ("export.json", "mymodel.json", "lip",
+                  lambda out, rec, inp: ["export-ff", inp, "--to", "c", "--out", out]),
+}
+
+
+@pytest.mark.parametrize("case", list(INPUT_INSIDE_OUT))
+def test_an_input_inside_the_out_it_would_replace_is_refused(case, tmp_path, capsys,
+                                                             monkeypatch, valid_record):
+    from small_config import SMALL_CONFIG, tiny_mechanism
+
+    monkeypatch.chdir(tmp_path)
+    marker, name, kind, make = INPUT_INSIDE_OUT[case]
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / marker).write_text("{}")  # an earlier result of this command
+    (out / "notes.txt").write_text("mine")
+    inp = out / name
+    _write(inp, {None: SMALL_CONFIG, "mechanism": tiny_mechanism(), "lip": _LIP_MODEL,
+                 "record": valid_record.read_bytes()}[kind])
+    before = sorted(p.name for p in out.iterdir())
+    _check_refused(make(str(out), str(valid_record), str(inp)), tmp_path, capsys,
+                   f"holds the input {inp}", str(out))
+    assert sorted(p.name for p in out.iterdir()) == before  # nothing deleted
+
+
+@pytest.mark.parametrize("command", ["run", "simulate", "export-ff", "diagnose", "identify"])
+def test_an_out_that_is_a_loop_of_links_is_refused(command, tmp_path, capsys, monkeypatch,
+                                                   valid_record):
+    from small_config import SMALL_CONFIG
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "loopA").symlink_to("loopB")
+    (tmp_path / "loopB").symlink_to("loopA")
+    cfg, model = tmp_path / "small.yaml", tmp_path / "lip.json"
+    cfg.write_text(SMALL_CONFIG)
+    model.write_text(_LIP_MODEL)
+    out = str(tmp_path / "loopA")
+    argv = {"run": ["run", str(cfg), "--out", out, "--quiet"],
+            "simulate": ["simulate", str(model), str(valid_record), "--out", out],
+            "export-ff": ["export-ff", str(model), "--to", "c", "--out", out],
+            "diagnose": ["diagnose", str(valid_record), "--out", out],
+            "identify": ["identify", str(valid_record), "--out", out]}[command]
+    _check_refused(argv, tmp_path, capsys, "loop of symbolic links", out)

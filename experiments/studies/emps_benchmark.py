@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_folder
+from clm_sim.outdir import atomic_folder, check_writable
 from clm_sim.plant import THETA_NAMES, Plant
 from clm_sim.record import Run, load_record
 from clm_sim.schema import build, load_yaml
@@ -544,6 +544,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
 
     name, settings = load_benchmark(config_path)
     out = Path(out) if out else Path("results") / Path(config_path).stem
+    check_writable(out, inputs=(config_path,))  # before the work
     progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
     rows, drift = run_benchmark(settings, progress)
     command = f"clm-sim study {config_path}"
