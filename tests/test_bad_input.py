@@ -523,3 +523,25 @@ def test_an_out_that_is_a_loop_of_links_is_refused(command, tmp_path, capsys, mo
             "diagnose": ["diagnose", str(valid_record), "--out", out],
             "identify": ["identify", str(valid_record), "--out", out]}[command]
     _check_refused(argv, tmp_path, capsys, "loop of symbolic links", out)
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["sweep", "x.yaml", "--workers", "0"], "--workers"),
+    (["study", "x.yaml", "--workers", "0"], "--workers"),
+    (["export-ff", "m.json", "--to", "c", "--out", "o", "--count-m", "-1e-12"], "--count-m"),
+    (["export", "run.npz", "--to", "npz"], "--to"),
+    (["identify", "rec.npz", "--filter-order", "four"], "--filter-order"),
+    (["identify"], "data"),
+    (["frobnicate"], "frobnicate"),
+    ([], "command"),
+])
+def test_an_option_error_is_one_line(argv, option, tmp_path, capsys):
+    """argparse's errors as every other mistake: one line naming the option, no usage block."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert info.value.code == 2
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("clm-sim: error: ") and option in lines[0], lines[0]
+    assert captured.out == ""
