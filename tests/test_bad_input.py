@@ -265,6 +265,13 @@ BAD_MODELS = {
     "sample time out of range": ("lip.json", "{" + _LIP + ', "ts": 5}', "sample time"),
     "no sample time": ("lip.json", "{" + _LIP + "}", "--ts"),
     "pt without json": ("net.pt", bytes(range(256)), "needs net.json"),
+    # a feedforward with a mass <= 0 pushes the machine the wrong way on every acceleration
+    "negative mass": ("lip.json", "{" + _LIP.replace("18.8", "-18.8") + ', "ts": 0.0001}',
+                      "mass -18.8 kg"),
+    "zero mass": ("lip.json", "{" + _LIP.replace("18.8", "0") + ', "ts": 0.0001}', "mass 0 kg"),
+    "parameters disagree with coefficients": (
+        "lip.json", "{" + _LIP.replace("18.8", "99") + ', "ts": 0.0001, "coefficients": '
+        '{"mass": 18.8, "viscous": 30.0, "coulomb": 5.0, "stiffness": 0.0}}', "coefficients.mass"),
 }
 # Commands that write nothing: given bad files they must still answer in one line.
 COMPARE_CASES = {
