@@ -119,12 +119,12 @@ def check_writable(out, inputs=()) -> None:
     out = Path(out)
     try:
         resolved = _resolved(out, given)
-        check_inputs_outside(out, inputs)
         if out.exists() and not out.is_dir():
             raise UserError(f"{given}: exists and is a file, not a folder; choose another --out")
         if resolved == Path.cwd().resolve() or resolved in Path.cwd().resolve().parents:
             raise UserError(f"{given}: is the current folder or contains it; results go into a "
                             f"folder of their own; choose another --out")
+        check_inputs_outside(out, inputs)
         anchor = resolved.parent
         while not anchor.exists():
             anchor = anchor.parent
