@@ -26,6 +26,9 @@ from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 
 INIT_SAMPLES = 20  # the benchmark protocol's initialization window (EMPS, nonlinear_benchmarks)
+# The fewest samples a score is taken over: a spread and a fit over a handful of samples say
+# nothing about a model (one sample has no spread at all).
+MIN_SCORED_SAMPLES = 100
 
 
 @dataclass(frozen=True)
@@ -87,17 +90,29 @@ class Score:
     """How well a simulated signal matches a measured one over ``samples`` samples:
     ``rmse`` (in the signal's unit), ``nrmse`` (RMSE over the measured signal's standard
     deviation) and ``fit_percent`` (``100*(1 - ||y - y_sim|| / ||y - mean y||)``, MATLAB's
-    ``compare``), ``max_abs`` (largest error)."""
+    ``compare``), ``max_abs`` (largest error). ``nrmse`` and ``fit_percent`` are ``None`` where
+    the measured signal does not vary (no spread to normalise by: :attr:`undefined` says so)."""
 
     rmse: float
-    nrmse: float
-    fit_percent: float
+    nrmse: float | None
+    fit_percent: float | None
     max_abs: float
     samples: int
 
     def as_dict(self) -> dict:
         return {"rmse": self.rmse, "nrmse": self.nrmse, "fit_percent": self.fit_percent,
                 "max_abs": self.max_abs, "samples": self.samples}
+
+    @property
+    def undefined(self) -> str:
+        """Why NRMSE and fit are not defined (``""`` where they are)."""
+        return "" if self.nrmse is not None else "the measured signal does not vary"
+
+    def ratios(self) -> str:
+        """``NRMSE x, fit y %`` as printed, or why they are undefined."""
+        if self.nrmse is None:
+            return f"NRMSE and fit undefined ({self.undefined}: no spread to normalise by)"
+        return f"NRMSE {self.nrmse:.4g}, fit {self.fit_percent:.2f} %"
 
 
 def score(measured: np.ndarray, simulated: np.ndarray, start: int) -> Score:
@@ -107,6 +122,7 @@ def score(measured: np.ndarray, simulated: np.ndarray, start: int) -> Score:
     spread = float(np.std(y))
     rmse = float(np.sqrt(np.mean(e ** 2)))
     dev = float(np.linalg.norm(y - np.mean(y)))
-    return Score(rmse, rmse / spread if spread > 0 else math.inf,
-                 100.0 * (1.0 - float(np.linalg.norm(e)) / dev) if dev > 0 else -math.inf,
+    if not (spread > 0 and dev > 0):  # JSON has no infinity; a score has no meaning there
+        return Score(rmse, None, None, float(np.max(np.abs(e))), len(y))
+    return Score(rmse, rmse / spread, 100.0 * (1.0 - float(np.linalg.norm(e)) / dev),
                  float(np.max(np.abs(e))), len(y))

@@ -78,20 +78,53 @@ def write_error(path, exc: OSError) -> UserError:
     return UserError(f"{path}: cannot write{where}: {what}")
 
 
-def check_writable(out) -> None:
+def _resolved(out: Path, given) -> Path:
+    """``out`` with every link followed; a link that leads back to itself is one line."""
+    try:
+        return out.resolve()
+    except RuntimeError:  # Python < 3.13 says "Symlink loop" so; 3.13 raises OSError (ELOOP)
+        raise UserError(f"{given}: is a loop of symbolic links; choose another --out") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise UserError(f"{given}: is a loop of symbolic links; choose another --out") \
+                from None
+        raise
+
+
+def check_inputs_outside(out, inputs) -> None:
+    """Refuse an input file (a config, record or model the command reads) that lies inside the
+    output folder ``out``: the folder is replaced as a whole, so the input would be deleted.
+    ``None`` entries are skipped; an input that cannot be resolved is left to its reader."""
+    given = out
+    folder = _resolved(Path(out), given)
+    for path in inputs:
+        if path is None:
+            continue
+        try:
+            where = Path(path).resolve()
+        except (OSError, RuntimeError):
+            continue
+        if folder == where or folder in where.parents:
+            raise UserError(f"{given}: holds the input {path}, which replacing the folder would "
+                            f"delete; choose another --out or move the input out of it")
+
+
+def check_writable(out, inputs=()) -> None:
     """Refuse, before any work, an output ``out`` that cannot be written: an existing file where a
-    folder is needed, the current folder or one of its parents, a parent that is a file, or a
-    place where nothing can be created (read-only, no permission, full disk). Writes nothing
+    folder is needed, the current folder or one of its parents, a parent that is a file, a loop
+    of symbolic links, a folder holding one of the ``inputs`` (:func:`check_inputs_outside`), or
+    a place where nothing can be created (read-only, no permission, full disk). Writes nothing
     that stays: the probe is a temporary folder, removed at once."""
     given = out
     out = Path(out)
     try:
-        resolved = out.resolve()
+        resolved = _resolved(out, given)
         if out.exists() and not out.is_dir():
             raise UserError(f"{given}: exists and is a file, not a folder; choose another --out")
         if resolved == Path.cwd().resolve() or resolved in Path.cwd().resolve().parents:
             raise UserError(f"{given}: is the current folder or contains it; results go into a "
                             f"folder of their own; choose another --out")
+        check_inputs_outside(out, inputs)
         anchor = resolved.parent
         while not anchor.exists():
             anchor = anchor.parent
@@ -177,10 +210,10 @@ def _check_kind(out: Path, given, marker: str, what: str) -> None:
                         f"choose another --out")
 
 
-def check_output_folder(out, *, marker: str, what: str) -> None:
+def check_output_folder(out, *, marker: str, what: str, inputs=()) -> None:
     """What :func:`atomic_folder` will refuse, checked before the work: call it first so that a
     command never computes a result it cannot write."""
-    check_writable(out)
+    check_writable(out, inputs)
     try:
         _check_kind(Path(out), out, marker, what)
     except OSError as exc:
@@ -231,7 +264,8 @@ def output_lock(out: Path, given):
 
 
 @contextlib.contextmanager
-def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("figures",)):
+def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("figures",),
+                  inputs=()):
     """Build a result folder in a temporary sibling and move it into place on success.
 
     ``out`` may already exist only if it holds ``marker`` (an earlier result of the same kind,
@@ -241,11 +275,12 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
     the result appears, so ``out`` always holds exactly one run's files. On any exception
     (``SIGTERM`` included: the CLI turns it into one) the temporary folder is removed, so an
     interrupted or failed run leaves nothing half-written; an ``OSError`` while writing becomes
-    one ``UserError`` line naming the path.
+    one ``UserError`` line naming the path. ``inputs``: the files the command reads, refused
+    inside ``out`` (:func:`check_inputs_outside`).
     """
     given = out
-    check_writable(out)
-    out = Path(out).resolve()
+    check_writable(out, inputs)
+    out = _resolved(Path(out), given)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         lock = output_lock(out, given)

@@ -23,6 +23,7 @@ from clm_sim.errors import UserError
 from clm_sim.rigid_body import rigid_body
 
 THETA_NAMES = ("mass", "viscous", "coulomb", "stiffness")
+THETA_UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
 
 @functools.lru_cache(maxsize=64)

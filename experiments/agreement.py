@@ -38,6 +38,7 @@ from pathlib import Path
 
 from clm_sim.errors import UserError
 from clm_sim.modelfile import read_json, regular_file
+from clm_sim.plant import THETA_UNITS
 
 _SHORT = {"m": "mass", "fv": "viscous", "fc": "coulomb", "fk": "stiffness"}
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?"
@@ -73,6 +74,10 @@ class Mismatch:
     rule: str
 
     def __str__(self) -> str:
+        if self.column == "row":  # a row of one table only: no numbers to subtract
+            return f"{self.row}: row {self.rule}"
+        if not math.isfinite(self.fresh):
+            return f"{self.row} | {self.column}: expected {self.expected:.6g}, {self.rule}"
         return (f"{self.row} | {self.column}: expected {self.expected:.6g}, fresh {self.fresh:.6g} "
                 f"(|diff| {abs(self.fresh - self.expected):.3g} > {self.allowed:.3g}, {self.rule})")
 
@@ -86,6 +91,10 @@ def parse_markdown(text: str, source: str = "table") -> list[dict[str, str]]:
     except StopIteration:
         raise UserError(f"{source}: no results table (a line starting '| feedforward')") from None
     head = [c.strip() for c in lines[start].strip().strip("|").split("|")]
+    twice = next((c for i, c in enumerate(head) if c in head[:i]), None)
+    if twice is not None:  # a dict per row would keep the second and check it silently
+        raise UserError(f"{source}: the column {twice!r} is given twice; which one is the "
+                        f"table's?")
     rows = []
     for line in lines[start + 2:]:
         if not line.startswith("|"):
@@ -116,6 +125,8 @@ def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
         raise UserError(f"the expected table has no column clm-sim compares (MAE <ref> [um], "
                         f"force rms <record> <side> [N], m/fv/fc/fk, fits converged); got "
                         f"{', '.join(expected[0])}")
+    for column in expected[0]:
+        _check_unit(column)
     for i, row in enumerate(fresh["rows"]):
         if not (isinstance(row, dict) and isinstance(row.get("label"), str)
                 and isinstance(row.get("n_seeds"), int) and not isinstance(row["n_seeds"], bool)):
@@ -126,7 +137,7 @@ def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
     for exp in expected:
         label = exp.get("feedforward", "")
         if label not in rows:
-            out.append(Mismatch(label, "row", math.nan, math.nan, 0.0, "missing in the fresh run"))
+            out.append(Mismatch(label, "row", math.nan, math.nan, 0.0, "not in the fresh table"))
             continue
         row = rows[label]
         n = row["n_seeds"]
@@ -162,6 +173,34 @@ def _kind(column: str) -> str | None:
     if column == "fits converged":
         return "fits"
     return None
+
+
+def _unit(column: str) -> str | None:
+    """The unit a results table prints its column in (:func:`experiments.table.results_table`,
+    ``experiments.record_fit``): what the fresh table's numbers mean in that column."""
+    kind = _kind(column)
+    if kind == "mae":
+        return "µm"
+    if kind == "force_rms":
+        return "N"
+    if kind == "theta":
+        return THETA_UNITS[_SHORT[column.split()[0]]]
+    return None
+
+
+def _check_unit(column: str) -> None:
+    """Refuse a compared column whose header gives another unit than the fresh table's (a page
+    in nm or g would be read as µm or kg), or none."""
+    unit = _unit(column)
+    if unit is None:
+        return
+    given = re.search(r"\[([^\]]*)\]", column)
+    text = given.group(1).strip() if given else None
+    if text == unit or (unit == "µm" and text in ("um", "μm")):  # ASCII; the Greek mu
+        return
+    raise UserError(f"column {column!r}: unit {'[' + text + ']' if given else 'missing'}; "
+                    f"clm-sim compares it in [{unit}] (write the header and its numbers in "
+                    f"{unit})")
 
 
 def skipped_columns(expected: list[dict[str, str]]) -> list[str]:

@@ -127,8 +127,21 @@ def _cmd_compare(args) -> int:
     return code
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors as every other mistake of the command line: one line,
+    ``clm-sim: error: <command>: <what>`` naming the option, exit 2 (no usage block; ``--help``
+    has it). ``add_subparsers`` builds the commands' parsers with this class too."""
+
+    def error(self, message: str):
+        command = self.prog.removeprefix("clm-sim").strip()
+        if message.endswith("expected one argument"):  # argparse reads "-1e-12" as an option
+            message += " (a value that starts with '-' is written --option=VALUE)"
+        line = f"clm-sim: error: {command + ': ' if command else ''}{message}"
+        self.exit(2, (line if len(line) <= 1000 else line[:997] + "...") + "\n")
+
+
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="clm-sim", description="Simulate a coreless linear motor under PID feedback, "
         "identify its LIP and PGNN feedforwards, and diagnose a model against measured records.")
     p.add_argument("--version", action="version", version=f"clm-sim {clm_sim.__version__}")

@@ -11,6 +11,7 @@ folder appears whole or not at all and holds ``export.json`` (what was exported,
 from __future__ import annotations
 
 import json
+import math
 import pickle
 from pathlib import Path
 
@@ -75,7 +76,34 @@ def _effects(items) -> tuple:
     return tuple(build_effect(e, f"effects[{i}]") for i, e in enumerate(items))
 
 
+def _agree_with_coefficients(data: dict) -> None:
+    """A LIP file states its parameters twice (top level: what is loaded; ``coefficients``: the
+    fit's): an edit of one alone leaves a file whose export is not the identified model."""
+    coefficients = data.get("coefficients")
+    if not isinstance(coefficients, dict):
+        return
+    for key, value in coefficients.items():
+        top = data.get(key)
+        if (isinstance(value, (int, float)) and isinstance(top, (int, float))
+                and not math.isclose(value, top, rel_tol=1e-12, abs_tol=0.0)):
+            raise UserError(f"coefficients.{key}: {value!r}, but the parameter {key!r} is "
+                            f"{top!r}; which one was identified?")
+
+
+def _physical_mass(wf: WindowFeedforward) -> None:
+    """A LIP-form feedforward (no network) with a mass <= 0 pushes the machine against every
+    acceleration it is asked for: not exported. (A PGNN's physical part is only part of its
+    force, its network the rest.)"""
+    mass = wf.theta.get("mass")
+    if wf.network is None and not (isinstance(mass, (int, float)) and math.isfinite(mass)
+                                   and mass > 0):
+        raise UserError(f"mass {mass:g} kg: a feedforward needs a mass > 0 (it would push "
+                        f"against every acceleration); identify it again from a record that "
+                        f"determines it")
+
+
 def _lip(path: Path, data: dict, ts: float | None) -> WindowFeedforward:
+    _agree_with_coefficients(data)
     run_features = _run_config(path).get("features") or {}
     try:
         features = mapping(data.get("features"), "features") or run_features
@@ -123,7 +151,9 @@ def load_feedforward(path, ts: float | None = None,
     PGNN's feature filter cut where its discarded tail is below ``filter_tail`` of its sum."""
     path = Path(path)
     try:
-        return _load(path, ts, filter_tail)
+        wf = _load(path, ts, filter_tail)
+        _physical_mass(wf)
+        return wf
     except UserError as exc:  # every message names the file
         message = str(exc)
         raise UserError(message if str(path) in message else f"{path}: {message}") from None
@@ -201,8 +231,9 @@ def export(model_path, to: str, out, *, ts: float | None = None,
     options = ExportOptions.traced(model_path, prefix=options.prefix, **limits)
     out = Path(out)
     try:
+        # the model (and the .pt or .json beside it) would be deleted with an earlier export
         with atomic_folder(out, marker="export.json", what="an exported feedforward",
-                           subdirs=()) as tmp:
+                           subdirs=(), inputs=(model_path,)) as tmp:
             names = [p.name for p in writer(wf, tmp, options)]
             (tmp / "export.json").write_text(json.dumps({
                 "model": options.model_name, "kind": wf.kind, "to": to, "ts": wf.ts,

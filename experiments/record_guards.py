@@ -136,7 +136,15 @@ def fit_warnings(run, features, theta: dict, std: dict | None, option: str,
                            f"jitter, quantization, an unmodelled resonance) biases it in the "
                            f"wider band; give a lower {option}")
     lo, hi = MASS_RANGE_KG
-    if mass > 0 and not lo <= mass <= hi:
+    error = (std or {}).get("mass", 0.0)
+    if not mass > 0 and not mass < -3 * error:
+        # below zero by more than 3 standard errors is suspicions.record_warnings's line (u's
+        # sign); nearer zero, or not a number, it is this one: either way never silent
+        out.append(f"the identified mass {mass:.4g} kg (standard error {error:.2g} kg) is not "
+                   f"a physical mass: the record does not determine it (a glitch in y, too "
+                   f"little excitation) or u is not the force on y; a feedforward from it is "
+                   f"wrong")
+    elif mass > 0 and not lo <= mass <= hi:
         out.append(f"the identified mass {mass:.4g} kg is outside {lo:g}..{hi:g} kg of "
                    f"linear-motor carriages: are u in N and y in m?")
     if std is not None and mass > 0 and std.get("mass", 0.0) > UNDETERMINED * mass:

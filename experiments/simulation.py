@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from clm_sim.errors import UserError, check_ts
-from clm_sim.open_loop import INIT_SAMPLES, Score, initial_state, score, simulate_input
+from clm_sim.open_loop import (INIT_SAMPLES, MIN_SCORED_SAMPLES, Score, initial_state, score,
+                               simulate_input)
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES, Plant
 from clm_sim.record import Run
@@ -92,8 +93,8 @@ class Simulation:
         s = self.score
         return (f"{self.model} on {self.record}, open loop from the input, initial state from "
                 f"the first {self.init_samples} output samples:\n"
-                f"position: RMSE {s.rmse * 1e3:.4g} mm, NRMSE {s.nrmse:.4g}, fit "
-                f"{s.fit_percent:.2f} %, max |error| {s.max_abs * 1e3:.4g} mm over the "
+                f"position: RMSE {s.rmse * 1e3:.4g} mm, {s.ratios()}, "
+                f"max |error| {s.max_abs * 1e3:.4g} mm over the "
                 f"{s.samples} samples after the window")
 
     def to_json(self) -> dict:
@@ -113,6 +114,11 @@ def simulate_record(model: SimulationModel, run: Run, *, init_samples: int = INI
     check_ts(model.ts, run.ts, f"{source}: the model ({model.name})")
     plant = model.plant if substeps is None else dataclasses.replace(model.plant,
                                                                      substeps=substeps)
+    scored = len(run.y) - init_samples if isinstance(init_samples, int) else None
+    if scored is not None and 0 < init_samples and scored < MIN_SCORED_SAMPLES:
+        raise UserError(f"{source}: --init-samples {init_samples} leaves {max(scored, 0)} of the "
+                        f"record's {len(run.y)} samples to score; at least {MIN_SCORED_SAMPLES} "
+                        f"are needed (a smaller --init-samples or a longer record)")
     state = initial_state(run.y, run.ts, plant, init_samples)
     try:
         x, _ = simulate_input(plant, run.u, run.ts, state)
@@ -148,9 +154,8 @@ class Twin:
         p, u = self.position, self.input
         return (f"{self.model} on {self.record}, closed loop (the model's controller on the "
                 f"record's reference):\n"
-                f"position: RMSE {p.rmse * 1e6:.4g} um, NRMSE {p.nrmse:.4g}, fit "
-                f"{p.fit_percent:.2f} %\n"
-                f"input: RMSE {u.rmse:.4g} N, NRMSE {u.nrmse:.4g}, fit {u.fit_percent:.2f} %")
+                f"position: RMSE {p.rmse * 1e6:.4g} um, {p.ratios()}\n"
+                f"input: RMSE {u.rmse:.4g} N, {u.ratios()}")
 
     def to_json(self) -> dict:
         return {"model": self.model, "record": self.record, "mode": "closed loop",
@@ -253,7 +258,8 @@ def command(args, *, load) -> int:
     from clm_sim.outdir import check_output_folder
 
     out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
-    check_output_folder(out, marker="scores.json", what="a simulation")  # before the work
+    check_output_folder(out, marker="scores.json", what="a simulation",  # before the work
+                        inputs=(args.model, args.data))
     model = load_simulation_model(args.model)
     try:
         run = load(args.data, args)

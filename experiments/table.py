@@ -26,14 +26,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from clm_sim.plant import THETA_NAMES
+from clm_sim.plant import THETA_NAMES, THETA_UNITS  # noqa: F401 (THETA_UNITS: re-exported)
 from experiments.agreement import Cell
 from experiments.paired import Paired, holm, t_interval  # noqa: F401 (t_interval: re-exported)
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
-
-THETA_UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
 
 def regularizers(spec, fits: list[FitRecord]) -> dict:

@@ -273,6 +273,13 @@ BAD_MODELS = {
     "sample time out of range": ("lip.json", "{" + _LIP + ', "ts": 5}', "sample time"),
     "no sample time": ("lip.json", "{" + _LIP + "}", "--ts"),
     "pt without json": ("net.pt", bytes(range(256)), "needs net.json"),
+    # a feedforward with a mass <= 0 pushes the machine the wrong way on every acceleration
+    "negative mass": ("lip.json", "{" + _LIP.replace("18.8", "-18.8") + ', "ts": 0.0001}',
+                      "mass -18.8 kg"),
+    "zero mass": ("lip.json", "{" + _LIP.replace("18.8", "0") + ', "ts": 0.0001}', "mass 0 kg"),
+    "parameters disagree with coefficients": (
+        "lip.json", "{" + _LIP.replace("18.8", "99") + ', "ts": 0.0001, "coefficients": '
+        '{"mass": 18.8, "viscous": 30.0, "coulomb": 5.0, "stiffness": 0.0}}', "coefficients.mass"),
 }
 # Commands that write nothing: given bad files they must still answer in one line.
 COMPARE_CASES = {
@@ -526,3 +533,85 @@ def test_a_run_config_maps_columns_as_strictly_as_the_options(section, expected,
                    f"feedforwards:\n  - kind: lip\n")
     _check_refused(["run", str(cfg), "--out", str(tmp_path / "out"), "--quiet"], tmp_path,
                    capsys, expected, str(valid_record))
+
+
+# An input inside the --out folder it would replace: the earlier result there (its marker file)
+# is deleted with everything beside it, the input included. (command, marker, argv from
+# (input folder = out, valid record, input file)).
+_LIP_MODEL = "{" + _LIP + ', "ts": 0.0001}'
+INPUT_INSIDE_OUT = {
+    "run": ("config.resolved.yaml", "my.yaml", None,
+            lambda out, rec, inp: ["run", inp, "--out", out, "--quiet"]),
+    "study": ("mechanism.json", "my.yaml", "mechanism",
+              lambda out, rec, inp: ["study", inp, "--out", out, "--quiet"]),
+    "simulate": ("scores.json", "lip.json", "lip",
+                 lambda out, rec, inp: ["simulate", inp, rec, "--out", out]),
+    "diagnose": ("diagnosis.json", "lip.json", "lip",
+                 lambda out, rec, inp: ["diagnose", rec, "--model", inp, "--out", out]),
+    "diagnose-record": ("diagnosis.json", "rec.npz", "record",
+                        lambda out, rec, inp: ["diagnose", inp, "--out", out]),
+    "export-ff": ("export.json", "mymodel.json", "lip",
+                  lambda out, rec, inp: ["export-ff", inp, "--to", "c", "--out", out]),
+}
+
+
+@pytest.mark.parametrize("case", list(INPUT_INSIDE_OUT))
+def test_an_input_inside_the_out_it_would_replace_is_refused(case, tmp_path, capsys,
+                                                             monkeypatch, valid_record):
+    from small_config import SMALL_CONFIG, tiny_mechanism
+
+    monkeypatch.chdir(tmp_path)
+    marker, name, kind, make = INPUT_INSIDE_OUT[case]
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / marker).write_text("{}")  # an earlier result of this command
+    (out / "notes.txt").write_text("mine")
+    inp = out / name
+    _write(inp, {None: SMALL_CONFIG, "mechanism": tiny_mechanism(), "lip": _LIP_MODEL,
+                 "record": valid_record.read_bytes()}[kind])
+    before = sorted(p.name for p in out.iterdir())
+    _check_refused(make(str(out), str(valid_record), str(inp)), tmp_path, capsys,
+                   f"holds the input {inp}", str(out))
+    assert sorted(p.name for p in out.iterdir()) == before  # nothing deleted
+
+
+@pytest.mark.parametrize("command", ["run", "simulate", "export-ff", "diagnose", "identify"])
+def test_an_out_that_is_a_loop_of_links_is_refused(command, tmp_path, capsys, monkeypatch,
+                                                   valid_record):
+    from small_config import SMALL_CONFIG
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "loopA").symlink_to("loopB")
+    (tmp_path / "loopB").symlink_to("loopA")
+    cfg, model = tmp_path / "small.yaml", tmp_path / "lip.json"
+    cfg.write_text(SMALL_CONFIG)
+    model.write_text(_LIP_MODEL)
+    out = str(tmp_path / "loopA")
+    argv = {"run": ["run", str(cfg), "--out", out, "--quiet"],
+            "simulate": ["simulate", str(model), str(valid_record), "--out", out],
+            "export-ff": ["export-ff", str(model), "--to", "c", "--out", out],
+            "diagnose": ["diagnose", str(valid_record), "--out", out],
+            "identify": ["identify", str(valid_record), "--out", out]}[command]
+    _check_refused(argv, tmp_path, capsys, "loop of symbolic links", out)
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["sweep", "x.yaml", "--workers", "0"], "--workers"),
+    (["study", "x.yaml", "--workers", "0"], "--workers"),
+    (["export-ff", "m.json", "--to", "c", "--out", "o", "--count-m", "-1e-12"], "--count-m"),
+    (["export", "run.npz", "--to", "npz"], "--to"),
+    (["identify", "rec.npz", "--filter-order", "four"], "--filter-order"),
+    (["identify"], "data"),
+    (["frobnicate"], "frobnicate"),
+    ([], "command"),
+])
+def test_an_option_error_is_one_line(argv, option, tmp_path, capsys):
+    """argparse's errors as every other mistake: one line naming the option, no usage block."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert info.value.code == 2
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("clm-sim: error: ") and option in lines[0], lines[0]
+    assert captured.out == ""

@@ -74,3 +74,38 @@ def test_force_rms_columns_of_a_data_table_are_compared(tmp_path, capsys, fresh_
     assert got == code, (out, err)
     if code:
         assert any("force rms training inside" in line for line in out), out
+
+
+@pytest.mark.parametrize("case, head, cell, expected", [
+    ("MAE in nm", "| feedforward | seeds | MAE r1 [nm] |", "1500.0", "'MAE r1 [nm]'"),
+    ("MAE in mm", "| feedforward | seeds | MAE r1 [mm] |", "0.0015", "'MAE r1 [mm]'"),
+    ("MAE without a unit", "| feedforward | seeds | MAE r1 |", "1.500", "'MAE r1'"),
+    ("mass in g", "| feedforward | seeds | m [g] |", "18.80", "'m [g]'"),
+    ("mass in N", "| feedforward | seeds | m [N] |", "18.80", "'m [N]'"),
+])
+def test_a_column_in_another_unit_is_refused(tmp_path, capsys, case, head, cell, expected):
+    """The unit in a header is what the fresh table means by its numbers: a page in nm, mm or
+    g would otherwise be compared as µm and kg (and 'reproduce' a table 1000 times off)."""
+    page = head + "\n|---|---|---|\n| LIP | 1 | " + cell + " |\n"
+    code, out, err = _compare(tmp_path, capsys, page, [ROW])
+    assert code == 2 and out == [] and len(err) == 1, (out, err)
+    assert expected in err[0] and "unit" in err[0], err
+
+
+def test_a_column_given_twice_is_refused(tmp_path, capsys):
+    page = ("| feedforward | seeds | MAE r1 [µm] | MAE r1 [µm] |\n|---|---|---|---|\n"
+            "| LIP | 1 | 1.500 | 99 |\n")
+    code, out, err = _compare(tmp_path, capsys, page, [ROW])
+    assert code == 2 and out == [] and len(err) == 1, (out, err)
+    assert "'MAE r1 [µm]'" in err[0] and "twice" in err[0], err
+
+
+def test_a_row_in_one_table_only_is_named_without_nan(tmp_path, capsys):
+    page = HEAD + "| LIP | 1 | 1.500 | 18.80 |\n| PGNN magic | 1 | 0.1 | – |\n"
+    other = {**ROW, "label": "feedback only"}
+    code, out, err = _compare(tmp_path, capsys, page, [ROW, other])
+    assert code == 1, (out, err)
+    assert not any("nan" in line for line in out), out
+    assert any("PGNN magic" in line and "not in the fresh table" in line for line in out), out
+    assert any("feedback only" in line and "not in the expected table" in line
+               for line in out), out

@@ -187,3 +187,31 @@ def test_the_plateau_friction_follows_a_drift_within_the_record():
     run = Run(t=x.t, r=x.r, y=x.y, u=x.u)
     (row,) = cycle_friction(plateaus(run, cycle_edges(run.r, 1), min_samples=50))
     assert row.off_line_n > 0.1
+
+
+@pytest.mark.parametrize("setting, key", [("cycles: 100", "benchmark.cycles"),
+                                          ("init_samples: 30000", "benchmark.init_samples")])
+def test_a_benchmark_setting_the_record_cannot_meet_is_refused_before_the_work(
+        record, tmp_path, capsys, monkeypatch, setting, key):
+    """Checked against the records before any model is made (was: after minutes of fits), in
+    one line naming the config file and the key that is wrong."""
+    from clm_sim.record import save_npz
+    from experiments.cli import main
+    from experiments.studies import emps_benchmark
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a model was made before the settings were checked")
+
+    monkeypatch.setattr(emps_benchmark, "make_models", no_work)
+    monkeypatch.chdir(tmp_path)
+    save_npz(record, tmp_path / "rec.npz")
+    (tmp_path / "model.yaml").write_text(f"ts: {TS}\nplant: {{mass: 18.8, viscous: 172.0, "
+                                         f"coulomb: 7.21}}\n")
+    cfg = tmp_path / "b.yaml"
+    cfg.write_text("name: b\nkind: emps_benchmark\nbenchmark:\n  training: rec.npz\n"
+                   f"  test: rec.npz\n  published_model: model.yaml\n  {setting}\n")
+    code = main(["study", str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert str(cfg) in err[0] and key in err[0], err
+    assert not (tmp_path / "out").exists()

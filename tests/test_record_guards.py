@@ -76,6 +76,19 @@ def test_quantized_position_warns_with_the_bias_it_has(record, tmp_path, capsys,
     assert actual > 0.3 and abs(said - actual) < 0.1, (actual, said)
 
 
+def test_a_mass_that_is_not_physical_is_a_warning_whatever_its_error(record, tmp_path, capsys):
+    """One sample of y at 1 m (a glitch) leaves a mass near zero, below it by less than three
+    standard errors: no force-sign warning, but a feedforward from it is wrong. One line; the
+    result is still written."""
+    y = record.y.copy()
+    y[5000] = 1.0
+    code, out, err = _cli(["identify", _save(tmp_path, record, y=y), "--out", tmp_path / "o"],
+                          capsys)
+    mass = json.loads((tmp_path / "o" / "lip.json").read_text())["mass"]
+    assert code == 0 and mass <= 0.01, mass
+    assert len(err) == 1 and "not a physical mass" in err[0], err
+
+
 @pytest.mark.skipif(not (EMPS / "DATA_EMPS.mat").exists(), reason="no EMPS records beside")
 def test_emps_quantized_to_10_um_warns_and_the_original_does_not(tmp_path, capsys):
     import scipy.io

@@ -140,6 +140,40 @@ def test_simulate_refuses_in_one_line(case, record, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_scoring_window_of_a_few_samples_is_refused(record, tmp_path, capsys):
+    """--init-samples that leaves one sample to score gave NRMSE inf and fit -inf %."""
+    _csv(tmp_path / "rec.csv", record)
+    n = len(record.y)
+    code = main(["simulate", str(_model(tmp_path / "m.yaml")), str(tmp_path / "rec.csv"),
+                 "--init-samples", str(n - 1), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "--init-samples" in err[0] and f"{n} samples" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def _strict(text: str):
+    def refuse(constant):
+        raise ValueError(f"not strict JSON: {constant}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_a_stage_standing_still_scores_in_strict_json(tmp_path, capsys):
+    """A record whose position does not vary simulates exactly, but has no spread to normalise
+    by: NRMSE and fit are undefined (null, said in the printed line), never Infinity."""
+    t = np.arange(600) * TS
+    still = Run(t=t, r=np.zeros_like(t), y=np.zeros_like(t), u=np.full_like(t, 5.0))
+    _csv(tmp_path / "still.csv", still)
+    out = tmp_path / "sim"
+    assert main(["simulate", str(_model(tmp_path / "m.yaml")), str(tmp_path / "still.csv"),
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "inf" not in printed and "does not vary" in printed, printed
+    position = _strict((out / "scores.json").read_text())["position"]
+    assert position["rmse"] == 0.0 and position["nrmse"] is None
+    assert position["fit_percent"] is None
+
+
 # ----------------------------------------------------------------------------- EMPS
 
 @pytest.mark.skipif(not EMPS.is_dir(), reason="EMPS records not in ../shared")

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_folder
+from clm_sim.outdir import atomic_folder, check_writable
 from clm_sim.plant import THETA_NAMES, Plant
 from clm_sim.record import Run, load_record
 from clm_sim.schema import build, load_yaml
@@ -190,6 +190,10 @@ def split(run: Run, fraction: float, init_samples: int) -> tuple[Run, Run]:
     """``run`` cut in time: the first ``fraction`` of its samples (estimation) and the rest
     (held out, simulated from its own first ``init_samples`` outputs like a test record)."""
     cut = int(round(fraction * len(run)))
+    if 2 * init_samples + 2 > len(run):  # no fraction can give both parts their window
+        raise UserError(f"benchmark.init_samples: {init_samples} initialization samples leave "
+                        f"no split of the {len(run)}-sample training record in which each "
+                        f"part has more; at most {(len(run) - 2) // 2}")
     if not (init_samples < cut < len(run) - init_samples):
         raise UserError(f"benchmark.estimation_fraction: {fraction} leaves {cut} and "
                         f"{len(run) - cut} samples; each part needs more than the "
@@ -301,6 +305,8 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
     estimation, held_out = split(train, settings.estimation_fraction, n0)
     # Backward: the same split read from the other end (estimation on the last part).
     held_back, estimation_back = split(train, 1 - settings.estimation_fraction, n0)
+    # Rule C's cycles are found in the record before any model is made (minutes of fits).
+    edges = cycle_edges(train.r, settings.cycles) if settings.cycles else ()
 
     def sim(plant, run, source=None):
         return simulate_record(SimulationModel(plant, None, "model", train.ts), run,
@@ -323,7 +329,6 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
     back = make_models(estimation_back, published, settings, second_start=False,
                        skip={m.name for m in full if not m.measured}, progress=progress)
     folds = []  # rule C: (the left-out cycle, the candidates made without it)
-    edges = cycle_edges(train.r, settings.cycles) if settings.cycles else ()
     for k in range(settings.cycles):
         rest, cycle = left_out(train, edges, k)
         progress(f"every cycle but cycle {k + 1} of {settings.cycles} ({len(rest)} samples), "
@@ -544,8 +549,14 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
 
     name, settings = load_benchmark(config_path)
     out = Path(out) if out else Path("results") / Path(config_path).stem
+    check_writable(out, inputs=(config_path,))  # before the work
     progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
-    rows, drift = run_benchmark(settings, progress)
+    try:
+        rows, drift = run_benchmark(settings, progress)
+    except UserError as exc:  # a setting the records cannot meet: name the config too
+        text = str(exc)
+        raise UserError(text if text.startswith(str(config_path)) else
+                        f"{config_path}: {text}") from None
     command = f"clm-sim study {config_path}"
     table = to_markdown(name, rows, settings, command, drift)
     with atomic_folder(out, marker="benchmark.json", what="a benchmark") as tmp:

@@ -23,7 +23,7 @@ import yaml
 
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
-from clm_sim.outdir import atomic_folder
+from clm_sim.outdir import atomic_folder, check_writable
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
@@ -101,6 +101,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
     before any work; prints the report."""
     config, study = load_study(config_path)
     out = Path(out) if out else Path("results") / Path(config_path).stem
+    check_writable(out, inputs=(config_path,))  # before the work
     run_study(config, study, out, quiet=quiet)
     print((out / "report.md").read_text(), end="")
     return 0

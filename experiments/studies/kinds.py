@@ -112,6 +112,7 @@ def run_checked(config_path, out, load, run, *, workers: int | None = None,
     gives ``(config, settings)``, the checks ``clm-sim run`` makes before any computation (errors
     name the file), ``run(config, settings, out, workers=, quiet=)`` into ``out`` (default
     ``results/<config stem>``); prints the report and returns the run's result."""
+    from clm_sim.outdir import check_writable
     from experiments.runner import preflight
 
     config, settings = load(config_path)
@@ -120,6 +121,7 @@ def run_checked(config_path, out, load, run, *, workers: int | None = None,
     except UserError as exc:
         raise UserError(f"{config_path}: {exc}") from None
     out = Path(out) if out else Path("results") / Path(config_path).stem
+    check_writable(out, inputs=(config_path,))  # before the work
     result = run(config, settings, out, workers=workers, quiet=quiet)
     print((out / "report.md").read_text(), end="")
     return result
