@@ -84,8 +84,9 @@ def _agree_with_coefficients(data: dict) -> None:
         return
     for key, value in coefficients.items():
         top = data.get(key)
-        if (isinstance(value, (int, float)) and isinstance(top, (int, float))
-                and not math.isclose(value, top, rel_tol=1e-12, abs_tol=0.0)):
+        numbers = all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                      for x in (value, top))  # a true/false is the type check's to refuse
+        if numbers and not math.isclose(value, top, rel_tol=1e-12, abs_tol=0.0):
             raise UserError(f"coefficients.{key}: {value!r}, but the parameter {key!r} is "
                             f"{top!r}; which one was identified?")
 

@@ -74,7 +74,7 @@ class MechanismSettings:
     >= 1; hidden: n_l; lam: the lambda compared with 0 (> 0); inside / outside: the training
     reference and the one that leaves its range; pgnn: the fit settings shared by both rows
     (default: the paper's cost); bootstrap: resamples of the two-level bootstrap; confidence:
-    level of the intervals; grid_points: positions of the static force curve; lam0_diag
+    level of the intervals; grid_points: positions of the static force curve; zero_lam_diag
     (``lambda0_diag:`` in a config): per-parameter pulls toward theta_LIP given to the lambda = 0
     row only, e.g. ``{stiffness: 0.01}``: that row then holds those parameters and leaves the rest
     free, a control that acts on one parameter's drift and keeps the plant (None: none).
@@ -92,9 +92,9 @@ class MechanismSettings:
     bootstrap: int = 4000
     confidence: float = 0.95
     grid_points: int = 69
-    lam0_diag: dict[str, float] | None = None
+    zero_lam_diag: dict[str, float] | None = None
     aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"],  # config -> field
-                                         "lambda0_diag": "lam0_diag"}
+                                         "lambda0_diag": "zero_lam_diag"}
 
     def __post_init__(self):
         if not self.cases:
@@ -108,9 +108,9 @@ class MechanismSettings:
             raise UserError(f"lambda: expected a number > 0, got {self.lam!r}")
         if not 0.5 <= self.confidence < 1:
             raise UserError(f"confidence: expected a level in [0.5, 1), got {self.confidence!r}")
-        if not PerParameter().accepts(self.lam0_diag) or self.lam0_diag == {}:
+        if not PerParameter().accepts(self.zero_lam_diag) or self.zero_lam_diag == {}:
             raise UserError(f"lambda0_diag: expected {PerParameter().describe()}, got "
-                            f"{self.lam0_diag!r}")
+                            f"{self.zero_lam_diag!r}")
         if self.outside == self.inside:
             raise UserError(f"outside: {self.inside!r} is the inside reference; an outside "
                             f"reference leaves the training range")
@@ -203,8 +203,8 @@ def _cell(cell: Cell) -> dict:
     for draw in range(st.draws) if cell.draws is None else cell.draws:
         for lam in (0.0, st.lam):
             fit = {k: v for k, v in settings.items() if k != "lam"}
-            if lam == 0.0 and st.lam0_diag:
-                fit["lam_diag"] = dict(st.lam0_diag)
+            if lam == 0.0 and st.zero_lam_diag:
+                fit["lam_diag"] = dict(st.zero_lam_diag)
             model = tb.fit_pgnn(run, hidden=st.hidden, lam=lam, seed=draw, lip=lip, **fit)
             phys, net = static_parts(model, y)
             coef = linear_part(model, data.phi)
@@ -421,7 +421,7 @@ def _p(p) -> str:
 def zero_label(settings: dict) -> str:
     """How the report names the lambda = 0 row: "λ = 0", or with the parameters that
     ``lambda0_diag`` holds, "λ = 0, stiffness held"."""
-    diag = settings.get("lambda0_diag", settings.get("lam0_diag")) or {}
+    diag = settings.get("lambda0_diag", settings.get("zero_lam_diag")) or {}
     held = [k for k, v in diag.items() if v > 0]
     return "λ = 0" + (f", {' and '.join(held)} held" if held else "")
 
@@ -431,7 +431,7 @@ def report(s: dict) -> str:
     st = dict(s["settings"])
     st["lam"] = st.get("lam", st.get("lambda"))  # to_plain writes the config's name
     z = zero_label(st)
-    diag = st.get("lambda0_diag", st.get("lam0_diag"))
+    diag = st.get("lambda0_diag", st.get("zero_lam_diag"))
     out = [f"# Finding (iii) over training records, and its mechanism", "",
            f"Per case: {st['records']} training records (dither seeds) x {st['draws']} network "
            f"draws, n_l = {st['hidden']}; {z} and λ = {st['lam']:g} on one cost "
