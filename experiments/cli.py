@@ -189,7 +189,8 @@ def parser() -> argparse.ArgumentParser:
                           "record, name the cause, extend the model, measure the gain")
     arguments.record(diag)
     diag.add_argument("--model", help="model YAML (plant:, optional controller:), a lip.json "
-                      "from identify or run, or an experiment config (default: the default CLM)")
+                      "from identify or run, a diagnosis.json (its extended model) or an "
+                      "experiment config (default: the default CLM)")
     diag.add_argument("--validate", help="validation record (default: the final 25 %% of DATA)")
     diag.add_argument("--out", help="output folder (default results/diagnosis_<data name>)")
     arguments.cutoff(diag, "(default: the diagnosis's narrower band, "

@@ -165,6 +165,9 @@ def _load(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward
         raise UserError(f"{path}: no such model file")
     if path.suffix == ".pt":
         return _pgnn(path, ts, filter_tail)
+    if path.suffix.lower() in (".csv", ".npz", ".mat"):  # clm_sim.record's formats
+        raise UserError(f"{path}: a record ({path.suffix.lower()}), not a clm-sim feedforward "
+                        f"({KNOWN})")
     if path.suffix != ".json":
         raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
     data = _read_json(path)

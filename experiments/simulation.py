@@ -22,46 +22,18 @@ from clm_sim.errors import UserError, check_ts
 from clm_sim.open_loop import (INIT_SAMPLES, MIN_SCORED_SAMPLES, Score, initial_state, score,
                                simulate_input)
 from clm_sim.outdir import atomic_folder
-from clm_sim.plant import THETA_NAMES, Plant
+from clm_sim.plant import Plant
 from clm_sim.record import Run
-from clm_sim.schema import build, load_yaml
 from experiments.diagnosis.model import SimulationModel, load_model
 
 COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")
 
 
 def load_simulation_model(path) -> SimulationModel:
-    """The model of a file: a ``diagnosis.json`` (its extended plant, at its record's sample
-    time), else what :func:`experiments.diagnosis.model.load_model` reads (a model YAML, a LIP
-    parameter file, an experiment config). A PGNN file is refused: it has no open-loop form."""
-    path = Path(path)
-    if path.suffix.lower() == ".pt":
-        raise UserError(f"{path}: a PGNN feedforward is an inverse model (force from motion); "
-                        f"it has no open-loop form to simulate")
-    data = load_yaml(path)
-    if not isinstance(data, dict):
-        raise UserError(f"{path}: not a model file (expected a mapping)")
-    if data.get("kind") == "pgnn":
-        raise UserError(f"{path}: a PGNN feedforward is an inverse model (force from motion); "
-                        f"it has no open-loop form to simulate")
-    if "extended_model" in data:
-        return _diagnosis_model(path, data)
+    """The model of a file, as :func:`experiments.diagnosis.model.load_model` reads it (a model
+    YAML, a LIP parameter file, a ``diagnosis.json``'s extended plant at its record's sample
+    time, an experiment config); a PGNN is refused: it has no open-loop form."""
     return load_model(path)
-
-
-def _diagnosis_model(path: Path, data: dict) -> SimulationModel:
-    ext = data["extended_model"]
-    if not isinstance(ext, dict) or any(k not in ext for k in THETA_NAMES):
-        raise UserError(f"{path}: extended_model needs {', '.join(THETA_NAMES)}")
-    try:
-        plant = build(Plant, {**{k: ext[k] for k in THETA_NAMES},
-                              "effects": ext.get("effects") or []}, "extended_model")
-    except UserError as exc:
-        raise UserError(f"{path}: {exc}") from None
-    rec = data.get("record") or {}
-    ts = rec.get("sample_time_s")
-    return SimulationModel(plant, None, f"extended model of {path}",
-                           float(ts) if isinstance(ts, (int, float)) else None)
 
 
 @dataclass(frozen=True)
