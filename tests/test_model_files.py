@@ -6,6 +6,7 @@ before a network is allocated."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -149,6 +150,17 @@ PGNN_CASES = {
     "NaN weight": (None, _state(lambda s: s[next(k for k in s if "weight" in k)].fill_(
         float("nan"))), "holds NaN or inf"),
     "input_std 0": (None, _state(lambda s: s["mlp.input_std"].zero_()), "must be positive"),
+    # the json's widths and the .pt's tensors disagree: which tensor, expected and found
+    "hidden wider than the .pt": (
+        lambda d: {**d, "settings": {**d["settings"], "hidden": [3]}}, None,
+        "net.pt: mlp.hidden.0.weight has shape (2, 4); net.json's hidden [3] expects (3, 4)"),
+    "a layer more than the .pt": (
+        lambda d: {**d, "settings": {**d["settings"], "hidden": [2, 2]}}, None,
+        "net.pt: no tensor mlp.hidden.1.weight; net.json's hidden [2, 2] expects one of shape "
+        "(2, 2)"),
+    "a tensor the json has no place for": (
+        None, _state(lambda s: s.__setitem__("mlp.hidden.9.weight", torch.zeros(2, 2))),
+        "net.pt: mlp.hidden.9.weight is no tensor of net.json's hidden [2]"),
 }
 
 
@@ -156,7 +168,7 @@ PGNN_CASES = {
 def test_a_bad_pgnn_file_is_refused_on_load_and_by_export(saved, tmp_path, capsys, case):
     edit, pt, expected = PGNN_CASES[case]
     stem = _pgnn_copy(saved, tmp_path, edit, pt)
-    with pytest.raises(UserError, match=expected.replace(".", r"\.")):
+    with pytest.raises(UserError, match=re.escape(expected)):
         PGNNFeedforward.load(stem)
     code, lines = _cli(["export-ff", stem.with_suffix(".pt"), "--to", "c", "--ts", TS,
                         "--out", tmp_path / "out"], capsys)
