@@ -14,6 +14,7 @@ Measured records need only ``t, r, y, u``; columns can be renamed and scaled on 
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,15 +169,18 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             if not header:
                 raise UserError(f"{path}: empty file, expected a CSV header such as 't,r,y,u'")
             names = [h.strip().lstrip("#").strip().strip('"').strip() for h in header.split(",")]
+            if len(names) == 1 and ";" in header:
+                raise UserError(_semicolons(path, header))
             if any(n and n[0] in "0123456789-+." for n in names):
                 raise UserError(f"{path}: the first line must be a header of column names "
                                 f"(t, r, y, u), got numbers")
-            data = _read_csv_rows(path)
+            data = _read_csv_rows(path, names)
             if data.size == 0:
                 raise UserError(f"{path}: no data rows after the header")
             if data.shape[1] != len(names):
                 raise UserError(f"{path}: header has {len(names)} columns, rows have "
-                                f"{data.shape[1]}")
+                                f"{data.shape[1]}" + (DECIMAL_COMMAS if _commas(path, names, data)
+                                                      else ""))
             return {n: data[:, i] for i, n in enumerate(names)}, {}
         if suffix == ".npz":
             # Our own handle, closed even when a truncated archive makes np.load raise.
@@ -207,11 +211,13 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     raise UserError(f"{path}: unknown record format {suffix!r}; expected .csv, .npz or .mat")
 
 
-def _read_csv_rows(path: Path) -> np.ndarray:
+def _read_csv_rows(path: Path, names: list[str]) -> np.ndarray:
     """The numbers below a CSV's header, (rows, columns) float64. ``np.loadtxt`` reads in C
     into the final array (about the array's size in memory; ``genfromtxt`` needs ~9 times the
-    file); only where it fails (an empty cell, read as NaN and refused by name later) does the
-    slower ``genfromtxt`` read it, for files up to ``GENFROMTXT_BYTES``."""
+    file); where it fails, the first cell that is no number (or the first row of another
+    width) is refused by line and column, and only a file whose failure is an empty cell (read
+    as NaN and refused by name later) is read by the slower ``genfromtxt``, up to
+    ``GENFROMTXT_BYTES``."""
     try:
         with open(path, encoding="utf-8-sig") as fh:
             fh.readline()
@@ -219,12 +225,71 @@ def _read_csv_rows(path: Path) -> np.ndarray:
                 warnings.simplefilter("ignore", UserWarning)
                 return np.loadtxt(fh, delimiter=",", dtype=float, ndmin=2)
     except ValueError:
+        _refuse_cell(path, names)
         if path.stat().st_size > GENFROMTXT_BYTES:
             raise
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         return np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
                              invalid_raise=True, ndmin=2, encoding="utf-8")
+
+
+DECIMAL_COMMAS = (" (decimal commas? a record's CSV has ',' between columns and '.' as the "
+                  "decimal mark, e.g. 0.0001,0,0,8.96)")
+_DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+(?:[eE][-+]?\d+)?")
+
+
+def _line(path: Path, number: int) -> str:
+    """Line ``number`` (1 = the header) of a text file, '' past its end."""
+    with open(path, encoding="utf-8-sig") as fh:
+        for k, line in enumerate(fh, 1):
+            if k == number:
+                return line.rstrip("\r\n")
+    return ""
+
+
+def _commas(path: Path, names: list[str], data: np.ndarray) -> bool:
+    """Whether rows wider than the header may be numbers with decimal commas: no '.' in the
+    first row, and a digit, comma, digit in it."""
+    line = _line(path, 2)
+    return data.shape[1] > len(names) and "." not in line and bool(_DECIMAL_COMMA.search(line))
+
+
+def _semicolons(path: Path, header: str) -> str:
+    """The refusal of a CSV whose header separates its names by ';' (a spreadsheet's CSV in a
+    locale with decimal commas), naming the first decimal comma of its first row if any."""
+    comma = _DECIMAL_COMMA.search(_line(path, 2))
+    found = f" and line 2 has decimal commas ({comma.group()!r})" if comma else ""
+    return (f"{path}: cannot read as CSV: line 1 separates its names by ';' ({header[:60]!r})"
+            f"{found}; a record's CSV has ',' between columns and '.' as the decimal mark, "
+            f"e.g. 0.0001,0,0,8.96")
+
+
+def _refuse_cell(path: Path, names: list[str]) -> None:
+    """Refuse the first data cell of a CSV that is not a number (an empty one is let through:
+    it is NaN, refused by column later), or the first row with another number of cells than
+    the header, by line (1 = the header) and column."""
+    with open(path, encoding="utf-8-sig") as fh:
+        fh.readline()
+        for k, line in enumerate(fh, 2):
+            line = line.split("#", 1)[0].strip()
+            if not line:
+                continue
+            cells = line.split(",")
+            for j, cell in enumerate(cells):
+                try:
+                    float(cell) if cell.strip() else None
+                except ValueError:
+                    name = f" ({names[j]})" if j < len(names) and names[j] else ""
+                    hint = DECIMAL_COMMAS if ";" in cell else ""
+                    raise UserError(f"{path}: cannot read as CSV: line {k}, column {j + 1}"
+                                    f"{name}: {cell.strip()[:40]!r} is not a number{hint}") \
+                        from None
+            if len(cells) != len(names):
+                hint = DECIMAL_COMMAS if (len(cells) > len(names) and "." not in line
+                                          and _DECIMAL_COMMA.search(line)) else ""
+                raise UserError(f"{path}: cannot read as CSV: line {k} has {len(cells)} cells, "
+                                f"the header {len(names)}{hint}")
 
 
 def _first_line(exc: BaseException) -> str:

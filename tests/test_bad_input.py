@@ -124,6 +124,15 @@ BAD_DATA = {
     "force of 1e308": ("rec.csv", _with(u=_set(7, 1e308)), "must be a force in N"),
     "missing file": ("rec.csv", None, "not found"),
     "npy renamed npz": ("rec.npz", _npy_bytes(_signals()["u"]), "not an .npz archive"),
+    # a European spreadsheet's CSV: the separator and the decimal mark are named
+    "decimal commas and semicolons": ("rec.csv", _csv(_signals()).replace(",", ";")
+                                      .replace(".", ","), ["line 1", "';'",
+                                                           "line 2 has decimal commas ('9,9999999999999995e-08')"]),
+    "semicolons": ("rec.csv", _csv(_signals()).replace(",", ";"), ["line 1", "';'"]),
+    "a cell that is no number": ("rec.csv", _csv(_signals()).replace("\n", "\n0.0005,0,0,1.5x\n", 1),
+                                 ["line 2, column 4 (u)", "'1.5x' is not a number"]),
+    "decimal commas and commas": ("rec.csv", "t,r,y,u\n" + "0,0,0,2,5\n" * N,
+                                  ["header has 4 columns, rows have 5", "decimal commas"]),
 }
 
 # Config parts that every config command reads (diagnose reads only plant and controller).
