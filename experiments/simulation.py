@@ -5,7 +5,8 @@
     (clm_sim.open_loop) -> simulated beside measured (CSV, NPZ), figure, scores
 
 The model owns its sample time (a lip.json's ``ts``, a model file's ``ts`` or its controller's,
-a diagnosis's record): a record sampled at another rate is refused. Models without a forward
+a diagnosis's record): a record sampled at another rate is refused; a file that gives none (an
+experiment config without ``ts:``) runs at the record's, as in ``diagnose``. Models without a forward
 form (a PGNN: an inverse model whose network has no plant) are refused by name.
 """
 
@@ -29,11 +30,12 @@ from experiments.diagnosis.model import SimulationModel, load_model
 COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")
 
 
-def load_simulation_model(path) -> SimulationModel:
+def load_simulation_model(path, ts: float | None = None) -> SimulationModel:
     """The model of a file, as :func:`experiments.diagnosis.model.load_model` reads it (a model
     YAML, a LIP parameter file, a ``diagnosis.json``'s extended plant at its record's sample
-    time, an experiment config); a PGNN is refused: it has no open-loop form."""
-    return load_model(path)
+    time, an experiment config); a PGNN is refused: it has no open-loop form. ``ts`` (s): the
+    rate for a file that gives none (``clm-sim simulate`` passes the record's, as diagnose)."""
+    return load_model(path, ts)
 
 
 @dataclass(frozen=True)
@@ -232,7 +234,6 @@ def command(args, *, load) -> int:
     out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
     check_output_folder(out, marker="scores.json", what="a simulation",  # before the work
                         inputs=(args.model, args.data))
-    model = load_simulation_model(args.model)
     try:
         run = load(args.data, args)
     except UserError as exc:
@@ -241,6 +242,9 @@ def command(args, *, load) -> int:
                             f"({str(exc).split(': ', 1)[1]}); name it with --columns u=NAME") \
                 from None
         raise
+    # A file without a rate (a shipped experiment config, whose PID is designed at the rate it
+    # runs at) runs at the record's, as in diagnose; a file with one refuses another.
+    model = load_simulation_model(args.model, run.ts)
     if args.closed_loop:
         if model.controller is None:
             raise UserError(f"{args.model}: no controller in the model file; --closed-loop needs "
