@@ -181,7 +181,8 @@ def parser() -> argparse.ArgumentParser:
     sweep.add_argument("--workers", type=arguments.workers, help="parallel tasks (default: all cores)")
     sweep.add_argument("--backend", choices=("local", "dask"), default="local",
                        help="local processes, or Dask (pip install 'clm-sim[cluster]')")
-    sweep.add_argument("--scheduler", help="Dask scheduler address (default: a LocalCluster)")
+    sweep.add_argument("--scheduler", help="Dask scheduler address, with --backend dask "
+                       "(default: a LocalCluster)")
     sweep.add_argument("--retry-failed", action="store_true",
                        help="recompute tasks stored as failed")
     sweep.set_defaults(func=_cmd_sweep)

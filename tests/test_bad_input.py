@@ -608,6 +608,9 @@ def test_an_out_that_is_a_loop_of_links_is_refused(command, tmp_path, capsys, mo
     (["sweep", "x.yaml", "--workers", "0"], "--workers"),
     (["study", "x.yaml", "--workers", "0"], "--workers"),
     (["export-ff", "m.json", "--to", "c", "--out", "o", "--count-m", "-1e-12"], "--count-m"),
+    # a NaN --ts was ignored where the model has its own (NaN contradicts nothing)
+    (["export-ff", "m.json", "--to", "c", "--out", "o", "--ts", "nan"], "--ts"),
+    (["export-ff", "m.json", "--to", "c", "--out", "o", "--ts", "inf"], "--ts"),
     (["export", "run.npz", "--to", "npz"], "--to"),
     (["identify", "rec.npz", "--filter-order", "four"], "--filter-order"),
     (["identify"], "data"),
@@ -624,3 +627,14 @@ def test_an_option_error_is_one_line(argv, option, tmp_path, capsys):
     assert len(lines) == 1, lines
     assert lines[0].startswith("clm-sim: error: ") and option in lines[0], lines[0]
     assert captured.out == ""
+
+
+def test_a_scheduler_without_the_dask_backend_is_refused(tmp_path, capsys):
+    """--scheduler is a Dask address: with the local backend it was silently ignored."""
+    from small_config import SMALL_CONFIG
+
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL_CONFIG)
+    _check_refused(["sweep", str(cfg), "--scheduler", "tcp://127.0.0.1:8786", "--out",
+                    str(tmp_path / "out"), "--quiet"], tmp_path, capsys,
+                   ["--scheduler tcp://127.0.0.1:8786", "--backend dask"], "--scheduler")
