@@ -29,6 +29,8 @@ REQUIRED = ("t", "r", "y", "u")
 MIN_SAMPLES = 200
 MAX_TS = 0.01  # s: a servo record sampled slower than 100 Hz has its time stamps in ms
 MIN_TS = 1e-7  # s: no servo samples faster than 10 MHz; such time stamps are in other units
+UNIFORM_RTOL = 1e-3  # a step may differ from the mean step by this share, beyond the rounding
+COARSE_STAMPS = 0.01  # stamps whose type's spacing exceeds this share of a step cannot show it
 MAX_POSITION_M = 10.0  # m: longer than any linear-motor stroke; larger values are in mm or counts
 MAX_FORCE_N = 1e6  # N: 50 times the peak force of the largest linear motors; larger is not N
 MAX_RECORD_BYTES = 2 ** 30  # a record file (or an .npz's arrays) larger is refused before reading
@@ -292,6 +294,18 @@ def _refuse_cell(path: Path, names: list[str]) -> None:
                                 f"the header {len(names)}{hint}")
 
 
+def _coarse_stamps(t: np.ndarray, ts: float, resolution: float, dtype) -> str:
+    """Why time stamps ``t`` (s, step ``ts``) cannot resolve their step better than
+    ``resolution`` (s), and the cure: float64, and stamps from the first sample."""
+    top = float(np.max(np.abs(t)))
+    cures = [] if dtype == np.float64 or dtype.kind not in "fc" else ["as float64"]
+    if abs(float(t[0])) > float(t[-1] - t[0]):  # an offset (Unix-epoch seconds) costs digits
+        cures.append("from the first sample (t - t[0])")
+    return (f"its {dtype} time stamps reach {top:.3g} s, where they are {resolution:.2g} s apart "
+            f"({100 * resolution / ts:.2g} % of the {ts:.3g} s step)"
+            + (f"; store t {' or '.join(cures)}" if cures else ""))
+
+
 def _first_line(exc: BaseException) -> str:
     text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     return text if len(text) <= 200 else text[:200] + "..."
@@ -378,8 +392,11 @@ def load_record(path, columns: dict[str, str] | None = None,
     min_samples : shortest record accepted.
 
     Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
-    inf, time stamps that are not strictly increasing and uniform, or a record that is too short,
-    and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
+    inf, time stamps that are not strictly increasing and uniform (every step within
+    ``UNIFORM_RTOL`` of the mean step plus the spacing of the stamps' stored type at their
+    largest value: float32 or Unix-epoch stamps are rounded, not uneven; stamps whose spacing
+    exceeds ``COARSE_STAMPS`` of a step cannot show it and are refused, naming type and offset),
+    or a record that is too short, and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
     ``MIN_TS``, a position beyond ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``;
     a variable that is not numbers (text, MATLAB cells, structs, sparse matrices, complex values
     with an imaginary part) is refused by name; so is a ``columns`` or ``scale`` name that is no
@@ -450,14 +467,31 @@ def load_record(path, columns: dict[str, str] | None = None,
                             f"(first at row {int(np.argmax(bad))})")
     if n < min_samples:
         raise UserError(f"{path}: record too short: {n} samples, need at least {min_samples}")
-    dt = np.diff(out["t"])
+    t = out["t"]
+    stamps = raw[columns.get("t", "t")]
+    dt = np.diff(t)
+    # How far apart the stamps can be at their largest value (s): their stored type's spacing
+    # there, as scaled (0 for integers, which are exact).
+    top = np.max(np.abs(stamps))
+    resolution = float(np.spacing(top)) * float(np.max(np.abs(t))) / float(top) \
+        if stamps.dtype.kind in "fc" and top > 0 else 0.0
+    ts = (t[-1] - t[0]) / (n - 1)
+    coarse = _coarse_stamps(t, ts, resolution, stamps.dtype)
     if not (dt > 0).all():
         raise UserError(f"{path}: column {columns.get('t', 't')!r} must be strictly increasing "
-                        f"(row {int(np.argmax(dt <= 0)) + 1} is not)")
-    ts = (out["t"][-1] - out["t"][0]) / (n - 1)
-    if np.max(np.abs(dt - ts)) > 1e-3 * ts:
+                        f"(row {int(np.argmax(dt <= 0)) + 1} is not"
+                        + (f"; {coarse}" if resolution > UNIFORM_RTOL * ts else "") + ")")
+    # Uniform to UNIFORM_RTOL of the step, beyond the rounding of the stamps' type: each stamp is
+    # within half its spacing of the true time, so a step within one spacing.
+    jitter = float(np.max(np.abs(dt - ts)))
+    if jitter > UNIFORM_RTOL * ts + resolution:
+        blame = resolution > UNIFORM_RTOL * ts and jitter <= UNIFORM_RTOL * ts + 4 * resolution
         raise UserError(f"{path}: column {columns.get('t', 't')!r} is not uniformly sampled "
-                        f"(steps from {dt.min():.6g} to {dt.max():.6g} s)")
+                        f"(steps from {dt.min():.6g} to {dt.max():.6g} s"
+                        + (f"; {coarse}" if blame else "") + ")")
+    if resolution > COARSE_STAMPS * ts:
+        raise UserError(f"{path}: column {columns.get('t', 't')!r} cannot show a uniform "
+                        f"sampling: {coarse}")
     # Orders of magnitude that SI data cannot have: catch ms time stamps and mm positions.
     if ts > MAX_TS:
         raise UserError(f"{path}: column {columns.get('t', 't')!r} steps by {ts:.6g} s, slower "

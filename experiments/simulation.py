@@ -73,7 +73,7 @@ class Simulation:
 
     def to_json(self) -> dict:
         return {"model": self.model, "record": self.record, "mode": "open loop",
-                "init_samples": self.init_samples, "sample_time_s": float(self.t[1] - self.t[0]),
+                "init_samples": self.init_samples, "sample_time_s": float((self.t[-1] - self.t[0]) / (len(self.t) - 1)),
                 "position": {**self.score.as_dict(), "unit": "m"},
                 "plant": {**self.plant.theta(),
                           "effects": [e.as_config() for e in self.plant.effects],
