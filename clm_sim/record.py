@@ -14,6 +14,7 @@ Measured records need only ``t, r, y, u``; columns can be renamed and scaled on 
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,8 @@ REQUIRED = ("t", "r", "y", "u")
 MIN_SAMPLES = 200
 MAX_TS = 0.01  # s: a servo record sampled slower than 100 Hz has its time stamps in ms
 MIN_TS = 1e-7  # s: no servo samples faster than 10 MHz; such time stamps are in other units
+UNIFORM_RTOL = 1e-3  # a step may differ from the mean step by this share, beyond the rounding
+COARSE_STAMPS = 0.01  # stamps whose type's spacing exceeds this share of a step cannot show it
 MAX_POSITION_M = 10.0  # m: longer than any linear-motor stroke; larger values are in mm or counts
 MAX_FORCE_N = 1e6  # N: 50 times the peak force of the largest linear motors; larger is not N
 MAX_RECORD_BYTES = 2 ** 30  # a record file (or an .npz's arrays) larger is refused before reading
@@ -168,15 +171,18 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             if not header:
                 raise UserError(f"{path}: empty file, expected a CSV header such as 't,r,y,u'")
             names = [h.strip().lstrip("#").strip().strip('"').strip() for h in header.split(",")]
+            if len(names) == 1 and ";" in header:
+                raise UserError(_semicolons(path, header))
             if any(n and n[0] in "0123456789-+." for n in names):
                 raise UserError(f"{path}: the first line must be a header of column names "
                                 f"(t, r, y, u), got numbers")
-            data = _read_csv_rows(path)
+            data = _read_csv_rows(path, names)
             if data.size == 0:
                 raise UserError(f"{path}: no data rows after the header")
             if data.shape[1] != len(names):
                 raise UserError(f"{path}: header has {len(names)} columns, rows have "
-                                f"{data.shape[1]}")
+                                f"{data.shape[1]}" + (DECIMAL_COMMAS if _commas(path, names, data)
+                                                      else ""))
             return {n: data[:, i] for i, n in enumerate(names)}, {}
         if suffix == ".npz":
             # Our own handle, closed even when a truncated archive makes np.load raise.
@@ -207,11 +213,13 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     raise UserError(f"{path}: unknown record format {suffix!r}; expected .csv, .npz or .mat")
 
 
-def _read_csv_rows(path: Path) -> np.ndarray:
+def _read_csv_rows(path: Path, names: list[str]) -> np.ndarray:
     """The numbers below a CSV's header, (rows, columns) float64. ``np.loadtxt`` reads in C
     into the final array (about the array's size in memory; ``genfromtxt`` needs ~9 times the
-    file); only where it fails (an empty cell, read as NaN and refused by name later) does the
-    slower ``genfromtxt`` read it, for files up to ``GENFROMTXT_BYTES``."""
+    file); where it fails, the first cell that is no number (or the first row of another
+    width) is refused by line and column, and only a file whose failure is an empty cell (read
+    as NaN and refused by name later) is read by the slower ``genfromtxt``, up to
+    ``GENFROMTXT_BYTES``."""
     try:
         with open(path, encoding="utf-8-sig") as fh:
             fh.readline()
@@ -219,12 +227,83 @@ def _read_csv_rows(path: Path) -> np.ndarray:
                 warnings.simplefilter("ignore", UserWarning)
                 return np.loadtxt(fh, delimiter=",", dtype=float, ndmin=2)
     except ValueError:
+        _refuse_cell(path, names)
         if path.stat().st_size > GENFROMTXT_BYTES:
             raise
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         return np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float,
                              invalid_raise=True, ndmin=2, encoding="utf-8")
+
+
+DECIMAL_COMMAS = (" (decimal commas? a record's CSV has ',' between columns and '.' as the "
+                  "decimal mark, e.g. 0.0001,0,0,8.96)")
+_DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+(?:[eE][-+]?\d+)?")
+
+
+def _line(path: Path, number: int) -> str:
+    """Line ``number`` (1 = the header) of a text file, '' past its end."""
+    with open(path, encoding="utf-8-sig") as fh:
+        for k, line in enumerate(fh, 1):
+            if k == number:
+                return line.rstrip("\r\n")
+    return ""
+
+
+def _commas(path: Path, names: list[str], data: np.ndarray) -> bool:
+    """Whether rows wider than the header may be numbers with decimal commas: no '.' in the
+    first row, and a digit, comma, digit in it."""
+    line = _line(path, 2)
+    return data.shape[1] > len(names) and "." not in line and bool(_DECIMAL_COMMA.search(line))
+
+
+def _semicolons(path: Path, header: str) -> str:
+    """The refusal of a CSV whose header separates its names by ';' (a spreadsheet's CSV in a
+    locale with decimal commas), naming the first decimal comma of its first row if any."""
+    comma = _DECIMAL_COMMA.search(_line(path, 2))
+    found = f" and line 2 has decimal commas ({comma.group()!r})" if comma else ""
+    return (f"{path}: cannot read as CSV: line 1 separates its names by ';' ({header[:60]!r})"
+            f"{found}; a record's CSV has ',' between columns and '.' as the decimal mark, "
+            f"e.g. 0.0001,0,0,8.96")
+
+
+def _refuse_cell(path: Path, names: list[str]) -> None:
+    """Refuse the first data cell of a CSV that is not a number (an empty one is let through:
+    it is NaN, refused by column later), or the first row with another number of cells than
+    the header, by line (1 = the header) and column."""
+    with open(path, encoding="utf-8-sig") as fh:
+        fh.readline()
+        for k, line in enumerate(fh, 2):
+            line = line.split("#", 1)[0].strip()
+            if not line:
+                continue
+            cells = line.split(",")
+            for j, cell in enumerate(cells):
+                try:
+                    float(cell) if cell.strip() else None
+                except ValueError:
+                    name = f" ({names[j]})" if j < len(names) and names[j] else ""
+                    hint = DECIMAL_COMMAS if ";" in cell else ""
+                    raise UserError(f"{path}: cannot read as CSV: line {k}, column {j + 1}"
+                                    f"{name}: {cell.strip()[:40]!r} is not a number{hint}") \
+                        from None
+            if len(cells) != len(names):
+                hint = DECIMAL_COMMAS if (len(cells) > len(names) and "." not in line
+                                          and _DECIMAL_COMMA.search(line)) else ""
+                raise UserError(f"{path}: cannot read as CSV: line {k} has {len(cells)} cells, "
+                                f"the header {len(names)}{hint}")
+
+
+def _coarse_stamps(t: np.ndarray, ts: float, resolution: float, dtype) -> str:
+    """Why time stamps ``t`` (s, step ``ts``) cannot resolve their step better than
+    ``resolution`` (s), and the cure: float64, and stamps from the first sample."""
+    top = float(np.max(np.abs(t)))
+    cures = [] if dtype == np.float64 or dtype.kind not in "fc" else ["as float64"]
+    if abs(float(t[0])) > float(t[-1] - t[0]):  # an offset (Unix-epoch seconds) costs digits
+        cures.append("from the first sample (t - t[0])")
+    return (f"its {dtype} time stamps reach {top:.3g} s, where they are {resolution:.2g} s apart "
+            f"({100 * resolution / ts:.2g} % of the {ts:.3g} s step)"
+            + (f"; store t {' or '.join(cures)}" if cures else ""))
 
 
 def _first_line(exc: BaseException) -> str:
@@ -313,8 +392,11 @@ def load_record(path, columns: dict[str, str] | None = None,
     min_samples : shortest record accepted.
 
     Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
-    inf, time stamps that are not strictly increasing and uniform, or a record that is too short,
-    and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
+    inf, time stamps that are not strictly increasing and uniform (every step within
+    ``UNIFORM_RTOL`` of the mean step plus the spacing of the stamps' stored type at their
+    largest value: float32 or Unix-epoch stamps are rounded, not uneven; stamps whose spacing
+    exceeds ``COARSE_STAMPS`` of a step cannot show it and are refused, naming type and offset),
+    or a record that is too short, and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
     ``MIN_TS``, a position beyond ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``;
     a variable that is not numbers (text, MATLAB cells, structs, sparse matrices, complex values
     with an imaginary part) is refused by name; so is a ``columns`` or ``scale`` name that is no
@@ -385,14 +467,31 @@ def load_record(path, columns: dict[str, str] | None = None,
                             f"(first at row {int(np.argmax(bad))})")
     if n < min_samples:
         raise UserError(f"{path}: record too short: {n} samples, need at least {min_samples}")
-    dt = np.diff(out["t"])
+    t = out["t"]
+    stamps = raw[columns.get("t", "t")]
+    dt = np.diff(t)
+    # How far apart the stamps can be at their largest value (s): their stored type's spacing
+    # there, as scaled (0 for integers, which are exact).
+    top = np.max(np.abs(stamps))
+    resolution = float(np.spacing(top)) * float(np.max(np.abs(t))) / float(top) \
+        if stamps.dtype.kind in "fc" and top > 0 else 0.0
+    ts = (t[-1] - t[0]) / (n - 1)
+    coarse = _coarse_stamps(t, ts, resolution, stamps.dtype)
     if not (dt > 0).all():
         raise UserError(f"{path}: column {columns.get('t', 't')!r} must be strictly increasing "
-                        f"(row {int(np.argmax(dt <= 0)) + 1} is not)")
-    ts = (out["t"][-1] - out["t"][0]) / (n - 1)
-    if np.max(np.abs(dt - ts)) > 1e-3 * ts:
+                        f"(row {int(np.argmax(dt <= 0)) + 1} is not"
+                        + (f"; {coarse}" if resolution > UNIFORM_RTOL * ts else "") + ")")
+    # Uniform to UNIFORM_RTOL of the step, beyond the rounding of the stamps' type: each stamp is
+    # within half its spacing of the true time, so a step within one spacing.
+    jitter = float(np.max(np.abs(dt - ts)))
+    if jitter > UNIFORM_RTOL * ts + resolution:
+        blame = resolution > UNIFORM_RTOL * ts and jitter <= UNIFORM_RTOL * ts + 4 * resolution
         raise UserError(f"{path}: column {columns.get('t', 't')!r} is not uniformly sampled "
-                        f"(steps from {dt.min():.6g} to {dt.max():.6g} s)")
+                        f"(steps from {dt.min():.6g} to {dt.max():.6g} s"
+                        + (f"; {coarse}" if blame else "") + ")")
+    if resolution > COARSE_STAMPS * ts:
+        raise UserError(f"{path}: column {columns.get('t', 't')!r} cannot show a uniform "
+                        f"sampling: {coarse}")
     # Orders of magnitude that SI data cannot have: catch ms time stamps and mm positions.
     if ts > MAX_TS:
         raise UserError(f"{path}: column {columns.get('t', 't')!r} steps by {ts:.6g} s, slower "

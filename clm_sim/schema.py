@@ -65,6 +65,8 @@ def load_yaml(path) -> dict:
     """Read a YAML mapping safely (no Python tags); one-line errors for a missing file, bad
     syntax or a duplicated key."""
     path = Path(path)
+    if path.suffix.lower() in (".csv", ".npz", ".mat"):  # clm_sim.record's formats
+        raise UserError(f"{path}: a record ({path.suffix.lower()}), not a YAML file")
     try:
         if path.exists() and not path.is_dir() and not path.is_file():
             raise UserError(f"{path}: not a regular file (a device or a pipe is no config)")

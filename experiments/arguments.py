@@ -13,6 +13,18 @@ def workers(text: str) -> int:
     return int(text)
 
 
+def seconds(text: str) -> float:
+    """A sample time (s): a finite number > 0 (``nan`` would contradict no model's own)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a sample time in s (a finite number > 0), "
+                                         f"got {text!r}")
+    return value
+
+
 def config(p: argparse.ArgumentParser, config: str, out: str = "") -> None:
     """The config file, ``--out`` (default ``results/<config name>``) and ``--quiet``."""
     p.add_argument("config", help=config)
@@ -85,7 +97,7 @@ def export_ff(p: argparse.ArgumentParser) -> None:
                    "identify's lip.json, or a diagnosis.json")
     p.add_argument("--to", required=True, help="c or onnx")
     p.add_argument("--out", required=True, help="output folder (replaced as a whole)")
-    p.add_argument("--ts", type=float, help="sample time (s), where the file carries none")
+    p.add_argument("--ts", type=seconds, help="sample time (s), where the file carries none")
     p.add_argument("--filter-tail", type=float, metavar="TOL",
                    help="PGNN: cut the feature filter where its discarded tail is below TOL of "
                         "its sum (default 1e-15, exact to rounding; larger: a shorter window "

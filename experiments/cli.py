@@ -181,7 +181,8 @@ def parser() -> argparse.ArgumentParser:
     sweep.add_argument("--workers", type=arguments.workers, help="parallel tasks (default: all cores)")
     sweep.add_argument("--backend", choices=("local", "dask"), default="local",
                        help="local processes, or Dask (pip install 'clm-sim[cluster]')")
-    sweep.add_argument("--scheduler", help="Dask scheduler address (default: a LocalCluster)")
+    sweep.add_argument("--scheduler", help="Dask scheduler address, with --backend dask "
+                       "(default: a LocalCluster)")
     sweep.add_argument("--retry-failed", action="store_true",
                        help="recompute tasks stored as failed")
     sweep.set_defaults(func=_cmd_sweep)
@@ -189,7 +190,8 @@ def parser() -> argparse.ArgumentParser:
                           "record, name the cause, extend the model, measure the gain")
     arguments.record(diag)
     diag.add_argument("--model", help="model YAML (plant:, optional controller:), a lip.json "
-                      "from identify or run, or an experiment config (default: the default CLM)")
+                      "from identify or run, a diagnosis.json (its extended model) or an "
+                      "experiment config (default: the default CLM)")
     diag.add_argument("--validate", help="validation record (default: the final 25 %% of DATA)")
     diag.add_argument("--out", help="output folder (default results/diagnosis_<data name>)")
     arguments.cutoff(diag, "(default: the diagnosis's narrower band, "

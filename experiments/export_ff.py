@@ -49,6 +49,8 @@ def _run_config(path: Path) -> dict:
 
 
 def _sample_time(path: Path, stored, option: float | None) -> float:
+    if option is not None and not (math.isfinite(option) and option > 0):  # NaN contradicts none
+        raise UserError(f"ts: expected a sample time in s (a finite number > 0), got {option!r}")
     ts = stored if stored is not None else _run_config(path).get("ts")
     if ts is not None and option is not None and abs(float(ts) - option) > 1e-12 * float(ts):
         raise UserError(f"{path}: the model was identified at ts = {float(ts):g} s; "
@@ -165,6 +167,9 @@ def _load(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward
         raise UserError(f"{path}: no such model file")
     if path.suffix == ".pt":
         return _pgnn(path, ts, filter_tail)
+    if path.suffix.lower() in (".csv", ".npz", ".mat"):  # clm_sim.record's formats
+        raise UserError(f"{path}: a record ({path.suffix.lower()}), not a clm-sim feedforward "
+                        f"({KNOWN})")
     if path.suffix != ".json":
         raise UserError(f"{path}: not a clm-sim feedforward ({KNOWN})")
     data = _read_json(path)

@@ -5,7 +5,8 @@
     (clm_sim.open_loop) -> simulated beside measured (CSV, NPZ), figure, scores
 
 The model owns its sample time (a lip.json's ``ts``, a model file's ``ts`` or its controller's,
-a diagnosis's record): a record sampled at another rate is refused. Models without a forward
+a diagnosis's record): a record sampled at another rate is refused; a file that gives none (an
+experiment config without ``ts:``) runs at the record's, as in ``diagnose``. Models without a forward
 form (a PGNN: an inverse model whose network has no plant) are refused by name.
 """
 
@@ -22,46 +23,19 @@ from clm_sim.errors import UserError, check_ts
 from clm_sim.open_loop import (INIT_SAMPLES, MIN_SCORED_SAMPLES, Score, initial_state, score,
                                simulate_input)
 from clm_sim.outdir import atomic_folder
-from clm_sim.plant import THETA_NAMES, Plant
+from clm_sim.plant import Plant
 from clm_sim.record import Run
-from clm_sim.schema import build, load_yaml
 from experiments.diagnosis.model import SimulationModel, load_model
 
 COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")
 
 
-def load_simulation_model(path) -> SimulationModel:
-    """The model of a file: a ``diagnosis.json`` (its extended plant, at its record's sample
-    time), else what :func:`experiments.diagnosis.model.load_model` reads (a model YAML, a LIP
-    parameter file, an experiment config). A PGNN file is refused: it has no open-loop form."""
-    path = Path(path)
-    if path.suffix.lower() == ".pt":
-        raise UserError(f"{path}: a PGNN feedforward is an inverse model (force from motion); "
-                        f"it has no open-loop form to simulate")
-    data = load_yaml(path)
-    if not isinstance(data, dict):
-        raise UserError(f"{path}: not a model file (expected a mapping)")
-    if data.get("kind") == "pgnn":
-        raise UserError(f"{path}: a PGNN feedforward is an inverse model (force from motion); "
-                        f"it has no open-loop form to simulate")
-    if "extended_model" in data:
-        return _diagnosis_model(path, data)
-    return load_model(path)
-
-
-def _diagnosis_model(path: Path, data: dict) -> SimulationModel:
-    ext = data["extended_model"]
-    if not isinstance(ext, dict) or any(k not in ext for k in THETA_NAMES):
-        raise UserError(f"{path}: extended_model needs {', '.join(THETA_NAMES)}")
-    try:
-        plant = build(Plant, {**{k: ext[k] for k in THETA_NAMES},
-                              "effects": ext.get("effects") or []}, "extended_model")
-    except UserError as exc:
-        raise UserError(f"{path}: {exc}") from None
-    rec = data.get("record") or {}
-    ts = rec.get("sample_time_s")
-    return SimulationModel(plant, None, f"extended model of {path}",
-                           float(ts) if isinstance(ts, (int, float)) else None)
+def load_simulation_model(path, ts: float | None = None) -> SimulationModel:
+    """The model of a file, as :func:`experiments.diagnosis.model.load_model` reads it (a model
+    YAML, a LIP parameter file, a ``diagnosis.json``'s extended plant at its record's sample
+    time, an experiment config); a PGNN is refused: it has no open-loop form. ``ts`` (s): the
+    rate for a file that gives none (``clm-sim simulate`` passes the record's, as diagnose)."""
+    return load_model(path, ts)
 
 
 @dataclass(frozen=True)
@@ -99,7 +73,7 @@ class Simulation:
 
     def to_json(self) -> dict:
         return {"model": self.model, "record": self.record, "mode": "open loop",
-                "init_samples": self.init_samples, "sample_time_s": float(self.t[1] - self.t[0]),
+                "init_samples": self.init_samples, "sample_time_s": float((self.t[-1] - self.t[0]) / (len(self.t) - 1)),
                 "position": {**self.score.as_dict(), "unit": "m"},
                 "plant": {**self.plant.theta(),
                           "effects": [e.as_config() for e in self.plant.effects],
@@ -260,7 +234,6 @@ def command(args, *, load) -> int:
     out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
     check_output_folder(out, marker="scores.json", what="a simulation",  # before the work
                         inputs=(args.model, args.data))
-    model = load_simulation_model(args.model)
     try:
         run = load(args.data, args)
     except UserError as exc:
@@ -269,6 +242,9 @@ def command(args, *, load) -> int:
                             f"({str(exc).split(': ', 1)[1]}); name it with --columns u=NAME") \
                 from None
         raise
+    # A file without a rate (a shipped experiment config, whose PID is designed at the rate it
+    # runs at) runs at the record's, as in diagnose; a file with one refuses another.
+    model = load_simulation_model(args.model, run.ts)
     if args.closed_loop:
         if model.controller is None:
             raise UserError(f"{args.model}: no controller in the model file; --closed-loop needs "

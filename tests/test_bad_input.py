@@ -124,6 +124,15 @@ BAD_DATA = {
     "force of 1e308": ("rec.csv", _with(u=_set(7, 1e308)), "must be a force in N"),
     "missing file": ("rec.csv", None, "not found"),
     "npy renamed npz": ("rec.npz", _npy_bytes(_signals()["u"]), "not an .npz archive"),
+    # a European spreadsheet's CSV: the separator and the decimal mark are named
+    "decimal commas and semicolons": ("rec.csv", _csv(_signals()).replace(",", ";")
+                                      .replace(".", ","), ["line 1", "';'",
+                                                           "line 2 has decimal commas ('9,9999999999999995e-08')"]),
+    "semicolons": ("rec.csv", _csv(_signals()).replace(",", ";"), ["line 1", "';'"]),
+    "a cell that is no number": ("rec.csv", _csv(_signals()).replace("\n", "\n0.0005,0,0,1.5x\n", 1),
+                                 ["line 2, column 4 (u)", "'1.5x' is not a number"]),
+    "decimal commas and commas": ("rec.csv", "t,r,y,u\n" + "0,0,0,2,5\n" * N,
+                                  ["header has 4 columns, rows have 5", "decimal commas"]),
 }
 
 # Config parts that every config command reads (diagnose reads only plant and controller).
@@ -599,6 +608,9 @@ def test_an_out_that_is_a_loop_of_links_is_refused(command, tmp_path, capsys, mo
     (["sweep", "x.yaml", "--workers", "0"], "--workers"),
     (["study", "x.yaml", "--workers", "0"], "--workers"),
     (["export-ff", "m.json", "--to", "c", "--out", "o", "--count-m", "-1e-12"], "--count-m"),
+    # a NaN --ts was ignored where the model has its own (NaN contradicts nothing)
+    (["export-ff", "m.json", "--to", "c", "--out", "o", "--ts", "nan"], "--ts"),
+    (["export-ff", "m.json", "--to", "c", "--out", "o", "--ts", "inf"], "--ts"),
     (["export", "run.npz", "--to", "npz"], "--to"),
     (["identify", "rec.npz", "--filter-order", "four"], "--filter-order"),
     (["identify"], "data"),
@@ -615,3 +627,63 @@ def test_an_option_error_is_one_line(argv, option, tmp_path, capsys):
     assert len(lines) == 1, lines
     assert lines[0].startswith("clm-sim: error: ") and option in lines[0], lines[0]
     assert captured.out == ""
+
+
+def test_a_scheduler_without_the_dask_backend_is_refused(tmp_path, capsys):
+    """--scheduler is a Dask address: with the local backend it was silently ignored."""
+    from small_config import SMALL_CONFIG
+
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL_CONFIG)
+    _check_refused(["sweep", str(cfg), "--scheduler", "tcp://127.0.0.1:8786", "--out",
+                    str(tmp_path / "out"), "--quiet"], tmp_path, capsys,
+                   ["--scheduler tcp://127.0.0.1:8786", "--backend dask"], "--scheduler")
+
+
+def _stamped(t: np.ndarray, path: Path) -> Path:
+    """A record at ``t`` (any dtype, any offset): a 5 Hz sine with its force."""
+    s = np.arange(len(t)) * TS
+    r = 0.01 * np.sin(2 * np.pi * 5 * s)
+    path.write_bytes(_npz_bytes(t=t, r=r, y=r + 1e-7, u=10 * np.cos(2 * np.pi * 5 * s)))
+    return path
+
+
+# Time stamps that are uniform but rounded by their type: float32 (a logger's single precision,
+# 2 s at 10 kHz: its spacing there is 0.24 % of the step) and Unix-epoch seconds in float64
+# (spacing 2.4e-7 s at 1.7e9 s: 0.24 % of 0.1 ms); a step judged against 0.1 % alone refused them.
+ROUNDED_STAMPS = {
+    "float32": lambda t: t.astype(np.float32),
+    "Unix epoch": lambda t: 1.7e9 + t,
+    "Unix epoch, 20 s": lambda t: 1.7e9 + 10 * t,  # 1 ms: half a second's resolution anyway
+}
+
+
+@pytest.mark.parametrize("case", list(ROUNDED_STAMPS))
+def test_time_stamps_rounded_by_their_type_are_read(case, tmp_path):
+    from clm_sim.record import load_record
+
+    step = 10 * TS if case.endswith("20 s") else TS
+    run = load_record(_stamped(ROUNDED_STAMPS[case](np.arange(20000) * TS), tmp_path / "r.npz"))
+    assert run.ts == pytest.approx(step, rel=1e-6)  # the mean step: the rounding averages out
+
+
+# Time stamps that cannot show a uniform sampling, or are not uniform: refused, the dtype or the
+# offset named where it is the cause.
+COARSE_STAMPS = {
+    "float32 at 40 s": (lambda t: (40.0 + t).astype(np.float32),  # 3.8e-6 s apart there
+                        ["float32", "3.8 % of the", "float64"]),
+    "epoch at 100 kHz": (lambda t: 1.7e9 + 0.1 * t, ["1.7e+09 s", "t - t[0]"]),
+    "float16": (lambda t: t.astype(np.float16), ["strictly increasing", "float16"]),
+    "float32 with a jump": (lambda t: np.where(t > 1.0, t + TS, t).astype(np.float32),
+                            ["not uniformly sampled"]),
+}
+
+
+@pytest.mark.parametrize("case", list(COARSE_STAMPS))
+def test_time_stamps_too_coarse_or_uneven_are_refused(case, tmp_path, capsys):
+    edit, expected = COARSE_STAMPS[case]
+    data = _stamped(edit(np.arange(20000) * TS), tmp_path / "r.npz")
+    _check_refused(["identify", str(data), "--out", str(tmp_path / "out")], tmp_path, capsys,
+                   expected, str(data))
+    if case == "float32 with a jump":  # a real jump is not blamed on the type
+        assert "float32" not in capsys.readouterr().err

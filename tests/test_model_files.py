@@ -6,6 +6,7 @@ before a network is allocated."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -149,6 +150,17 @@ PGNN_CASES = {
     "NaN weight": (None, _state(lambda s: s[next(k for k in s if "weight" in k)].fill_(
         float("nan"))), "holds NaN or inf"),
     "input_std 0": (None, _state(lambda s: s["mlp.input_std"].zero_()), "must be positive"),
+    # the json's widths and the .pt's tensors disagree: which tensor, expected and found
+    "hidden wider than the .pt": (
+        lambda d: {**d, "settings": {**d["settings"], "hidden": [3]}}, None,
+        "net.pt: mlp.hidden.0.weight has shape (2, 4); net.json's hidden [3] expects (3, 4)"),
+    "a layer more than the .pt": (
+        lambda d: {**d, "settings": {**d["settings"], "hidden": [2, 2]}}, None,
+        "net.pt: no tensor mlp.hidden.1.weight; net.json's hidden [2, 2] expects one of shape "
+        "(2, 2)"),
+    "a tensor the json has no place for": (
+        None, _state(lambda s: s.__setitem__("mlp.hidden.9.weight", torch.zeros(2, 2))),
+        "net.pt: mlp.hidden.9.weight is no tensor of net.json's hidden [2]"),
 }
 
 
@@ -156,7 +168,7 @@ PGNN_CASES = {
 def test_a_bad_pgnn_file_is_refused_on_load_and_by_export(saved, tmp_path, capsys, case):
     edit, pt, expected = PGNN_CASES[case]
     stem = _pgnn_copy(saved, tmp_path, edit, pt)
-    with pytest.raises(UserError, match=expected.replace(".", r"\.")):
+    with pytest.raises(UserError, match=re.escape(expected)):
         PGNNFeedforward.load(stem)
     code, lines = _cli(["export-ff", stem.with_suffix(".pt"), "--to", "c", "--ts", TS,
                         "--out", tmp_path / "out"], capsys)
@@ -210,4 +222,76 @@ def test_a_bad_controller_is_named_by_its_key(case, tmp_path, capsys):
     save_npz(Run(t=t, r=y, y=y + 1e-7, u=10 * np.cos(2 * np.pi * 5 * t)), record)
     code, lines = _cli(["diagnose", record, "--model", path, "--out", tmp_path / "out"], capsys)
     assert code == 2 and lines == [f"clm-sim: error: {message}"], lines
+    assert not (tmp_path / "out").exists()
+
+
+def _moving_record(path):
+    """A record that passes diagnose's guards (motion both ways, friction, a spring)."""
+    t = np.arange(20000) * 1e-3
+    y = 0.1 * np.sin(2 * t)
+    save_npz(Run(t=t, r=y, y=y, u=-4 * y + 0.2 * np.cos(2 * t) + np.sign(np.cos(2 * t))), path)
+    return path
+
+
+def _diagnosis_json(path, ts=1e-3):
+    """A diagnosis.json as ``clm-sim diagnose`` writes it (the keys that matter here)."""
+    path.write_text(json.dumps({
+        "findings": [], "unexplained": [], "gain": {},
+        "model": {"name": "LIP from x.npz", "mass": 1.0, "viscous": 0.0, "coulomb": 0.0,
+                  "stiffness": 0.0, "effects": []},
+        "extended_model": {"mass": 0.05, "viscous": 0.2, "coulomb": 1.0, "stiffness": 4.0,
+                           "effects": []},
+        "record": {"source": "x.npz", "samples": 20000, "sample_time_s": ts}}))
+    return path
+
+
+def test_diagnose_takes_a_diagnosis_json_as_its_model(tmp_path, capsys):
+    """As simulate does: a diagnosis.json as --model is its extended model (diagnosing again
+    against it), not a model YAML with an unknown key 'findings'."""
+    from experiments.diagnosis.model import load_model
+
+    model = _diagnosis_json(tmp_path / "diagnosis.json")
+    loaded = load_model(model)
+    assert loaded.plant.mass == 0.05 and loaded.controller is None and loaded.ts == 1e-3
+    assert str(model) in loaded.name
+    record = _moving_record(tmp_path / "x.npz")
+    code, _ = _cli(["diagnose", record, "--model", model, "--out", tmp_path / "out"], capsys)
+    assert code == 0
+    written = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert written["model"]["mass"] == 0.05 and str(model) in written["model"]["name"]
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".mat", ".csv"])
+@pytest.mark.parametrize("command", ["simulate", "diagnose --model", "export-ff", "run"])
+def test_a_record_given_as_the_model_is_named_a_record(tmp_path, capsys, suffix, command):
+    """Not 'cannot read (UnicodeDecodeError)': the file is a record, and a model (a config) is
+    JSON or YAML."""
+    from clm_sim.record import convert
+
+    record = _moving_record(tmp_path / "x.npz")
+    model = record if suffix == ".npz" else convert(record, suffix[1:],
+                                                    tmp_path / f"m{suffix}")[0]
+    argv = {"simulate": ["simulate", model, record],
+            "diagnose --model": ["diagnose", record, "--model", model],
+            "export-ff": ["export-ff", model, "--to", "c"],
+            "run": ["run", model]}[command] + ["--out", tmp_path / "out"]
+    code, lines = _cli(argv, capsys)
+    assert code == 2 and len(lines) == 1, lines
+    expected = {"export-ff": "not a clm-sim feedforward", "run": "not a YAML file"}.get(
+        command, "not a model file")
+    assert lines[0].startswith(f"clm-sim: error: {model}: a record ({suffix}), {expected}"), \
+        lines[0]
+    if command in ("simulate", "diagnose --model"):
+        assert ".json" in lines[0] and ".yaml" in lines[0], lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("ts", [float("nan"), float("inf"), -1e-4])
+def test_export_refuses_a_sample_time_that_is_no_number_even_beside_the_files(saved, tmp_path,
+                                                                              ts):
+    """A NaN ts contradicts no stored one: it was ignored silently where the model has its own."""
+    from experiments.export_ff import export
+
+    with pytest.raises(UserError, match="ts: expected a sample time"):
+        export(saved / "lip.json", "c", tmp_path / "out", ts=ts)
     assert not (tmp_path / "out").exists()

@@ -446,3 +446,24 @@ def test_the_twin_reads_the_known_input_scaled_like_the_input(record, tmp_path):
     plain = twin_record_of(BenchmarkSettings(training="a", test="b", columns={"u": "v"},
                                              scale={"u": 2.0}), path)
     assert plain.u_ff is None or not np.any(np.nan_to_num(plain.u_ff))
+
+
+@pytest.mark.parametrize("mode", ["open loop", "closed loop"])
+def test_a_shipped_config_without_ts_runs_at_the_records_rate(record, tmp_path, capsys, mode):
+    """emulated_machine.yaml gives no 'ts:' (its PID is designed at the rate it runs at): as
+    diagnose does, simulate takes the record's sample time (1 ms here) for it, not "add 'ts:'".
+    Open loop the controller is not used at all; closed loop its PID is designed at 1 ms."""
+    config = Path(__file__).resolve().parents[1] / "experiments" / "configs" / \
+        "emulated_machine.yaml"
+    _csv(tmp_path / "rec.csv", record)
+    out = tmp_path / "o"
+    argv = ["simulate", str(config), str(tmp_path / "rec.csv"), "--out", str(out)]
+    code = main(argv + (["--closed-loop"] if mode == "closed loop" else []))
+    assert code == 0, capsys.readouterr().err
+    scores = json.loads((out / "scores.json").read_text())
+    assert scores["model"] == "emulated_machine"
+    if mode == "open loop":
+        assert scores["plant"]["mass"] == 18.8  # the config's plant:, not its truth:
+    else:
+        from experiments.simulation import load_simulation_model
+        assert load_simulation_model(config, TS).controller.ts == TS

@@ -538,6 +538,8 @@ class PGNNFeedforward:
             state = torch.load(pt, weights_only=True)
             model = cls(**settings, features=features)
             net = PGNNNetwork(hidden=model.widths(), activation=model.settings.activation)
+            _check_shapes(state, net, pt, f"{path.with_suffix('.json').name}'s hidden "
+                                          f"{list(model.widths())}")
             net.load_state_dict(state)
         except UserError:
             raise
@@ -560,6 +562,26 @@ class PGNNFeedforward:
         model.n_samples_ = info.get("n_samples")
         model.ts_ = ts  # older files: unknown
         return model
+
+
+def _check_shapes(state, net: torch.nn.Module, pt: Path, widths: str) -> None:
+    """Refuse in one line a ``.pt`` whose tensors are not those of the network its ``.json``
+    describes (``widths``): the first tensor missing, of another shape, or extra, by name,
+    expected against found (``load_state_dict`` says it in a paragraph)."""
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor)
+                                              for v in state.values()):
+        return  # load_state_dict says what it is
+    for name, tensor in net.state_dict().items():
+        shape = tuple(tensor.shape)
+        if name not in state:
+            raise UserError(f"{pt}: no tensor {name}; {widths} expects one of shape "
+                            f"{shape}")
+        if tuple(state[name].shape) != shape:
+            raise UserError(f"{pt}: {name} has shape {tuple(state[name].shape)}; "
+                            f"{widths} expects {shape}")
+    extra = [k for k in state if k not in net.state_dict()]
+    if extra:
+        raise UserError(f"{pt}: {extra[0]} is no tensor of {widths}")
 
 
 def _generator(rng) -> np.random.Generator:

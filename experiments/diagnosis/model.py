@@ -35,6 +35,9 @@ from controllers.pid import PIDDesign, design_pid
 from experiments.config import ExperimentConfig, in_file
 
 MODEL_KEYS = {"name", "description", "ts", "plant", "controller"}
+RECORD_SUFFIXES = (".csv", ".npz", ".mat")  # clm_sim.record's formats
+NO_FORWARD_FORM = ("a PGNN feedforward is an inverse model (force from motion); it has no "
+                   "open-loop form to simulate or diagnose")
 DEFAULT_EFFECTS_NAME = "default_clm"
 
 
@@ -150,15 +153,27 @@ def _explicit_effects(data: dict, path) -> dict:
 def load_model(path, ts: float | None = None) -> SimulationModel:
     """The simulation's model from a file: a model file (``plant:``, optional ``controller:``
     and ``ts``), a LIP parameter file (``kind: lip``, as ``clm-sim identify``, ``clm-sim run``
-    and ``LIPFeedforward.save`` write it; controller unknown) or an experiment config (its plant
-    and PID). The controller runs at the file's sample time; ``ts`` (s) is the one to use when
+    and ``LIPFeedforward.save`` write it; controller unknown), a ``diagnosis.json`` (its
+    extended model, at its record's sample time) or an experiment config (its plant and PID).
+    A record or a PGNN (no forward form) is refused by name. The controller runs at the file's sample time; ``ts`` (s) is the one to use when
     the file gives none (older files; ``clm-sim diagnose`` passes the record's). Errors name
     the file and the key."""
     path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in RECORD_SUFFIXES:  # not 'cannot read (UnicodeDecodeError)'
+        raise UserError(f"{path}: a record ({suffix}), not a model file; a model is a .json "
+                        f"(identify's lip.json, a diagnosis.json) or a .yaml (plant:, optional "
+                        f"controller:)")
+    if suffix == ".pt":
+        raise UserError(f"{path}: {NO_FORWARD_FORM}")
     # JSON strictly (YAML 1.1 would read 1e-05 as text); a model YAML as a config
-    data = read_json(path, "model file") if path.suffix.lower() == ".json" else load_yaml(path)
+    data = read_json(path, "model file") if suffix == ".json" else load_yaml(path)
+    if data.get("kind") == "pgnn":
+        raise UserError(f"{path}: {NO_FORWARD_FORM}")
     if data.get("kind") == "lip":
         return _lip_model(path, data, ts)
+    if "extended_model" in data:
+        return _diagnosis_model(path, data, ts)
     data = _explicit_effects(data, path)
     schema = ModelFile if is_model_file(data) else ExperimentConfig
     try:
@@ -179,6 +194,23 @@ def load_model(path, ts: float | None = None) -> SimulationModel:
             from None
     return SimulationModel(spec.plant, controller, spec.name,
                            None if rate is None else float(rate))
+
+
+def _diagnosis_model(path: Path, data: dict, ts: float | None) -> SimulationModel:
+    """A ``diagnosis.json``'s extended model: its plant (the model's parameters corrected, the
+    effects found), at the sample time of the record it was found on; controller unknown."""
+    ext = data["extended_model"]
+    if not isinstance(ext, dict) or any(k not in ext for k in THETA_NAMES):
+        raise UserError(f"{path}: extended_model needs {', '.join(THETA_NAMES)}")
+    try:
+        plant = build(Plant, {**{k: ext[k] for k in THETA_NAMES},
+                              "effects": ext.get("effects") or []}, "extended_model")
+        own = sample_time(mapping(data.get("record"), "record").get("sample_time_s"),
+                          "record.sample_time_s")
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    return SimulationModel(plant, None, f"extended model of {path}", own if own is not None
+                           else ts)
 
 
 def _lip_model(path, data: dict, ts: float | None) -> SimulationModel:

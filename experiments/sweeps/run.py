@@ -136,6 +136,9 @@ def run_sweep(sweep: Sweep, out: Path, *, backend: str = "local", workers: int |
         workers = cores()
     if workers < 1:
         raise UserError(f"--workers: expected an integer >= 1, got {workers}")
+    if scheduler and backend != "dask":  # the local backend has no scheduler to connect to
+        raise UserError(f"--scheduler {scheduler}: a Dask scheduler's address; it needs "
+                        f"--backend dask (the backend is {backend})")
     say = Progress(quiet)
     out.resolve().parent.mkdir(parents=True, exist_ok=True)
     with output_lock(out.resolve(), out):  # beside --out, as run, study and diagnose take it
