@@ -257,18 +257,16 @@ class RecordData:
 SIMULATION_KEYS = ("ts", "plant", "truth", "controller", "references", "training", "replay")
 
 
-def refuse_unused(data: dict, keys=None, where: str = "") -> None:
+def refuse_unused(data: dict) -> None:
     """Refuse (one line naming it) a key of :data:`SIMULATION_KEYS` in the YAML ``data`` of a
-    config with a ``data:`` section (``keys``: the key paths set, default those of ``data``;
-    ``where``: what the message puts before the key)."""
+    config with a ``data:`` section."""
     if not isinstance(data, dict) or data.get("data") is None:
         return
-    for key in data if keys is None else keys:
-        top = key.split(".")[0].split("[")[0]
-        if top in SIMULATION_KEYS:
-            why = ("the records carry their own sample time" if top == "ts" else
+    for key in data:
+        if key in SIMULATION_KEYS:
+            why = ("the records carry their own sample time" if key == "ts" else
                    "a run on records simulates nothing")
-            raise UserError(f"{where}{key}: has no effect with data: ({why}); remove it")
+            raise UserError(f"{key}: has no effect with data: ({why}); remove it")
 
 
 def _default_feedforwards() -> tuple[FeedforwardSpec, ...]:

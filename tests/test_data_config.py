@@ -85,6 +85,17 @@ def test_a_sweep_of_a_data_config_is_refused_before_it_runs(grid, tmp_path, caps
              tmp_path, capsys, config, "data: a sweep runs the simulated testbed")
 
 
+def test_a_sweep_over_records_is_refused_before_it_runs(tmp_path, capsys):
+    """The same, with ``data:`` as a swept key of a simulation config (the review found it past
+    the base config's check)."""
+    a, b = _record(tmp_path / "a.npz"), _record(tmp_path / "b.npz", seconds=3.0)
+    config = tmp_path / "sweep.yaml"
+    config.write_text("name: s\nseed: 1\nfeedforwards:\n  - kind: lip\nsweep:\n  grid:\n"
+                      f"    data: [{{training: {a}}}, {{training: {b}}}]\n")
+    _refused(["sweep", config, "--out", tmp_path / "out", "--quiet", "--workers", "1"],
+             tmp_path, capsys, str(config), "sweep.grid.data: a sweep runs the simulated testbed")
+
+
 def test_seeds_of_a_lip_row_are_refused(tmp_path, capsys):
     """The least-squares LIP of a record has one fit; the table showed 1 seed for ``seeds: 3``."""
     config = _config(tmp_path, rows="  - {kind: lip, seeds: 3}\n")

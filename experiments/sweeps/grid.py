@@ -27,7 +27,7 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.schema import build, load_yaml
-from experiments.config import ExperimentConfig, in_file, refuse_unused, resolved
+from experiments.config import ExperimentConfig, in_file, resolved
 from experiments.runner import preflight
 from experiments.sweeps.store import code_version, task_key
 
@@ -199,13 +199,14 @@ def load_sweep(path, *, max_tasks: int | None = None) -> Sweep:
         except ValueError as exc:
             raise UserError(f"{path}: {where}: {exc}") from None
         grid[key] = _axis(values, f"{path}: {where}")
-    if "data" in data:
-        # A run on measured records scores force errors, not the tracking a sweep's table holds.
-        raise UserError(f"{path}: data: a sweep runs the simulated testbed; a config on measured "
-                        f"records (data:) is run one at a time with 'clm-sim run'")
+    # A run on measured records scores force errors, not the tracking a sweep's table holds:
+    # refused in the base config and as a swept key alike.
+    on_records = ["data"] if "data" in data else [
+        f"sweep.grid.{key}" for key in grid if parts[key][0] == "data"]
+    if on_records:
+        raise UserError(f"{path}: {on_records[0]}: a sweep runs the simulated testbed; a config "
+                        f"on measured records (data:) is run one at a time with 'clm-sim run'")
     try:
-        refuse_unused(data)
-        refuse_unused(data, grid, "sweep.grid.")
         base_config = build(ExperimentConfig, data, "config")
         preflight(base_config)
     except UserError as exc:
