@@ -90,9 +90,10 @@ def simulate_record(model: SimulationModel, run: Run, *, init_samples: int = INI
                                                                      substeps=substeps)
     scored = len(run.y) - init_samples if isinstance(init_samples, int) else None
     if scored is not None and 0 < init_samples and scored < MIN_SCORED_SAMPLES:
-        raise UserError(f"{source}: --init-samples {init_samples} leaves {max(scored, 0)} of the "
-                        f"record's {len(run.y)} samples to score; at least {MIN_SCORED_SAMPLES} "
-                        f"are needed (a smaller --init-samples or a longer record)")
+        raise UserError(f"{source}: {init_samples} initialization samples (--init-samples, a "
+                        f"benchmark's init_samples) leave {max(scored, 0)} of the record's "
+                        f"{len(run.y)} samples to score; at least {MIN_SCORED_SAMPLES} are "
+                        f"needed (fewer initialization samples or a longer record)")
     state = initial_state(run.y, run.ts, plant, init_samples)
     try:
         x, _ = simulate_input(plant, run.u, run.ts, state)

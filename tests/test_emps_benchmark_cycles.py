@@ -215,3 +215,52 @@ def test_a_benchmark_setting_the_record_cannot_meet_is_refused_before_the_work(
     assert code == 2 and len(err) == 1, err
     assert str(cfg) in err[0] and key in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_benchmark_out_that_is_no_benchmark_is_refused_before_the_work(
+        record, tmp_path, capsys, monkeypatch):
+    """An existing folder that is not a benchmark's result, as --out: refused before the fits
+    (the review found it refused only when the result was written, after minutes of work)."""
+    from clm_sim.record import save_npz
+    from experiments.cli import main
+    from experiments.studies import emps_benchmark
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the benchmark ran before its result folder was checked")
+
+    monkeypatch.setattr(emps_benchmark, "run_benchmark", no_work)
+    monkeypatch.chdir(tmp_path)
+    save_npz(record, tmp_path / "rec.npz")
+    (tmp_path / "model.yaml").write_text(f"ts: {TS}\nplant: {{mass: 18.8, viscous: 172.0, "
+                                         f"coulomb: 7.21}}\n")
+    cfg = tmp_path / "b.yaml"
+    cfg.write_text("name: b\nkind: emps_benchmark\nbenchmark:\n  training: rec.npz\n"
+                   "  test: rec.npz\n  published_model: model.yaml\n")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    code = main(["study", str(cfg), "--out", str(mine), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and str(mine) in err[0], err
+    assert (mine / "notes.txt").read_text() == "mine"
+
+
+def test_a_split_leaves_each_part_a_window_to_score():
+    """An estimation fraction that leaves a part its initialization but fewer than the
+    scored samples a simulation needs is refused naming the fraction (the review found it
+    refused only after the fits, naming an option the study does not have)."""
+    from clm_sim.errors import UserError
+    from clm_sim.open_loop import MIN_SCORED_SAMPLES
+    from clm_sim.record import Run
+    from experiments.studies.emps_benchmark import split
+
+    n, init = 1000, 20
+    t = np.arange(n) * TS
+    run = Run(t=t, r=t, y=t, u=t)
+    est, held = split(run, 0.5, init)
+    assert len(est) + len(held) == n
+    tight = (n - init - MIN_SCORED_SAMPLES + 1) / n  # the held-out part one sample short
+    with pytest.raises(UserError, match="benchmark.estimation_fraction"):
+        split(run, tight, init)
+    with pytest.raises(UserError, match="benchmark.init_samples"):
+        split(run, 0.5, n // 2)

@@ -45,7 +45,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_folder, check_writable
+from clm_sim.open_loop import MIN_SCORED_SAMPLES
+from clm_sim.outdir import atomic_folder, check_output_folder
 from clm_sim.plant import THETA_NAMES, Plant
 from clm_sim.record import Run, load_record
 from clm_sim.schema import build, load_yaml
@@ -190,14 +191,16 @@ def split(run: Run, fraction: float, init_samples: int) -> tuple[Run, Run]:
     """``run`` cut in time: the first ``fraction`` of its samples (estimation) and the rest
     (held out, simulated from its own first ``init_samples`` outputs like a test record)."""
     cut = int(round(fraction * len(run)))
-    if 2 * init_samples + 2 > len(run):  # no fraction can give both parts their window
+    need = init_samples + MIN_SCORED_SAMPLES  # each part: its initialization, then a scored window
+    if 2 * need > len(run):  # no fraction can give both parts their window
         raise UserError(f"benchmark.init_samples: {init_samples} initialization samples leave "
                         f"no split of the {len(run)}-sample training record in which each "
-                        f"part has more; at most {(len(run) - 2) // 2}")
-    if not (init_samples < cut < len(run) - init_samples):
+                        f"part has {MIN_SCORED_SAMPLES} more to score; at most "
+                        f"{len(run) // 2 - MIN_SCORED_SAMPLES}")
+    if not (need <= cut <= len(run) - need):
         raise UserError(f"benchmark.estimation_fraction: {fraction} leaves {cut} and "
-                        f"{len(run) - cut} samples; each part needs more than the "
-                        f"{init_samples} initialization samples")
+                        f"{len(run) - cut} samples; each part needs the {init_samples} "
+                        f"initialization samples and {MIN_SCORED_SAMPLES} more to score")
     return run.slice(0, cut), run.slice(cut)
 
 
@@ -549,7 +552,10 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
 
     name, settings = load_benchmark(config_path)
     out = Path(out) if out else Path("results") / Path(config_path).stem
-    check_writable(out, inputs=(config_path,))  # before the work
+    # Before the work (minutes of fits on EMPS): what the result folder will refuse, the
+    # benchmark's inputs among it.
+    inputs = (config_path, settings.training, settings.test, settings.published_model)
+    check_output_folder(out, marker="benchmark.json", what="a benchmark", inputs=inputs)
     progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
     try:
         rows, drift = run_benchmark(settings, progress)
@@ -559,7 +565,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
                         f"{config_path}: {text}") from None
     command = f"clm-sim study {config_path}"
     table = to_markdown(name, rows, settings, command, drift)
-    with atomic_folder(out, marker="benchmark.json", what="a benchmark") as tmp:
+    with atomic_folder(out, marker="benchmark.json", what="a benchmark", inputs=inputs) as tmp:
         (tmp / "benchmark.json").write_text(json.dumps(
             {"name": name, "command": command, "rows": [r.to_json() for r in rows],
              "baselines": [dataclasses.asdict(b) for b in settings.baselines],
