@@ -468,24 +468,36 @@ def load_record(path, columns: dict[str, str] | None = None,
     if n < min_samples:
         raise UserError(f"{path}: record too short: {n} samples, need at least {min_samples}")
     t = out["t"]
-    stamps = raw[columns.get("t", "t")]
+    stamps = np.asarray(raw[columns.get("t", "t")]).ravel()
     dt = np.diff(t)
-    # How far apart the stamps can be at their largest value (s): their stored type's spacing
-    # there, as scaled (0 for integers, which are exact).
-    top = np.max(np.abs(stamps))
-    resolution = float(np.spacing(top)) * float(np.max(np.abs(t))) / float(top) \
-        if stamps.dtype.kind in "fc" and top > 0 else 0.0
+    # How far apart the stamps can be (s, as scaled): their stored type's spacing, at the
+    # largest stamp (``resolution``, for the messages) and per step (``rounding``: each stamp is
+    # within half its spacing of the true time, so a step within one spacing), plus float64's
+    # own rounding of the scaled times. Integers are exact up to 2**53.
+    top = float(np.max(np.abs(stamps)))
+    scale = float(np.max(np.abs(t))) / top if top > 0 else 1.0
+    def spacing(values):
+        magnitude = np.abs(values).astype(np.float64)
+        if stamps.dtype.kind in "fc":
+            return np.spacing(np.abs(values).astype(stamps.dtype)).astype(np.float64) * scale
+        return np.where(magnitude >= 2.0 ** 53, np.spacing(magnitude), 0.0) * scale
+    resolution = float(spacing(np.array([top], dtype=stamps.dtype))[0])
     ts = (t[-1] - t[0]) / (n - 1)
-    coarse = _coarse_stamps(t, ts, resolution, stamps.dtype)
     if not (dt > 0).all():
+        coarse = (f"; {_coarse_stamps(t, ts, resolution, stamps.dtype)}"
+                  if ts > 0 and resolution > UNIFORM_RTOL * ts else "")
         raise UserError(f"{path}: column {columns.get('t', 't')!r} must be strictly increasing "
-                        f"(row {int(np.argmax(dt <= 0)) + 1} is not"
-                        + (f"; {coarse}" if resolution > UNIFORM_RTOL * ts else "") + ")")
-    # Uniform to UNIFORM_RTOL of the step, beyond the rounding of the stamps' type: each stamp is
-    # within half its spacing of the true time, so a step within one spacing.
-    jitter = float(np.max(np.abs(dt - ts)))
-    if jitter > UNIFORM_RTOL * ts + resolution:
-        blame = resolution > UNIFORM_RTOL * ts and jitter <= UNIFORM_RTOL * ts + 4 * resolution
+                        f"(row {int(np.argmax(dt <= 0)) + 1} is not{coarse})")
+    coarse = _coarse_stamps(t, ts, resolution, stamps.dtype)
+    # Uniform to UNIFORM_RTOL of the step, beyond the rounding of the stamps' type, step by step.
+    ends = np.maximum(np.abs(stamps[:-1]), np.abs(stamps[1:]))
+    rounding = spacing(ends) + np.spacing(np.maximum(np.abs(t[:-1]), np.abs(t[1:])))
+    excess = np.abs(dt - ts) - (UNIFORM_RTOL * ts + rounding)
+    if (excess > 0).any():
+        # The type is to blame where the worst step's own rounding is of its size.
+        k = int(np.argmax(excess))
+        blame = (rounding[k] > UNIFORM_RTOL * ts
+                 and abs(dt[k] - ts) <= UNIFORM_RTOL * ts + 4 * rounding[k])
         raise UserError(f"{path}: column {columns.get('t', 't')!r} is not uniformly sampled "
                         f"(steps from {dt.min():.6g} to {dt.max():.6g} s"
                         + (f"; {coarse}" if blame else "") + ")")
