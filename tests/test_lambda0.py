@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -647,3 +648,23 @@ def test_every_shipped_lambda_comparison_varies_lambda_alone():
         zero = by_name[f"PGNN simultaneous, lambda=0, weight decay 1e-5, n_l={n_l}"]
         pulled = by_name[f"PGNN simultaneous, lambda=0.01, weight decay 1e-5, n_l={n_l}"]
         assert zero.pgnn.continuation_lam == 0 and zero.pgnn.weight_decay == pulled.pgnn.weight_decay
+
+
+@pytest.mark.parametrize("extra, text", [
+    ("  lambda0_diag: {stiffness: 0.0}\n", "one of them > 0"),
+    ("  lambda0_diag: {stiffness: 0.01}\n  pgnn: {continuation_lambda: 0.01}\n",
+     "continuation_lambda: 0")])
+def test_lambda0_diag_that_would_change_a_second_setting_or_nothing_is_refused(extra, text,
+                                                                              tmp_path):
+    """A hold of zero holds nothing (and the report would call it a pull); with a continuation
+    start on, a hold also turns the start off (it runs only without a pull): two settings."""
+    from experiments.studies.mechanism import load_mechanism
+
+    path = tmp_path / "m.yaml"
+    config = tiny_mechanism()
+    if "pgnn:" in extra:  # replace the design's pgnn line
+        config = "\n".join(line for line in config.splitlines()
+                           if not line.startswith("  pgnn:")) + "\n"
+    path.write_text(config + extra)
+    with pytest.raises(UserError, match=re.escape(text)):
+        load_mechanism(path)

@@ -475,10 +475,12 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
              "test fit (%) | force residual on test, RMS (N) | its mean (N) | "
              "parameters (kg, N·s/m, N, N/m, N) | CPU (s) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    def fit(r) -> str:  # undefined (None) where the test record does not move
+        return "–" if r.test.score.fit_percent is None else f"{r.test.score.fit_percent:.1f}"
+
     for r in rows:
         lines.append(f"| {r.name}{'' if r.measured else ' †'} | {r.made_from} | {mm(r):.2f} | "
-                     f"{r.train.score.rmse * 1e3:.2f} | {ho(r)} | {hb(r)} | "
-                     f"{r.test.score.fit_percent:.1f} | "
+                     f"{r.train.score.rmse * 1e3:.2f} | {ho(r)} | {hb(r)} | {fit(r)} | "
                      f"{r.force_rms_test_n:.3f} | {r.force_mean_test_n:+.3f} | "
                      f"{_params(r.plant)} | {r.cpu_s:.1f} |")
     for b in settings.baselines:

@@ -108,9 +108,17 @@ class MechanismSettings:
             raise UserError(f"lambda: expected a number > 0, got {self.lam!r}")
         if not 0.5 <= self.confidence < 1:
             raise UserError(f"confidence: expected a level in [0.5, 1), got {self.confidence!r}")
-        if not PerParameter().accepts(self.zero_lam_diag) or self.zero_lam_diag == {}:
-            raise UserError(f"lambda0_diag: expected {PerParameter().describe()}, got "
-                            f"{self.zero_lam_diag!r}")
+        if self.zero_lam_diag is not None:
+            if not PerParameter().accepts(self.zero_lam_diag) or not any(
+                    v > 0 for v in self.zero_lam_diag.values()):
+                raise UserError(f"lambda0_diag: expected {PerParameter().describe()}, one of "
+                                f"them > 0, got {self.zero_lam_diag!r}")
+            # A pull on the lambda = 0 row also turns its continuation start off (it runs only
+            # without one): with a start on, the rows would differ in two settings.
+            if self.pgnn.continuation_lam > 0:
+                raise UserError(f"lambda0_diag: needs pgnn.continuation_lambda: 0 (got "
+                                f"{self.pgnn.continuation_lam:g}); with a continuation start "
+                                f"the held row would differ in two settings")
         if self.outside == self.inside:
             raise UserError(f"outside: {self.inside!r} is the inside reference; an outside "
                             f"reference leaves the training range")
