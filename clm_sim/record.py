@@ -159,6 +159,10 @@ def convert(path, to: str, out=None) -> tuple[Path, int]:
     return out, len(run)
 
 
+# The formats a record is read from (by suffix, any case): what no model or config file is.
+RECORD_SUFFIXES = (".csv", ".npz", ".mat")
+
+
 def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     """The file's variables (arrays as stored, checked by :func:`_numbers` when used) and its
     ``meta`` (a JSON object, else empty). Every failure is one ``UserError`` line."""

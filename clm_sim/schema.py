@@ -21,6 +21,7 @@ import yaml
 
 from clm_sim.effects import EFFECTS, Effect
 from clm_sim.errors import UserError
+from clm_sim.record import RECORD_SUFFIXES
 
 
 MAX_DEPTH = 64  # nesting levels: a config has fewer than ten; deeper is a generated file
@@ -65,7 +66,7 @@ def load_yaml(path) -> dict:
     """Read a YAML mapping safely (no Python tags); one-line errors for a missing file, bad
     syntax or a duplicated key."""
     path = Path(path)
-    if path.suffix.lower() in (".csv", ".npz", ".mat"):  # clm_sim.record's formats
+    if path.suffix.lower() in RECORD_SUFFIXES:
         raise UserError(f"{path}: a record ({path.suffix.lower()}), not a YAML file")
     try:
         if path.exists() and not path.is_dir() and not path.is_file():

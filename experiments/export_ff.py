@@ -21,6 +21,7 @@ from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap
 from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.outdir import atomic_folder
+from clm_sim.record import RECORD_SUFFIXES
 from clm_sim.schema import build_effect
 from controllers.export import c_source
 from controllers.export.options import DEFAULT_COUNT_M, DEFAULT_PREFIX, ExportOptions, safe_text
@@ -167,7 +168,7 @@ def _load(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward
         raise UserError(f"{path}: no such model file")
     if path.suffix == ".pt":
         return _pgnn(path, ts, filter_tail)
-    if path.suffix.lower() in (".csv", ".npz", ".mat"):  # clm_sim.record's formats
+    if path.suffix.lower() in RECORD_SUFFIXES:
         raise UserError(f"{path}: a record ({path.suffix.lower()}), not a clm-sim feedforward "
                         f"({KNOWN})")
     if path.suffix != ".json":

@@ -30,12 +30,12 @@ import scipy.signal
 from clm_sim.errors import UserError, check_ts
 from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.plant import THETA_NAMES, Plant, default_effects
+from clm_sim.record import RECORD_SUFFIXES
 from clm_sim.schema import build, load_yaml
 from controllers.pid import PIDDesign, design_pid
 from experiments.config import ExperimentConfig, in_file
 
 MODEL_KEYS = {"name", "description", "ts", "plant", "controller"}
-RECORD_SUFFIXES = (".csv", ".npz", ".mat")  # clm_sim.record's formats
 NO_FORWARD_FORM = ("a PGNN feedforward is an inverse model (force from motion); it has no "
                    "open-loop form to simulate or diagnose")
 DEFAULT_EFFECTS_NAME = "default_clm"
