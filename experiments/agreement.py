@@ -340,12 +340,17 @@ def verdict(expected: Path, fresh: Path) -> tuple[list[str], int]:
     """What ``clm-sim compare`` prints and its exit code: 0 where ``fresh`` reproduces the
     table in ``expected``, else 1 with one line per cell outside the tolerance; the columns it
     did not compare are listed either way."""
-    mismatches = [str(m) for m in compare_files(Path(expected), Path(fresh))]
+    found = compare_files(Path(expected), Path(fresh))
+    mismatches = [str(m) for m in found]
     skipped = skipped_columns(parse_markdown(Path(expected).read_text(encoding="utf-8")))
     note = [f"not compared (columns clm-sim does not check): {', '.join(skipped)}"] \
         if skipped else []
     if mismatches:
-        return mismatches + note + [f"{len(mismatches)} cell(s) outside the cross-machine "
-                                    f"tolerance (docs/reproducibility.md)"], 1
+        rows = sum(m.column == "row" for m in found)  # a row of one table only
+        cells = len(mismatches) - rows
+        counts = ([f"{cells} cell(s) outside the cross-machine tolerance "
+                   f"(docs/reproducibility.md)"] if cells else []) + \
+                 ([f"{rows} row(s) in one table only (a table of another config?)"] if rows else [])
+        return mismatches + note + ["; ".join(counts)], 1
     return note + [f"{fresh} reproduces the table in {expected} within the cross-machine "
                    f"tolerance" + (" in the columns it compares" if skipped else "")], 0

@@ -109,3 +109,5 @@ def test_a_row_in_one_table_only_is_named_without_nan(tmp_path, capsys):
     assert any("PGNN magic" in line and "not in the fresh table" in line for line in out), out
     assert any("feedback only" in line and "not in the expected table" in line
                for line in out), out
+    # and the count says rows, not cells outside the tolerance
+    assert out[-1] == "2 row(s) in one table only (a table of another config?)", out
