@@ -418,10 +418,13 @@ def load_record(path, columns: dict[str, str] | None = None,
     raw, file_meta = _read_columns(path)
     columns = dict(columns or {})
     have = ", ".join(sorted(raw)) or "none"
-    for name, key in columns.items():  # a typo would silently leave a signal out (or default)
+    def known(name, what):  # a typo would silently leave a signal out (or at its default)
         if name not in SIGNALS:
-            raise UserError(f"{path}: cannot map {name!r} to a column: no such signal; the "
-                            f"signals are {', '.join(SIGNALS)}")
+            raise UserError(f"{path}: cannot {what}: no such signal; the signals are "
+                            f"{', '.join(SIGNALS)}")
+
+    for name, key in columns.items():
+        known(name, f"map {name!r} to a column")
         if key not in raw:
             raise UserError(f"{path}: missing column {key!r} (signal {name}); "
                             f"columns present: {have}")
@@ -444,9 +447,7 @@ def load_record(path, columns: dict[str, str] | None = None,
             value = value.ravel()
         out[name] = value
     for name, factor in (scale or {}).items():
-        if name not in SIGNALS:
-            raise UserError(f"{path}: cannot scale {name!r}: no such signal; the signals are "
-                            f"{', '.join(SIGNALS)}")
+        known(name, f"scale {name!r}")
         if name not in out:
             raise UserError(f"{path}: cannot scale {name!r}: no column {name!r} in the file "
                             f"(map it to one: {name}=COLUMN); columns present: {have}")

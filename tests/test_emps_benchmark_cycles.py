@@ -189,20 +189,16 @@ def test_the_plateau_friction_follows_a_drift_within_the_record():
     assert row.off_line_n > 0.1
 
 
-@pytest.mark.parametrize("setting, key", [("cycles: 100", "benchmark.cycles"),
-                                          ("init_samples: 30000", "benchmark.init_samples")])
-def test_a_benchmark_setting_the_record_cannot_meet_is_refused_before_the_work(
-        record, tmp_path, capsys, monkeypatch, setting, key):
-    """Checked against the records before any model is made (was: after minutes of fits), in
-    one line naming the config file and the key that is wrong."""
+def _benchmark_without_work(record, tmp_path, monkeypatch, stub: str, setting: str = ""):
+    """A benchmark config on ``record`` in ``tmp_path`` (the current folder), with
+    ``emps_benchmark.<stub>`` replaced by a function that fails the test if the work starts."""
     from clm_sim.record import save_npz
-    from experiments.cli import main
     from experiments.studies import emps_benchmark
 
     def no_work(*args, **kwargs):
-        raise AssertionError("a model was made before the settings were checked")
+        raise AssertionError(f"the benchmark's work ({stub}) started before its checks")
 
-    monkeypatch.setattr(emps_benchmark, "make_models", no_work)
+    monkeypatch.setattr(emps_benchmark, stub, no_work)
     monkeypatch.chdir(tmp_path)
     save_npz(record, tmp_path / "rec.npz")
     (tmp_path / "model.yaml").write_text(f"ts: {TS}\nplant: {{mass: 18.8, viscous: 172.0, "
@@ -210,6 +206,18 @@ def test_a_benchmark_setting_the_record_cannot_meet_is_refused_before_the_work(
     cfg = tmp_path / "b.yaml"
     cfg.write_text("name: b\nkind: emps_benchmark\nbenchmark:\n  training: rec.npz\n"
                    f"  test: rec.npz\n  published_model: model.yaml\n  {setting}\n")
+    return cfg
+
+
+@pytest.mark.parametrize("setting, key", [("cycles: 100", "benchmark.cycles"),
+                                          ("init_samples: 30000", "benchmark.init_samples")])
+def test_a_benchmark_setting_the_record_cannot_meet_is_refused_before_the_work(
+        record, tmp_path, capsys, monkeypatch, setting, key):
+    """Checked against the records before any model is made (was: after minutes of fits), in
+    one line naming the config file and the key that is wrong."""
+    from experiments.cli import main
+
+    cfg = _benchmark_without_work(record, tmp_path, monkeypatch, "make_models", setting)
     code = main(["study", str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
@@ -221,21 +229,9 @@ def test_a_benchmark_out_that_is_no_benchmark_is_refused_before_the_work(
         record, tmp_path, capsys, monkeypatch):
     """An existing folder that is not a benchmark's result, as --out: refused before the fits
     (the review found it refused only when the result was written, after minutes of work)."""
-    from clm_sim.record import save_npz
     from experiments.cli import main
-    from experiments.studies import emps_benchmark
 
-    def no_work(*args, **kwargs):
-        raise AssertionError("the benchmark ran before its result folder was checked")
-
-    monkeypatch.setattr(emps_benchmark, "run_benchmark", no_work)
-    monkeypatch.chdir(tmp_path)
-    save_npz(record, tmp_path / "rec.npz")
-    (tmp_path / "model.yaml").write_text(f"ts: {TS}\nplant: {{mass: 18.8, viscous: 172.0, "
-                                         f"coulomb: 7.21}}\n")
-    cfg = tmp_path / "b.yaml"
-    cfg.write_text("name: b\nkind: emps_benchmark\nbenchmark:\n  training: rec.npz\n"
-                   "  test: rec.npz\n  published_model: model.yaml\n")
+    cfg = _benchmark_without_work(record, tmp_path, monkeypatch, "run_benchmark")
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("mine")
