@@ -85,13 +85,18 @@ def _agree_with_coefficients(data: dict) -> None:
     coefficients = data.get("coefficients")
     if not isinstance(coefficients, dict):
         return
+    offsets = [e.get("force") for e in data.get("effects") or []
+               if isinstance(e, dict) and e.get("type") == "force_offset"]
     for key, value in coefficients.items():
-        top = data.get(key)
+        # the offset's loaded value is the force_offset effect's force (identify --offset)
+        top = (offsets[0] if len(offsets) == 1 else None) if key == "offset" else data.get(key)
         numbers = all(isinstance(x, (int, float)) and not isinstance(x, bool)
                       for x in (value, top))  # a true/false is the type check's to refuse
         if numbers and not math.isclose(value, top, rel_tol=1e-12, abs_tol=0.0):
-            raise UserError(f"coefficients.{key}: {value!r}, but the parameter {key!r} is "
-                            f"{top!r}; which one was identified?")
+            loaded = ("the force_offset effect's force" if key == "offset"
+                      else f"the parameter {key!r}")
+            raise UserError(f"coefficients.{key}: {value!r}, but {loaded} is {top!r}; which "
+                            f"one was identified?")
 
 
 def _physical_mass(wf: WindowFeedforward) -> None:

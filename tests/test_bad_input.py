@@ -289,6 +289,10 @@ BAD_MODELS = {
     "parameters disagree with coefficients": (
         "lip.json", "{" + _LIP.replace("18.8", "99") + ', "ts": 0.0001, "coefficients": '
         '{"mass": 18.8, "viscous": 30.0, "coulomb": 5.0, "stiffness": 0.0}}', "coefficients.mass"),
+    "offset disagrees with its coefficient": (
+        "lip.json", "{" + _LIP + ', "ts": 0.0001, "effects": [{"type": "force_offset", '
+        '"force": 2.5}], "coefficients": {"mass": 18.8, "viscous": 30.0, "coulomb": 5.0, '
+        '"stiffness": 0.0, "offset": -1.0}}', "coefficients.offset"),
 }
 # Commands that write nothing: given bad files they must still answer in one line.
 COMPARE_CASES = {
