@@ -255,7 +255,8 @@ def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
             known = ", ".join(sorted(set(fields) - set(aliases.values()) | set(aliases)))
             raise UserError(f"{key}.{name}: unknown key; known keys: {known}")
         kwargs[attr] = _convert(hints[attr], value, f"{key}.{name}")
-    missing = [name for name, f in fields.items() if name not in kwargs
+    config_name = {attr: name for name, attr in aliases.items()}  # named as the file names it
+    missing = [config_name.get(name, name) for name, f in fields.items() if name not in kwargs
                and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
     if missing:
         raise UserError(f"{key}.{missing[0]}: missing; {_type_name(cls)} needs "

@@ -98,3 +98,21 @@ def test_shipped_config_loads_and_resolves(tmp_path):
 def test_defaults_are_the_papers_plant():
     p = ExperimentConfig().plant
     assert (p.mass, p.viscous, p.coulomb, p.stiffness) == (18.8, 172.0, 7.21, 0.0)
+
+
+def test_a_missing_required_key_is_named_as_the_file_names_it():
+    """A required field with a config alias (lam <- lambda) is named by the alias: the file's
+    key, not the Python name the user never wrote."""
+    import dataclasses
+
+    from clm_sim.errors import UserError
+    from clm_sim.schema import build
+
+    @dataclasses.dataclass
+    class Pull:
+        lam: float
+
+    Pull.aliases = {"lambda": "lam"}  # config -> field, as the settings classes declare it
+
+    with pytest.raises(UserError, match=r"^pull\.lambda: missing; Pull needs lambda$"):
+        build(Pull, {}, "pull")
