@@ -417,7 +417,9 @@ def load_record(path, columns: dict[str, str] | None = None,
                         f"GB a record may have (1e7 samples of t, r, y, u as CSV are ~0.8 GB)")
     raw, file_meta = _read_columns(path)
     columns = dict(columns or {})
-    have = ", ".join(sorted(raw)) or "none"
+    names = sorted(raw)  # a .mat file may hold hundreds: the line stays a line
+    have = (", ".join(names[:30]) + (f", ... ({len(names) - 30} more)" if len(names) > 30 else "")
+            or "none")
     def known(name, what):  # a typo would silently leave a signal out (or at its default)
         if name not in SIGNALS:
             raise UserError(f"{path}: cannot {what}: no such signal; the signals are "

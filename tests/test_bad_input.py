@@ -709,3 +709,16 @@ def test_integer_epoch_nanoseconds_scaled_to_seconds_are_read(tmp_path):
     ns = 1_700_000_000_000_000_000 + np.arange(20000, dtype=np.int64) * 100_000
     run = load_record(_stamped(ns, tmp_path / "r.npz"), scale={"t": 1e-9})
     assert run.ts == pytest.approx(TS, rel=1e-6)
+
+
+def test_a_missing_column_among_hundreds_is_named_in_a_short_line(tmp_path, capsys):
+    """A .mat-like file with 500 variables: the missing-column line lists 30 of them and how
+    many more, not all (a line of thousands of characters is no longer one line to read)."""
+    sig = _signals(4000)
+    extra = {f"var{k:03d}": np.arange(4000.0) for k in range(500)}
+    data = tmp_path / "wide.npz"
+    data.write_bytes(_npz_bytes(**sig, **extra))
+    line = _check_refused(["identify", str(data), "--columns", "u=force", "--out",
+                           str(tmp_path / "out")], tmp_path, capsys,
+                          ["missing column 'force'", "more)"], str(data))
+    assert len(line) < 1000, len(line)
