@@ -310,6 +310,47 @@ def _coarse_stamps(t: np.ndarray, ts: float, resolution: float, dtype) -> str:
             + (f"; store t {' or '.join(cures)}" if cures else ""))
 
 
+def _uniform_step(t: np.ndarray, stamps: np.ndarray, where: str) -> float:
+    """The sample time (s) of time stamps ``t`` (s, as scaled from ``stamps``, the column as
+    stored), refused (``where``: the file and column) unless strictly increasing and uniform:
+    every step within ``UNIFORM_RTOL`` of the mean step beyond the rounding of the stored type
+    at that step (each stamp lies within half its spacing of the true time, so a step within
+    one; integers are exact up to 2**53), plus float64's own rounding of the scaled times.
+    Stamps whose spacing exceeds ``COARSE_STAMPS`` of a step cannot show it: refused, naming
+    the type and the offset (float32 or Unix-epoch stamps are rounded, not uneven)."""
+    top = float(np.max(np.abs(stamps)))
+    scale = float(np.max(np.abs(t))) / top if top > 0 else 1.0
+
+    def spacing(values: np.ndarray) -> np.ndarray:  # s, as scaled
+        if stamps.dtype.kind in "fc":
+            return np.spacing(np.abs(values).astype(stamps.dtype)).astype(np.float64) * scale
+        magnitude = np.abs(values).astype(np.float64)
+        return np.where(magnitude >= 2.0 ** 53, np.spacing(magnitude), 0.0) * scale
+
+    dt = np.diff(t)
+    resolution = float(spacing(np.array([top], dtype=stamps.dtype))[0])  # at the largest
+    ts = (t[-1] - t[0]) / (len(t) - 1)
+    if not (dt > 0).all():
+        coarse = (f"; {_coarse_stamps(t, ts, resolution, stamps.dtype)}"
+                  if ts > 0 and resolution > UNIFORM_RTOL * ts else "")
+        raise UserError(f"{where} must be strictly increasing (row "
+                        f"{int(np.argmax(dt <= 0)) + 1} is not{coarse})")
+    coarse = _coarse_stamps(t, ts, resolution, stamps.dtype)
+    ends = np.maximum(np.abs(stamps[:-1]), np.abs(stamps[1:]))
+    rounding = spacing(ends) + np.spacing(np.maximum(np.abs(t[:-1]), np.abs(t[1:])))
+    excess = np.abs(dt - ts) - (UNIFORM_RTOL * ts + rounding)
+    if (excess > 0).any():
+        # The type is to blame where the worst step's own rounding is of its size.
+        k = int(np.argmax(excess))
+        blame = (rounding[k] > UNIFORM_RTOL * ts
+                 and abs(dt[k] - ts) <= UNIFORM_RTOL * ts + 4 * rounding[k])
+        raise UserError(f"{where} is not uniformly sampled (steps from {dt.min():.6g} to "
+                        f"{dt.max():.6g} s" + (f"; {coarse}" if blame else "") + ")")
+    if resolution > COARSE_STAMPS * ts:
+        raise UserError(f"{where} cannot show a uniform sampling: {coarse}")
+    return float(ts)
+
+
 def _first_line(exc: BaseException) -> str:
     text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     return text if len(text) <= 200 else text[:200] + "..."
@@ -396,11 +437,8 @@ def load_record(path, columns: dict[str, str] | None = None,
     min_samples : shortest record accepted.
 
     Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
-    inf, time stamps that are not strictly increasing and uniform (every step within
-    ``UNIFORM_RTOL`` of the mean step plus the spacing of the stamps' stored type at their
-    largest value: float32 or Unix-epoch stamps are rounded, not uneven; stamps whose spacing
-    exceeds ``COARSE_STAMPS`` of a step cannot show it and are refused, naming type and offset),
-    or a record that is too short, and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
+    inf, time stamps that are not strictly increasing and uniform (:func:`_uniform_step`: the
+    rounding of their stored type allowed), or a record that is too short, and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
     ``MIN_TS``, a position beyond ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``;
     a variable that is not numbers (text, MATLAB cells, structs, sparse matrices, complex values
     with an imaginary part) is refused by name; so is a ``columns`` or ``scale`` name that is no
@@ -420,6 +458,7 @@ def load_record(path, columns: dict[str, str] | None = None,
     names = sorted(raw)  # a .mat file may hold hundreds: the line stays a line
     have = (", ".join(names[:30]) + (f", ... ({len(names) - 30} more)" if len(names) > 30 else "")
             or "none")
+
     def known(name, what):  # a typo would silently leave a signal out (or at its default)
         if name not in SIGNALS:
             raise UserError(f"{path}: cannot {what}: no such signal; the signals are "
@@ -474,43 +513,8 @@ def load_record(path, columns: dict[str, str] | None = None,
                             f"(first at row {int(np.argmax(bad))})")
     if n < min_samples:
         raise UserError(f"{path}: record too short: {n} samples, need at least {min_samples}")
-    t = out["t"]
-    stamps = np.asarray(raw[columns.get("t", "t")]).ravel()
-    dt = np.diff(t)
-    # How far apart the stamps can be (s, as scaled): their stored type's spacing, at the
-    # largest stamp (``resolution``, for the messages) and per step (``rounding``: each stamp is
-    # within half its spacing of the true time, so a step within one spacing), plus float64's
-    # own rounding of the scaled times. Integers are exact up to 2**53.
-    top = float(np.max(np.abs(stamps)))
-    scale = float(np.max(np.abs(t))) / top if top > 0 else 1.0
-    def spacing(values):
-        magnitude = np.abs(values).astype(np.float64)
-        if stamps.dtype.kind in "fc":
-            return np.spacing(np.abs(values).astype(stamps.dtype)).astype(np.float64) * scale
-        return np.where(magnitude >= 2.0 ** 53, np.spacing(magnitude), 0.0) * scale
-    resolution = float(spacing(np.array([top], dtype=stamps.dtype))[0])
-    ts = (t[-1] - t[0]) / (n - 1)
-    if not (dt > 0).all():
-        coarse = (f"; {_coarse_stamps(t, ts, resolution, stamps.dtype)}"
-                  if ts > 0 and resolution > UNIFORM_RTOL * ts else "")
-        raise UserError(f"{path}: column {columns.get('t', 't')!r} must be strictly increasing "
-                        f"(row {int(np.argmax(dt <= 0)) + 1} is not{coarse})")
-    coarse = _coarse_stamps(t, ts, resolution, stamps.dtype)
-    # Uniform to UNIFORM_RTOL of the step, beyond the rounding of the stamps' type, step by step.
-    ends = np.maximum(np.abs(stamps[:-1]), np.abs(stamps[1:]))
-    rounding = spacing(ends) + np.spacing(np.maximum(np.abs(t[:-1]), np.abs(t[1:])))
-    excess = np.abs(dt - ts) - (UNIFORM_RTOL * ts + rounding)
-    if (excess > 0).any():
-        # The type is to blame where the worst step's own rounding is of its size.
-        k = int(np.argmax(excess))
-        blame = (rounding[k] > UNIFORM_RTOL * ts
-                 and abs(dt[k] - ts) <= UNIFORM_RTOL * ts + 4 * rounding[k])
-        raise UserError(f"{path}: column {columns.get('t', 't')!r} is not uniformly sampled "
-                        f"(steps from {dt.min():.6g} to {dt.max():.6g} s"
-                        + (f"; {coarse}" if blame else "") + ")")
-    if resolution > COARSE_STAMPS * ts:
-        raise UserError(f"{path}: column {columns.get('t', 't')!r} cannot show a uniform "
-                        f"sampling: {coarse}")
+    ts = _uniform_step(out["t"], np.asarray(raw[columns.get("t", "t")]).ravel(),
+                       f"{path}: column {columns.get('t', 't')!r}")
     # Orders of magnitude that SI data cannot have: catch ms time stamps and mm positions.
     if ts > MAX_TS:
         raise UserError(f"{path}: column {columns.get('t', 't')!r} steps by {ts:.6g} s, slower "
