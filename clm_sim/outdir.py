@@ -82,13 +82,10 @@ def _resolved(out: Path, given) -> Path:
     """``out`` with every link followed; a link that leads back to itself is one line."""
     try:
         return out.resolve()
-    except RuntimeError:  # Python < 3.13 says "Symlink loop" so; 3.13 raises OSError (ELOOP)
+    except (RuntimeError, OSError) as exc:  # Python < 3.13: RuntimeError; 3.13: OSError ELOOP
+        if isinstance(exc, OSError) and exc.errno != errno.ELOOP:
+            raise
         raise UserError(f"{given}: is a loop of symbolic links; choose another --out") from None
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise UserError(f"{given}: is a loop of symbolic links; choose another --out") \
-                from None
-        raise
 
 
 def check_inputs_outside(out, inputs) -> None:

@@ -268,7 +268,7 @@ def build(cls, mapping, key: str, *, aliases: dict[str, str] | None = None):
         head, _, rest = str(exc).partition(": ")
         message = rest if rest and key.rsplit(".", 1)[-1] == head else str(exc)
         raise UserError(f"{key}: {message}") from None
-    except TypeError as exc:  # a required field is missing
+    except TypeError as exc:  # a required InitVar (not a field, so not in the check above)
         raise UserError(f"{key}: {exc}") from None
 
 
