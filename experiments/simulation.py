@@ -30,14 +30,6 @@ from experiments.diagnosis.model import SimulationModel, load_model
 COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")
 
 
-def load_simulation_model(path, ts: float | None = None) -> SimulationModel:
-    """The model of a file, as :func:`experiments.diagnosis.model.load_model` reads it (a model
-    YAML, a LIP parameter file, a ``diagnosis.json``'s extended plant at its record's sample
-    time, an experiment config); a PGNN is refused: it has no open-loop form. ``ts`` (s): the
-    rate for a file that gives none (``clm-sim simulate`` passes the record's, as diagnose)."""
-    return load_model(path, ts)
-
-
 @dataclass(frozen=True)
 class Simulation:
     """A model simulated against a record: the measured and simulated position (m) per sample,
@@ -73,7 +65,8 @@ class Simulation:
 
     def to_json(self) -> dict:
         return {"model": self.model, "record": self.record, "mode": "open loop",
-                "init_samples": self.init_samples, "sample_time_s": float((self.t[-1] - self.t[0]) / (len(self.t) - 1)),
+                "init_samples": self.init_samples,
+                "sample_time_s": float((self.t[-1] - self.t[0]) / (len(self.t) - 1)),
                 "position": {**self.score.as_dict(), "unit": "m"},
                 "plant": {**self.plant.theta(),
                           "effects": [e.as_config() for e in self.plant.effects],
@@ -245,7 +238,7 @@ def command(args, *, load) -> int:
         raise
     # A file without a rate (a shipped experiment config, whose PID is designed at the rate it
     # runs at) runs at the record's, as in diagnose; a file with one refuses another.
-    model = load_simulation_model(args.model, run.ts)
+    model = load_model(args.model, run.ts)  # a file without ts runs at the record's
     if args.closed_loop:
         if model.controller is None:
             raise UserError(f"{args.model}: no controller in the model file; --closed-loop needs "

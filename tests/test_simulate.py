@@ -183,9 +183,9 @@ def test_the_published_emps_model_scores_as_published():
     sample (zero-order hold) and takes the state from a parabola through 20 samples; the
     published figures come from another integration: measured +2.0 % and +0.6 %, hence 3 %."""
     from clm_sim.record import load_record
-    from experiments.simulation import load_simulation_model
+    from experiments.diagnosis.model import load_model
 
-    model = load_simulation_model(Path(__file__).resolve().parents[1] / "experiments" /
+    model = load_model(Path(__file__).resolve().parents[1] / "experiments" /
                                   "configs" / "emps_model.yaml")
     for name, published in (("DATA_EMPS.mat", 5.19e-3), ("DATA_EMPS_PULSES.mat", 8.33e-3)):
         run = load_record(EMPS / name, columns={"y": "qm", "r": "qg", "u": "vir"},
@@ -465,5 +465,5 @@ def test_a_shipped_config_without_ts_runs_at_the_records_rate(record, tmp_path, 
     if mode == "open loop":
         assert scores["plant"]["mass"] == 18.8  # the config's plant:, not its truth:
     else:
-        from experiments.simulation import load_simulation_model
-        assert load_simulation_model(config, TS).controller.ts == TS
+        from experiments.diagnosis.model import load_model
+        assert load_model(config, TS).controller.ts == TS
