@@ -51,6 +51,7 @@ from clm_sim.effects import CableSlab, Effect
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
+from clm_sim.plant import THETA_UNITS
 from clm_sim.schema import to_plain
 from controllers.pgnn_settings import LAMBDA_KEYS, PerParameter, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
@@ -440,6 +441,10 @@ def report(s: dict) -> str:
     st["lam"] = st.get("lam", st.get("lambda"))  # to_plain writes the config's name
     z = zero_label(st)
     diag = st.get("lambda0_diag", st.get("zero_lam_diag"))
+
+    def row_label(name: str) -> str:  # summary's "lambda=0.01" as the report names it
+        return z if name == "lambda=0" else name.replace("lambda=", "λ = ")
+
     out = [f"# Finding (iii) over training records, and its mechanism", "",
            f"Per case: {st['records']} training records (dither seeds) x {st['draws']} network "
            f"draws, n_l = {st['hidden']}; {z} and λ = {st['lam']:g} on one cost "
@@ -503,7 +508,7 @@ def report(s: dict) -> str:
                    f"| {lip['error_beyond_rms_n']:.2f} | – | 0 | – | – | – | 0 | – |")
         for name, row in c["rows"].items():
             out.append(
-                f"| {case} | {z if name == 'lambda=0' else name.replace('lambda=', 'λ = ')} | "
+                f"| {case} | {row_label(name)} | "
                 f"{row['mae_inside_um']:.3f} | "
                 f"{row['mae_outside_um']:.3f} | {row['error_beyond_rms_n']:.2f} | "
                 f"{row['dwell_force_n']:.2f} | {row['drift_stiffness']:+.4g} | "
@@ -516,7 +521,7 @@ def report(s: dict) -> str:
             "feedforward minus the motor command the reference's exact motion needs, "
             "accelerations included; the static curve above holds v = a = 0):", "",
             "| case | rms of the needed command [N] | LIP error [N] | "
-            + " | ".join(f"{z if n == 'lambda=0' else n.replace('lambda=', 'λ = ')} error [N]"
+            + " | ".join(f"{row_label(n)} error [N]"
                          for n in next(iter(s["cases"].values()))["rows"]) + " |",
             "|---|---|---|" + "---|" * len(next(iter(s["cases"].values()))["rows"])]
     for case, c in s["cases"].items():
@@ -529,10 +534,10 @@ def report(s: dict) -> str:
     moved = [(case, name, row["theta_moved"]) for case, c in s["cases"].items()
              for name, row in c["rows"].items() if "theta_moved" in row]
     if moved:
-        out += ["", "How far θ_phy travelled (median over the fits of |θ − θ_LIP|; mass kg, "
-                "viscous N·s/m, Coulomb N, stiffness N/m): "
-                + "; ".join(f"{case}, {z if name == 'lambda=0' else name.replace('lambda=', 'λ = ')}"
-                            ": " + ", ".join(f"{k} {v:.3g}" for k, v in m.items())
+        out += ["", "How far θ_phy travelled (median over the fits of |θ − θ_LIP|; "
+                + ", ".join(f"{k} {u}" for k, u in THETA_UNITS.items()) + "): "
+                + "; ".join(f"{case}, {row_label(name)}: "
+                            + ", ".join(f"{k} {v:.3g}" for k, v in m.items())
                             for case, name, m in moved) + "."]
     out += ["", "Figure: `figures/force_beyond.png` (first record, draw 0 of each case)."]
     return "\n".join(out) + "\n"
