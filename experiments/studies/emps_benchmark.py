@@ -475,6 +475,7 @@ def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command
              "test fit (%) | force residual on test, RMS (N) | its mean (N) | "
              "parameters (kg, N·s/m, N, N/m, N) | CPU (s) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
+
     def fit(r) -> str:  # undefined (None) where the test record does not move
         return "–" if r.test.score.fit_percent is None else f"{r.test.score.fit_percent:.1f}"
 
