@@ -13,6 +13,15 @@ package's modules never import a layer above them.
 from clm_sim.lazy import lazy_exports
 
 __version__ = "0.1.0"
+"""The version of clm-sim (``MAJOR.MINOR.PATCH``), as ``clm-sim --version`` prints it and as
+``table.json`` records it beside each result.
+
+Examples
+--------
+>>> import clm_sim
+>>> len(clm_sim.__version__.split("."))
+3
+"""
 
 # public name -> module that defines it
 _EXPORTS = {

@@ -505,6 +505,24 @@ EFFECTS: dict[str, type[Effect]] = {
     cls.type: cls for cls in (Cogging, ForceRipple, CableSlab, Stribeck, FrictionAsymmetry,
                               ForceOffset, Presliding, TrackEnd)
 }
+"""The effect classes by their config ``type:`` (the one place names are resolved).
+
+A config's ``effects:`` entry ``{type: cogging, amplitude: 3, ...}`` is
+``EFFECTS["cogging"](amplitude=3, ...)``; each class is a frozen dataclass with named SI
+parameters, its force law, its regressor columns and its simulator terms.
+
+Examples
+--------
+>>> from clm_sim import EFFECTS
+>>> sorted(EFFECTS)  # doctest: +NORMALIZE_WHITESPACE
+['cable_slab', 'cogging', 'force_offset', 'force_ripple', 'friction_asymmetry', 'presliding',
+ 'stribeck', 'track_end']
+>>> cogging = EFFECTS["cogging"](amplitude=3.0, period=0.016)
+>>> cogging.as_config()
+{'type': 'cogging', 'amplitude': 3.0, 'period': 0.016, 'phase': 0.0}
+>>> float(cogging.force(0.004, 0.0, 0.0))  # N at y = 4 mm: a quarter period
+3.0
+"""
 
 
 def lower_effects(effects) -> KernelTerms:

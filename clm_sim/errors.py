@@ -15,12 +15,42 @@ SAME_RATE_RTOL = 1e-3
 
 
 class UserError(ValueError):
-    """A mistake in user input (config, data file, option); the message is shown as is."""
+    """A mistake in user input (config, data file, option); the message is shown as is.
+
+    One line that names the file, the key or the column and what was expected. The CLI prints
+    it and exits with code 2. It is a ``ValueError``, so ``except ValueError`` catches it.
+
+    Examples
+    --------
+    >>> from clm_sim import Plant, UserError
+    >>> try:
+    ...     Plant(mass=-1.0)
+    ... except UserError as exc:
+    ...     print(exc)
+    plant: mass must be > 0, got -1.0
+    >>> issubclass(UserError, ValueError)
+    True
+    """
 
 
 class NotFittedError(UserError, AttributeError):
-    """An identified model used before ``fit`` (as scikit-learn's: a ``ValueError`` and an
-    ``AttributeError``, so ``hasattr``-style checks and ``except ValueError`` both work)."""
+    """An identified model used before ``fit``.
+
+    As scikit-learn's: a ``ValueError`` (through ``UserError``) and an
+    ``AttributeError``, so ``hasattr``-style checks and ``except ValueError`` both work.
+    Raised by ``predict``, ``feedforward`` and ``save`` of an unfitted
+    ``LIPFeedforward`` or ``PGNNFeedforward``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from clm_sim import LIPFeedforward, NotFittedError
+    >>> try:
+    ...     LIPFeedforward().feedforward(np.zeros(10), 1e-4)
+    ... except NotFittedError as exc:
+    ...     print(exc)
+    LIPFeedforward is not fitted: call fit() before predict(), feedforward() or save()
+    """
 
 
 def check_ts(own: float | None, ts: float, owner: str) -> None:

@@ -39,10 +39,39 @@ LIP_COLUMNS = ("acceleration", "velocity", "sign_velocity", "position")
 class FeatureMap:
     """Preprocessing shared by identification, replay and diagnosis.
 
-    regression_lowpass_hz: cut-off (Hz) of the zero-phase Butterworth applied to regressor columns
-    and force in linear fits (``None``: no filter). position_lowpass_hz: zero-phase low-pass of the
-    position before differencing (``None``: raw). lowpass_order: order of both filters.
-    edge_samples: samples dropped at each end of a record for fitting (filter transients).
+    Positions are differenced in float64 (central differences) into velocity and
+    acceleration; the columns of a linear fit and the force are low-passed alike, so the
+    filter changes the noise, not the model.
+
+    Parameters
+    ----------
+    regression_lowpass_hz : float or None
+        Cut-off (Hz) of the zero-phase Butterworth applied to regressor columns and force in
+        linear fits (``None``: no filter); below the record's Nyquist frequency.
+    position_lowpass_hz : float or None
+        Zero-phase low-pass of the position before differencing (``None``: raw).
+    lowpass_order : int
+        Order of both filters, 1 to 12.
+    edge_samples : int
+        Samples dropped at each end of a record for fitting (filter transients), >= 1.
+
+    Raises
+    ------
+    UserError
+        A cut-off that is not positive (at construction) or at or above the Nyquist frequency
+        of a record (when used), an order or an edge out of range.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from clm_sim import FeatureMap
+    >>> features = FeatureMap(regression_lowpass_hz=100.0)
+    >>> t = np.arange(10_000) * 1e-4
+    >>> y, v, a = features.motion(0.05 * t**2, ts=1e-4)  # y = 0.05 t^2 m: a = 0.1 m/s^2
+    >>> round(float(np.median(a)), 6)
+    0.1
+    >>> features.fit_slice(len(t))
+    slice(200, 9800, None)
     """
 
     regression_lowpass_hz: float | None = 250.0

@@ -53,10 +53,47 @@ def default_effects() -> tuple[Effect, ...]:
 class Plant:
     """Motor parameters in SI units and the encoder that reads it.
 
-    mass: kg; viscous: N*s/m; coulomb: N; stiffness: N/m; effects: parasitic forces (left out:
-    the default stage's, :func:`default_effects`; ``effects=()`` for the rigid body alone);
-    encoder_resolution: m per count (0 = ideal position); substeps: integration sub-steps per
-    sample (halving the sub-step must move the trajectory by less than one count; tested).
+    The forward plant ``m a = u - fv v - fc sign(v) - fk y - sum(effect forces)``, with real
+    sticking at rest, integrated exactly between sub-steps; the default is the simulated CLM
+    (18.8 kg, its friction and parasitic forces, a 0.1 µm encoder).
+
+    Parameters
+    ----------
+    mass : float
+        Moving mass, kg (> 0).
+    viscous : float
+        Viscous friction, N*s/m (>= 0).
+    coulomb : float
+        Coulomb friction, N (>= 0); the breakaway level at rest.
+    stiffness : float
+        Position stiffness, N/m (a cable or a spring; may be negative).
+    effects : tuple of Effect
+        Parasitic forces (``clm_sim.effects``). Left out: the default stage's
+        (``clm_sim.plant.default_effects()``: force ripple, cable slab, Stribeck);
+        ``effects=()`` for the rigid body alone.
+    encoder_resolution : float
+        m per count (0: the ideal position); at most 1 mm.
+    substeps : int
+        Integration sub-steps per sample (halving the sub-step must move the trajectory by
+        less than one count; tested).
+
+    Raises
+    ------
+    UserError
+        A parameter that is not finite or out of its range, an encoder coarser than 1 mm per
+        count (a unit mistake), Stribeck dips deeper than the Coulomb friction.
+
+    Examples
+    --------
+    >>> from clm_sim import Plant
+    >>> from clm_sim.effects import Cogging
+    >>> Plant().theta()
+    {'mass': 18.8, 'viscous': 172.0, 'coulomb': 7.21, 'stiffness': 0.0}
+    >>> [e.type for e in Plant().effects]
+    ['force_ripple', 'cable_slab', 'stribeck']
+    >>> machine = Plant(mass=20.0, effects=(Cogging(amplitude=3.0, period=0.016),))
+    >>> float(machine.inverse_force(y=0.004, v=0.0, a=1.0))  # 20 kg * 1 m/s^2 + 3 N * sin(pi/2)
+    23.0
     """
 
     mass: float = 18.8

@@ -42,7 +42,51 @@ SQUARE_RANGE = (float(np.sqrt(np.finfo(float).tiny)), float(np.sqrt(np.finfo(flo
 
 @dataclass(frozen=True)
 class Run:
-    """A logged closed-loop run; see the module docstring for the signals and their units."""
+    """A logged closed-loop run: one record type for simulated and measured data.
+
+    Every signal is a 1-D float64 array of one length, sampled at ``t``; a signal that is not
+    known (``None``) is NaN (``e`` defaults to ``r - y``). ``ts`` is the sample time from the
+    time stamps; ``mae``, ``rms`` and ``max`` are the tracking-error metrics (m).
+    ``clm_sim.record.save_npz``, ``save_csv`` and ``save_mat`` write one; :func:`load_record`
+    reads one back.
+
+    Parameters
+    ----------
+    t : ndarray
+        Time stamps, s.
+    r : ndarray
+        Reference position, m.
+    y : ndarray
+        Measured position, m.
+    u : ndarray
+        Total force applied to the plant, N.
+    y_true : ndarray, optional
+        True position, m (a simulation knows it).
+    u_fb, u_ff : ndarray, optional
+        Feedback and feedforward parts of ``u``, N.
+    dither : ndarray, optional
+        Injected excitation, N.
+    e : ndarray, optional
+        Tracking error ``r - y``, m.
+    meta : dict
+        The resolved config, seed and versions of a simulated run; the source of a loaded one.
+
+    Raises
+    ------
+    ValueError
+        A signal that is not 1-D or not of the length of ``t``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from clm_sim import Run
+    >>> t = np.arange(5) * 1e-4
+    >>> run = Run(t=t, r=np.zeros(5), y=np.full(5, 1e-6), u=np.ones(5))
+    >>> run.ts, run.mae                     # s, m
+    (0.0001, 1e-06)
+    >>> bool(np.isnan(run.dither).all())    # not known
+    True
+    """
 
     t: np.ndarray
     r: np.ndarray
@@ -430,19 +474,50 @@ def load_record(path, columns: dict[str, str] | None = None,
 
     Parameters
     ----------
-    path : CSV with a header, NPZ, or MAT file holding at least ``t, r, y, u`` (s, m, m, N).
-    columns : map from signal name to the name in the file, e.g. ``{"y": "qm", "u": "vir"}``.
-    scale : factor per signal applied after loading, e.g. ``{"u": 35.15}`` (V to N); a value may
+    path : str or Path
+        CSV with a header, NPZ, or MAT file holding at least ``t, r, y, u`` (s, m, m, N).
+    columns : dict, optional
+        Map from signal name to the name in the file, e.g. ``{"y": "qm", "u": "vir"}``.
+    scale : dict, optional
+        Factor per signal applied after loading, e.g. ``{"u": 35.15}`` (V to N); a value may
         also name a scalar variable of the file (``{"u": "gtau"}``).
-    min_samples : shortest record accepted.
+    min_samples : int
+        Shortest record accepted.
 
-    Raises ``UserError`` (one line naming the file and the column) for a missing column, NaN or
-    inf, time stamps that are not strictly increasing and uniform (:func:`_uniform_step`: the
-    rounding of their stored type allowed), or a record that is too short, and for units off by orders of magnitude: a sample time above ``MAX_TS`` (t in ms) or below
-    ``MIN_TS``, a position beyond ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``;
-    a variable that is not numbers (text, MATLAB cells, structs, sparse matrices, complex values
-    with an imaginary part) is refused by name; so is a ``columns`` or ``scale`` name that is no
-    signal, a mapped column the file lacks, and a scale whose result squares to inf or 0.
+    Returns
+    -------
+    Run
+        The record; ``meta["source"]`` names the file.
+
+    Raises
+    ------
+    UserError
+        One line naming the file and the column, for a missing column, NaN or inf, time
+        stamps that are not strictly increasing and uniform (the rounding of their stored
+        type allowed), or a record that is too short; for units off by orders of magnitude:
+        a sample time above ``MAX_TS`` (t in ms) or below ``MIN_TS``, a position beyond
+        ``MAX_POSITION_M`` (y in mm) or a force beyond ``MAX_FORCE_N``. A variable that is not
+        numbers (text, MATLAB cells, structs, sparse matrices, complex values with an
+        imaginary part) is refused by name; so is a ``columns`` or ``scale`` name that is no
+        signal, a mapped column the file lacks, and a scale whose result squares to inf or 0.
+
+    Examples
+    --------
+    A logger's file with its own column names, the force in volts:
+
+    >>> import numpy as np
+    >>> from clm_sim import load_record
+    >>> t = np.arange(400) * 1e-3
+    >>> table = np.column_stack([t, np.sin(t), np.sin(t), 0.1 * np.cos(t)])
+    >>> np.savetxt("log.csv", table, delimiter=",", header="time,ref,pos,volt", comments="")
+    >>> record = load_record("log.csv", columns={"t": "time", "r": "ref", "y": "pos",
+    ...                                          "u": "volt"}, scale={"u": 35.15})
+    >>> len(record), record.ts, round(float(record.u[0]), 3)   # samples, s, N
+    (400, 0.001, 3.515)
+    >>> load_record("log.csv")
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: log.csv: missing column 't' (signal t); columns present: pos, ref, time, volt
     """
     path = Path(path)
     if not path.exists():

@@ -85,7 +85,11 @@ def _s_curve_times(
 class PointToPoint:
     """Rest-to-rest jerk-limited moves through `points_m`, dwelling `dwell_s` at each point.
 
-    Attributes
+    ``duration_s()`` is the length of the motion (s) and ``sample(ts)`` its signals at sample
+    time ``ts`` (``.r``: position, m). The configs' r1 (the training range, -0.1 to 0.1 m) and
+    r2 (beyond it, 0 to 0.17 m) are two of these.
+
+    Parameters
     ----------
     points_m : tuple of float
         Positions in m; the first is the start position. At least two entries; repeated
@@ -98,6 +102,20 @@ class PointToPoint:
         Bound on ``|a|`` in m/s^2.
     max_jerk : float
         Bound on ``|j|`` in m/s^3.
+
+    Raises
+    ------
+    UserError
+        Fewer than two points, a point or a bound that is not a finite number, a bound or a
+        dwell that is not positive.
+
+    Examples
+    --------
+    >>> from clm_sim import PointToPoint
+    >>> move = PointToPoint(points_m=(0.0, 0.01), dwell_s=0.1)  # 10 mm, 0.1 s at rest each end
+    >>> r = move.sample(1e-4).r                                 # m, at 10 kHz
+    >>> len(r), float(r[0]), float(r[-1])
+    (4167, 0.0, 0.01)
     """
 
     points_m: tuple[float, ...]

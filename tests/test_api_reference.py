@@ -1,0 +1,96 @@
+"""The API reference: every public name (``clm_sim.__all__``) is on the reference page, its
+docstring has the numpydoc sections, and every example in it runs and prints what it shows."""
+
+from __future__ import annotations
+
+import ast
+import doctest
+import importlib
+import inspect
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import clm_sim
+
+ROOT = Path(__file__).resolve().parent.parent
+REFERENCE = ROOT / "docs" / "reference.md"
+NAMES = list(clm_sim.__all__)
+
+
+def where(name: str) -> str:
+    """The module that defines the public ``name``."""
+    return "clm_sim" if name == "__version__" else clm_sim._EXPORTS[name]
+
+
+def docstring(name: str) -> str:
+    """The docstring the reference renders: the object's own, or for a module attribute (a
+    dict, a string) the string literal that follows its assignment."""
+    module = importlib.import_module(where(name))
+    obj = getattr(module, name)
+    if inspect.isclass(obj) or inspect.isfunction(obj):
+        return inspect.getdoc(obj) or ""
+    body = ast.parse(Path(module.__file__).read_text(encoding="utf-8")).body
+    for node, after in zip(body, body[1:]):
+        targets = (node.targets if isinstance(node, ast.Assign) else
+                   [node.target] if isinstance(node, ast.AnnAssign) else [])
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
+                return inspect.cleandoc(after.value.value)
+    return ""
+
+
+def sections(text: str) -> set[str]:
+    return set(re.findall(r"^(\w[\w ]*)\n-{3,}$", text, re.M))
+
+
+def test_reference_page_lists_every_public_name():
+    entries = re.findall(r"^::: ([\w.]+)$", REFERENCE.read_text(encoding="utf-8"), re.M)
+    listed = {path.rsplit(".", 1)[1]: path for path in entries}
+    assert len(entries) == len(listed), "a name is listed twice"
+    assert sorted(listed) == sorted(NAMES)
+    for name, path in listed.items():  # the defining module: what mkdocstrings reads
+        assert path == f"{where(name)}.{name}"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_docstring_has_numpydoc_sections(name):
+    obj = getattr(clm_sim, name)
+    text = docstring(name)
+    needed = {"Examples"}
+    if inspect.isfunction(obj):
+        needed |= {"Parameters", "Returns", "Raises"}
+    elif inspect.isclass(obj) and not issubclass(obj, Exception):
+        needed |= {"Parameters", "Raises"}
+    assert needed <= sections(text), f"{name}: missing {sorted(needed - sections(text))}"
+    if "Parameters" in needed:  # every parameter of the signature is documented
+        params = inspect.signature(obj).parameters
+        documented = set(re.findall(r"^(\w+)(?:, (\w+))*(?: :|$)", text, re.M))
+        flat = {p for group in documented for p in group if p}
+        missing = [p for p in params if p not in ("self", "kwargs", "args") and p not in flat]
+        assert not missing, f"{name}: parameters not documented: {missing}"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_docstring_examples_run(name, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # an example that writes a file writes it here
+    test = doctest.DocTestParser().get_doctest(docstring(name), {}, name, None, 0)
+    assert test.examples, f"{name}: no example"
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
+    runner.run(test)
+    assert runner.failures == 0, f"{name}: {runner.failures} of {runner.tries} examples failed"
+
+
+def test_built_site_shows_every_public_name(tmp_path):
+    """The reference page as built: one rendered entry per public name (mkdocstrings names
+    an entry's heading by its full path)."""
+    pytest.importorskip("mkdocstrings_handlers.python")
+    site = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-q", "-d", str(site)],
+                   cwd=ROOT, check=True)
+    html = (site / "reference" / "index.html").read_text(encoding="utf-8")
+    missing = [name for name in NAMES if f'id="{where(name)}.{name}"' not in html]
+    assert not missing, f"not rendered: {missing}"
