@@ -124,7 +124,30 @@ def _default_references() -> dict[str, PointToPoint]:
 
 @dataclass(frozen=True)
 class Training:
-    """The identification experiment: closed loop on ``reference`` with ``dither`` added."""
+    """The identification experiment: closed loop on ``reference`` with ``dither`` added.
+
+    Parameters
+    ----------
+    reference : str
+        Name of the training reference among the config's ``references``.
+    repeats : int
+        The reference's profile is run this many times in a row (1 to 1000); it must end
+        where it starts to be repeated.
+    dither : Dither
+        The excitation added to the controller output.
+
+    Raises
+    ------
+    UserError
+        ``repeats`` not an integer in 1..1000.
+
+    Examples
+    --------
+    >>> from clm_sim import Dither, ExperimentConfig, Training
+    >>> training = Training(reference="r1", repeats=1, dither=Dither(std_n=20.0))
+    >>> ExperimentConfig(training=training).training.dither.std_n   # N
+    20.0
+    """
 
     reference: str = "r1"
     repeats: int = 3
@@ -139,10 +162,43 @@ class Training:
 class FeedforwardSpec:
     """One row of the table: a feedforward and how it is identified.
 
-    kind: ``none`` (feedback only), ``lip`` or ``pgnn``; training (PGNN): ``simultaneous``,
-    ``sequential`` or ``pinn``; lambda: regularization weight toward theta_LIP (physical units);
-    hidden: neurons n_l of the hidden layer, or a list of widths for several (``[32, 32]``);
-    seeds: training seeds averaged in the table.
+    Parameters
+    ----------
+    kind : {"none", "lip", "pgnn"}
+        Feedback only, the LIP, or a PGNN.
+    training : str, optional
+        PGNN only: ``simultaneous``, ``sequential`` or ``pinn``.
+    lam : float, optional
+        PGNN only: regularization weight toward theta_LIP (physical units; ``lambda`` in a
+        config); required for ``simultaneous`` (0 for none), not allowed for ``sequential``.
+    hidden : int or tuple of int, optional
+        PGNN only: neurons n_l of the hidden layer, or the widths of several (``(32, 32)``).
+    seeds : int
+        Training seeds (network draws) averaged in the table, >= 1.
+    name : str, optional
+        The row's label in the table (default: made from the settings).
+    pgnn : PGNNSettings
+        The ``pgnn:`` options of the row.
+
+    Raises
+    ------
+    UserError
+        A PGNN without ``training`` or ``hidden``, a setting its constraint refuses, PGNN
+        settings on another kind, ``seeds`` < 1.
+
+    Examples
+    --------
+    >>> from clm_sim import FeedforwardSpec
+    >>> FeedforwardSpec(kind="lip").label()
+    'LIP'
+    >>> row = FeedforwardSpec.pgnn_row(training="simultaneous", lam=0.01, hidden=16, seeds=5,
+    ...                                settings={"max_iter": 50})
+    >>> row.label(), row.pgnn.max_iter
+    ('PGNN simultaneous, lambda=0.01, n_l=16', 50)
+    >>> FeedforwardSpec(kind="pgnn", training="sequential", lam=0.1, hidden=16)
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: lambda does not apply to a sequential pgnn (theta_phy is fixed at theta_LIP)
     """
 
     kind: Literal["none", "lip", "pgnn"]
@@ -275,11 +331,59 @@ def _default_feedforwards() -> tuple[FeedforwardSpec, ...]:
 
 @dataclass(frozen=True)
 class ExperimentConfig:
-    """Everything a run needs; ``seed`` drives every random draw through spawned child streams.
+    """Everything a run needs: the YAML config of ``clm-sim run`` as a frozen structure.
 
-    ``plant`` is what the simulation believes (the PID is designed on it); ``truth``, when given,
-    is the emulated machine the runs are measured on (with effects the model lacks), and the run
-    then diagnoses ``plant`` against it (``experiments.diagnosis``).
+    ``seed`` drives every random draw through spawned child streams. ``plant`` is what the
+    simulation believes (the PID is designed on it); ``truth``, when given, is the emulated
+    machine the runs are measured on (with effects the model lacks), and the run then diagnoses
+    ``plant`` against it. :func:`load_config` reads one from a file.
+
+    Parameters
+    ----------
+    name : str
+        Names the results folder.
+    seed : int
+        Seed of every random draw (dither, network draws).
+    ts : float
+        Sample time, s, in (0, 0.1].
+    plant : Plant
+        The model plant.
+    truth : Plant, optional
+        The emulated machine (default: the runs are measured on ``plant``).
+    controller : PIDDesign
+        The PID's design, applied to ``plant``.
+    references : dict of str to PointToPoint
+        The named references (default: r1, the training range, and r2, beyond it).
+    training : Training
+        The identification experiment.
+    features : FeatureMap
+        The preprocessing of identification and replay.
+    feedforwards : tuple of FeedforwardSpec
+        The table's rows (default: feedback only and the LIP).
+    replay : tuple of str
+        The references every row is replayed on.
+    data : RecordData, optional
+        Identify from measured records instead of the simulation.
+
+    Raises
+    ------
+    UserError
+        A sample time out of range, a reference that is used but not defined, no
+        feedforward, a row that cannot be fitted from records, a config that would simulate
+        more samples than the limit.
+
+    Examples
+    --------
+    >>> from clm_sim import ExperimentConfig, FeedforwardSpec, Plant
+    >>> from clm_sim.effects import Cogging
+    >>> config = ExperimentConfig(truth=Plant(effects=(Cogging(amplitude=3.0),)),
+    ...                           feedforwards=(FeedforwardSpec(kind="lip"),), replay=("r2",))
+    >>> sorted(config.references), config.training.repeats, config.plant.mass
+    (['r1', 'r2'], 3, 18.8)
+    >>> ExperimentConfig(replay=("r3",))
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: replay[0]: reference 'r3' is not defined under 'references' (defined: r1, r2)
     """
 
     name: str = "experiment"
@@ -336,8 +440,40 @@ def refuse_other_commands(data: dict, path) -> None:
 
 
 def load_config(path, data: dict | None = None) -> ExperimentConfig:
-    """Read and check an experiment config; errors name the file and the key. ``data``: the
-    file's YAML when the caller has read it already (:func:`clm_sim.schema.load_yaml`)."""
+    r"""Read and check an experiment config (YAML, read strictly into typed structures).
+
+    Parameters
+    ----------
+    path : str or Path
+        The YAML file (``experiments/configs/*.yaml`` are the shipped ones).
+    data : dict, optional
+        The file's YAML when the caller has read it already.
+
+    Returns
+    -------
+    ExperimentConfig
+        Every default filled in.
+
+    Raises
+    ------
+    UserError
+        One line that names the file and the key: an unknown key, a value of the wrong type
+        or out of range, a missing file, a config of another command (``sweep:``, ``study:``).
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> from clm_sim import load_config
+    >>> _ = Path("mine.yaml").write_text("ts: 1.0e-3\nplant: {mass: 20.0}\n")
+    >>> config = load_config("mine.yaml")
+    >>> config.ts, config.plant.mass, config.plant.viscous
+    (0.001, 20.0, 172.0)
+    >>> _ = Path("typo.yaml").write_text("plant: {mas: 20.0}\n")
+    >>> load_config("typo.yaml")
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: typo.yaml: plant.mas: unknown key; known keys: coulomb, effects, ...
+    """
     path = Path(path)
     data = load_yaml(path) if data is None else data
     try:
