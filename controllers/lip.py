@@ -39,12 +39,54 @@ def _effect_columns(effects, y, v, u) -> dict[str, np.ndarray]:
 
 @dataclass
 class LIPFeedforward:
-    """LIP model; ``fit`` learns ``theta_`` (named, SI units) and the sample time ``ts_`` (s) of
-    its data; ``predict``/``feedforward`` use them (at that sample time only); ``save``/``load``
-    keep them (JSON).
+    """The linear-in-the-parameters (LIP) inverse-dynamics feedforward.
 
-    features: the preprocessing (filter, alignment); effects: extra named effects whose linear
-    coefficients are identified alongside ``theta`` (their nonlinear parameters stay fixed).
+    ``u = m a + fv v + fc sign(v) + fk y`` (+ the regressors of named effects), identified by
+    least squares from a logged run. As scikit-learn's estimators: the constructor stores
+    settings, ``fit(*, y, u, ts)`` learns and returns the model; ``predict`` and
+    ``feedforward`` use it at the fitted sample time only; ``save``/``load`` keep it as JSON.
+
+    Parameters
+    ----------
+    features : FeatureMap
+        The preprocessing (filter, alignment).
+    effects : tuple of Effect
+        Extra named effects whose linear coefficients are identified alongside ``theta``
+        (their nonlinear parameters, e.g. a cogging period, stay fixed).
+
+    Attributes
+    ----------
+    theta_ : dict
+        ``mass`` (kg), ``viscous`` (N*s/m), ``coulomb`` (N), ``stiffness`` (N/m).
+    std_ : dict
+        Standard errors of every coefficient (white-noise least squares).
+    effects_ : tuple of Effect
+        The effects with their identified coefficients.
+    ts_ : float
+        Sample time (s) of the data the model was fitted on.
+
+    Raises
+    ------
+    UserError
+        From ``fit``: a record that does not excite every parameter (it needs motion in both
+        directions); from ``predict``/``feedforward``: another sample time than the fitted.
+    NotFittedError
+        ``predict``, ``feedforward`` or ``save`` before ``fit``.
+
+    Examples
+    --------
+    >>> from clm_sim import ExperimentConfig, Plant, PointToPoint, Testbed, Training
+    >>> back_and_forth = PointToPoint(points_m=(0.0, 0.02, -0.02, 0.0), dwell_s=0.1)
+    >>> config = ExperimentConfig(plant=Plant(effects=()), references={"r": back_and_forth},
+    ...                           training=Training(reference="r", repeats=1), replay=("r",))
+    >>> run = Testbed(config).training_run(seed=1)   # 2 s in closed loop, 50 N dither
+    >>> from clm_sim import LIPFeedforward
+    >>> lip = LIPFeedforward().fit(y=run.y, u=run.u, ts=run.ts)
+    >>> round(lip.theta_["mass"], 1), lip.ts_                 # kg (the plant's: 18.8), s
+    (18.8, 0.0001)
+    >>> u_ff = lip.feedforward(back_and_forth.sample(1e-4).r)  # N per sample, for a replay
+    >>> lip.save("lip.json"); LIPFeedforward.load("lip.json").theta_ == lip.theta_
+    True
     """
 
     features: FeatureMap = field(default_factory=FeatureMap)

@@ -180,30 +180,70 @@ def check_settings(settings: dict) -> None:
 
 @dataclass(frozen=True)
 class PGNNSettings:
-    """The ``pgnn:`` options of a PGNN feedforward and their defaults (see controllers.pgnn;
-    constraints in ``CONSTRAINTS``).
+    """The ``pgnn:`` options of a PGNN feedforward and their defaults.
 
-    activation: of the hidden layers; init: optimized (the lemma's least squares) or random
-    (lm/adam only); optimizer: varpro (output layer and theta_phy eliminated by least squares,
-    Levenberg-Marquardt on the hidden layers), lm (Levenberg-Marquardt on all parameters, the
-    earlier method) or adam; max_iter: LM iterations (Jacobian evaluations) or Adam steps;
-    ftol: converged when the Gauss-Newton model predicts at most this relative cost decrease;
-    restarts: draws of the hidden layers per fit, the lowest training cost kept;
-    continuation_lam: a fit without any pull toward theta_LIP (simultaneous, lambda = 0, no
-    projection penalty) also starts each draw from the solution regularized with this lambda
-    (homotopy; varpro only; 0: off), and keeps the lower training cost; adam_lr: Adam
-    step size; validation_fraction: last part of the data held out to pick the best iterate
-    (0: none); pinn_weight: weight of the PINN term (training pinn only); orthogonal_weight:
-    lambda_perp of the orthogonal-projection penalty (Kon et al. 2022; dimensionless);
-    weight_decay: L2 weight of the network weights (N**2 per unit weight**2); lam_diag:
-    per-parameter regularization weights (mass, viscous, coulomb, stiffness; physical units)
-    overriding lambda; decimation: keep every n-th sample of the filtered training data (None:
-    one sample per 8 ms whatever the record's rate, :func:`decimation_for`: 80 at 10 kHz, 8 at
-    1 kHz); theta_ftol: a fit is ``converged`` only when, besides the first-order test on the
-    cost, theta_phy has settled: over the last quarter of the iterations its force
-    ``T . delta theta`` moved by at most this fraction of the training force's rms (else the stop
-    is ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
-    converge to).
+    Each is declared once, here; its type and range are in one table,
+    ``controllers.pgnn_settings.CONSTRAINTS``, which the config, this class and
+    ``PGNNFeedforward`` all check through.
+
+    Parameters
+    ----------
+    activation : str
+        Of the hidden layers (``tanh`` and the others of ``CONSTRAINTS``).
+    init : {"optimized", "random"}
+        Optimized (the lemma's least squares) or random (lm/adam only).
+    optimizer : {"varpro", "lm", "adam"}
+        varpro (output layer and theta_phy eliminated by least squares, Levenberg-Marquardt
+        on the hidden layers), lm (Levenberg-Marquardt on all parameters) or adam.
+    max_iter : int
+        LM iterations (Jacobian evaluations) or Adam steps.
+    ftol : float
+        Converged when the Gauss-Newton model predicts at most this relative cost decrease.
+    restarts : int
+        Draws of the hidden layers per fit, the lowest training cost kept.
+    continuation_lam : float
+        A fit without any pull toward theta_LIP (simultaneous, lambda = 0, no projection
+        penalty) also starts each draw from the solution regularized with this lambda
+        (homotopy; varpro only; 0: off), and keeps the lower training cost.
+    adam_lr : float
+        Adam step size.
+    validation_fraction : float
+        Last part of the data held out to pick the best iterate (0: none).
+    pinn_weight : float
+        Weight of the PINN term (training pinn only).
+    orthogonal_weight : float
+        lambda_perp of the orthogonal-projection penalty (Kon et al. 2022; dimensionless).
+    weight_decay : float
+        L2 weight of the network weights (N**2 per unit weight**2).
+    lam_diag : dict, optional
+        Per-parameter regularization weights (mass, viscous, coulomb, stiffness; physical
+        units) overriding lambda.
+    decimation : int, optional
+        Keep every n-th sample of the filtered training data (None: one sample per 8 ms
+        whatever the record's rate: 80 at 10 kHz, 8 at 1 kHz).
+    theta_ftol : float
+        A fit is ``converged`` only when, besides the first-order test on the cost, theta_phy
+        has settled: over the last quarter of the iterations its force ``T . delta theta``
+        moved by at most this fraction of the training force's rms (else the stop is
+        ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
+        converge to).
+
+    Raises
+    ------
+    UserError
+        A setting its constraint refuses (named by its config key), or ``init: random`` with
+        the varpro optimizer.
+
+    Examples
+    --------
+    >>> from clm_sim import PGNNSettings
+    >>> fast = PGNNSettings(max_iter=50, weight_decay=1e-5)
+    >>> fast.max_iter, fast.optimizer
+    (50, 'varpro')
+    >>> PGNNSettings(ftol=1.0)
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: pgnn.ftol: expected a number in (0, 1), got 1.0
     """
 
     activation: str = "tanh"

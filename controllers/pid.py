@@ -29,13 +29,39 @@ DISCRETIZATIONS = ("tustin", "bilinear", "zoh", "foh", "backward_diff", "euler")
 
 @dataclass(frozen=True)
 class PIDDesign:
-    """Loop-shaping PID: C(s) = k * (1 + wi/s) * (s/wd + 1)/(s/wt + 1) * LP(s), wc = 2*pi*crossover_hz,
-    wi = wc/integrator_ratio, wd = wc/derivative_ratio, wt = wc*derivative_ratio (a 'tamed' derivative,
-    i.e. a PID whose derivative is low-passed at wt), LP = optional 2nd-order low-pass at lowpass_hz with
-    damping lowpass_damping; k chosen so that |C(j wc) P(j wc)| = 1 exactly.
+    """The shape of a loop-shaping PID; :func:`design_pid` turns it into a controller.
 
-    Frequencies in Hz; ratios and damping are dimensionless. ``discretization`` is passed to
-    ``control.c2d`` and must be one of ``DISCRETIZATIONS``.
+    ``C(s) = k (1 + wi/s) (s/wd + 1)/(s/wt + 1) LP(s)`` with ``wc = 2 pi crossover_hz``,
+    ``wi = wc/integrator_ratio``, ``wd = wc/derivative_ratio``, ``wt = wc derivative_ratio``
+    (a 'tamed' derivative, low-passed at wt), ``LP`` an optional 2nd-order low-pass; ``k`` is
+    chosen so that ``|C(j wc) P(j wc)| = 1`` exactly.
+
+    Parameters
+    ----------
+    crossover_hz : float
+        Crossover frequency, Hz (below Nyquist).
+    integrator_ratio : float
+        ``wc / wi`` (> 1).
+    derivative_ratio : float
+        ``wc / wd = wt / wc`` (> 1).
+    lowpass_hz : float, optional
+        Cut-off of the 2nd-order low-pass, Hz (None: none).
+    lowpass_damping : float
+        Damping of that low-pass (> 0).
+    discretization : str
+        Passed to ``control.c2d``; one of ``controllers.pid.DISCRETIZATIONS``.
+
+    Raises
+    ------
+    UserError
+        From :func:`design_pid`, a value out of its range (named).
+
+    Examples
+    --------
+    >>> from clm_sim import PIDDesign, design_pid
+    >>> design = PIDDesign(crossover_hz=50.0, lowpass_hz=1000.0)
+    >>> design_pid(mass=18.8, viscous=172.0, stiffness=0.0, design=design, ts=1e-4).summary()
+    'PID: crossover 50.0 Hz, phase margin 44.2 deg, gain margin 20.2 dB'
     """
 
     crossover_hz: float = 30.0
@@ -117,10 +143,30 @@ def design_pid(*, mass: float, viscous: float, stiffness: float, design: PIDDesi
     ts : float
         Sample time of the controller, s.
 
+    Returns
+    -------
+    PIDController
+        The sampled controller: ``b``, ``a`` (C(z) in powers of z^-1, N/m), its ``ts``, the
+        parallel gains ``kp``, ``ki``, ``kd``, ``tau_d``, and the crossover and margins
+        measured on the discrete loop (``summary()``). It runs at ``ts`` only.
+
     Raises
     ------
     UserError
         If a parameter is out of range or the sampled closed loop is not stable.
+
+    Examples
+    --------
+    >>> from clm_sim import PIDDesign, design_pid
+    >>> pid = design_pid(mass=18.8, viscous=172.0, stiffness=0.0, design=PIDDesign(), ts=1e-4)
+    >>> pid.summary()
+    'PID: crossover 30.0 Hz, phase margin 49.7 deg, gain margin 39.4 dB'
+    >>> len(pid.b) == len(pid.a), float(pid.a[0])
+    (True, 1.0)
+    >>> design_pid(mass=18.8, viscous=172.0, stiffness=0.0, design=PIDDesign(), ts=0.01)  # 100 Hz
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: pid: the design with crossover 30 Hz gives an unstable closed loop (largest |pole| 1.109); lower crossover_hz
 
     Notes
     -----

@@ -68,9 +68,9 @@ def test_docstring_has_numpydoc_sections(name):
     assert needed <= sections(text), f"{name}: missing {sorted(needed - sections(text))}"
     if "Parameters" in needed:  # every parameter of the signature is documented
         params = inspect.signature(obj).parameters
-        documented = set(re.findall(r"^(\w+)(?:, (\w+))*(?: :|$)", text, re.M))
-        flat = {p for group in documented for p in group if p}
-        missing = [p for p in params if p not in ("self", "kwargs", "args") and p not in flat]
+        entries = re.findall(r"^\**(\w+(?:, \**\w+)*)(?: :.*)?$", text, re.M)
+        documented = {p.strip("*") for entry in entries for p in entry.split(", ")}
+        missing = [p for p in params if p not in documented]
         assert not missing, f"{name}: parameters not documented: {missing}"
 
 

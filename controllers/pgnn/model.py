@@ -107,20 +107,74 @@ def lemma_condition(data: TrainingData, h: np.ndarray, theta_lip, lam_diag=None,
 
 
 class PGNNFeedforward:
-    """A PGNN feedforward; ``fit`` learns ``theta_`` (named, SI units), ``network_`` (the torch
-    module), ``fit_`` (how the fit stopped: a :class:`controllers.pgnn.fit_record.FitRecord`),
-    ``cost_`` (its cost terms: a :class:`controllers.pgnn.cost.CostTerms`), ``history_`` and
-    ``ts_`` (s, the sample time of its data); ``predict``/``feedforward`` use them (at that
-    sample time only); ``save``/``load`` keep them.
+    """A physics-guided neural network (PGNN) feedforward.
 
-    Settings: ``hidden`` (widths of the hidden layers, an int for one layer), ``training``
-    (simultaneous, sequential or pinn), ``lam`` (weight of the distance to theta_LIP), the
-    optimizer's and the cost's options ``settings`` (a
-    :class:`controllers.pgnn_settings.PGNNSettings`, where each is declared once with its
-    default) and ``features`` (the preprocessing shared with the LIP). Options may also be given
-    by name (``PGNNFeedforward(hidden=8, max_iter=50)``): they replace those of ``settings``.
-    Every setting is checked here (``controllers.pgnn_settings.CONSTRAINTS``), and again by
-    ``fit``.
+    The LIP's physical layer in parallel with a small tanh network, both on the filtered
+    features ``[a, v, sign v, y]``, fitted from a logged run (``fit(*, y, u, ts, theta_lip,
+    rng)``: ``rng``, a ``numpy.random.Generator`` or an integer seed, draws the network and
+    has no default). ``predict``/``feedforward`` use the model at the fitted sample time only;
+    ``save(path)`` writes ``path.pt`` (tensors) and ``path.json``, ``load`` reads them back
+    (``weights_only=True``).
+
+    Parameters
+    ----------
+    hidden : int or tuple of int
+        Widths of the hidden layers (an int for one layer).
+    training : {"simultaneous", "sequential", "pinn"}
+        Physical layer and network together, the network on the LIP's residual, or with a
+        PINN term.
+    lam : float
+        Weight of the distance of theta_phy to theta_LIP (simultaneous training).
+    settings : PGNNSettings, optional
+        The optimizer's and the cost's options.
+    features : FeatureMap, optional
+        The preprocessing shared with the LIP.
+    **options
+        Options of ``PGNNSettings`` by name (``PGNNFeedforward(hidden=8, max_iter=50)``):
+        they replace those of ``settings``.
+
+    Attributes
+    ----------
+    theta_ : dict
+        The physical layer's parameters (kg, N*s/m, N, N/m).
+    network_ : torch.nn.Module
+        The network, its input scalings included.
+    fit_ : FitRecord
+        How the fit stopped (``stop``: converged, theta_moving, max_iter, stalled),
+        ``iterations``, the cost terms.
+    cost_, history_
+        The cost terms at the kept iterate, and at every iteration.
+    ts_ : float
+        Sample time (s) of the data the model was fitted on.
+
+    Raises
+    ------
+    UserError
+        A setting its constraint refuses (here and again in ``fit``), a ``fit`` without
+        ``rng``, another sample time than the fitted at ``predict``/``feedforward``.
+    TypeError
+        An unknown option, or ``settings`` that is not a ``PGNNSettings``.
+    NotFittedError
+        ``predict``, ``feedforward`` or ``save`` before ``fit``.
+
+    Examples
+    --------
+    >>> from clm_sim import ExperimentConfig, Plant, PointToPoint, Testbed, Training
+    >>> back_and_forth = PointToPoint(points_m=(0.0, 0.02, -0.02, 0.0), dwell_s=0.1)
+    >>> config = ExperimentConfig(plant=Plant(effects=()), references={"r": back_and_forth},
+    ...                           training=Training(reference="r", repeats=1), replay=("r",))
+    >>> run = Testbed(config).training_run(seed=1)   # 2 s in closed loop, 50 N dither
+    >>> from clm_sim import LIPFeedforward, PGNNFeedforward
+    >>> lip = LIPFeedforward().fit(y=run.y, u=run.u, ts=run.ts)
+    >>> pgnn = PGNNFeedforward(hidden=4, lam=0.01, max_iter=5).fit(
+    ...     y=run.y, u=run.u, ts=run.ts, theta_lip=lip.theta_, rng=0)
+    >>> pgnn.fit_.stop, pgnn.fit_.iterations
+    ('max_iter', 5)
+    >>> abs(pgnn.theta_["mass"] / lip.theta_["mass"] - 1) < 0.01   # held near the LIP's
+    True
+    >>> from pathlib import Path
+    >>> pgnn.save("pgnn"); sorted(p.name for p in Path(".").glob("pgnn.*"))
+    ['pgnn.json', 'pgnn.pt']
     """
 
     def __init__(self, *, hidden: int | tuple[int, ...] = 16, training: str = "simultaneous",
