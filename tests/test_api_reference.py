@@ -22,8 +22,13 @@ NAMES = list(clm_sim.__all__)
 
 
 def where(name: str) -> str:
-    """The module that defines the public ``name``."""
-    return "clm_sim" if name == "__version__" else clm_sim._EXPORTS[name]
+    """The module that defines the public ``name`` (where mkdocstrings finds it)."""
+    if name == "__version__":
+        return "clm_sim"
+    obj = getattr(clm_sim, name)
+    if inspect.isclass(obj) or inspect.isfunction(obj):
+        return obj.__module__
+    return clm_sim._EXPORTS[name]
 
 
 def docstring(name: str) -> str:

@@ -86,14 +86,60 @@ class Diagnosis:
 
 def diagnose(record: Run, model: SimulationModel, *, validation: Run | None = None,
              settings: DiagnosisSettings = DiagnosisSettings()) -> Diagnosis:
-    """Diagnose ``model`` against a measured ``record``.
+    r"""Show what ``model`` gets wrong on a measured ``record``, name the physical cause,
+    extend the model and measure the gain out of sample.
 
-    The causes are selected on ``record`` (or on its first ``1 - holdout_fraction`` when no
-    ``validation`` record is given) and the gain is measured on the validation data.
+    The force residual (measured ``u`` minus the model's inverse dynamics) is fitted with the
+    candidate effects of the library; an effect is named only when it passes the significance
+    and parsimony rules and its family's law holds on the data (docs/diagnosis.md). The causes
+    are selected on ``record`` (or on its first ``1 - holdout_fraction`` when no
+    ``validation`` record is given) and the gain is measured on the validation data. Runs
+    with one BLAS thread, so the findings do not depend on the machine's cores.
 
-    Runs with one BLAS thread (:func:`clm_sim.numerics.single_threaded`): OpenBLAS splits some
-    sums over its threads, so with the machine's default the last digits of the findings
-    depended on its number of cores.
+    Parameters
+    ----------
+    record : Run
+        The measured record (``t, r, y, u``), e.g. from :func:`load_record`.
+    model : SimulationModel
+        The simulation's model, from :func:`load_model`.
+    validation : Run, optional
+        A second record to measure the gain on (default: the final part of ``record``).
+    settings : DiagnosisSettings
+        The significance rule and the filter.
+
+    Returns
+    -------
+    Diagnosis
+        ``findings`` (ranked; each with its ``effect``, parameters with standard errors and
+        ``values()``), what stays ``unexplained``, the out-of-sample ``gain``, the
+        ``extended`` plant and the found ``effects``; ``summary()`` is what
+        ``clm-sim diagnose`` prints.
+
+    Raises
+    ------
+    UserError
+        A record sampled at another rate than the model's controller, a record too short to
+        hold out a validation part, too little excitation to identify anything.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> from clm_sim import ExperimentConfig, Plant, PointToPoint, Testbed, Training
+    >>> from clm_sim.effects import Cogging
+    >>> moves = PointToPoint(points_m=(0.0,) + (0.02, -0.02) * 4 + (0.0,), dwell_s=0.05)
+    >>> machine = Plant(effects=(Cogging(amplitude=3.0, period=0.008),))  # hidden from the model
+    >>> config = ExperimentConfig(plant=Plant(effects=()), truth=machine, references={"r": moves},
+    ...                           training=Training(reference="r", repeats=1), replay=("r",))
+    >>> record = Testbed(config).training_run(seed=1)      # 7 s measured on the machine
+    >>> _ = Path("model.yaml").write_text(
+    ...     "ts: 1.0e-4\nplant: {effects: []}\ncontroller: {crossover_hz: 30.0}\n")
+    >>> from clm_sim import diagnose, load_model
+    >>> result = diagnose(record, load_model("model.yaml"))
+    >>> print(result.summary())  # doctest: +ELLIPSIS
+    1. cogging: amplitude 3.001 ± 0.0075 N, period 0.007999 m, phase -0.0001932 rad (explains 99.7 %)
+    ...
+    >>> [f.effect for f in result.findings], [e.type for e in result.extended.effects]
+    (['cogging'], ['cogging'])
     """
     with single_threaded():
         return _diagnose(record, model, validation=validation, settings=settings)

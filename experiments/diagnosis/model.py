@@ -151,13 +151,46 @@ def _explicit_effects(data: dict, path) -> dict:
 
 
 def load_model(path, ts: float | None = None) -> SimulationModel:
-    """The simulation's model from a file: a model file (``plant:``, optional ``controller:``
-    and ``ts``), a LIP parameter file (``kind: lip``, as ``clm-sim identify``, ``clm-sim run``
-    and ``LIPFeedforward.save`` write it; controller unknown), a ``diagnosis.json`` (its
-    extended model, at its record's sample time) or an experiment config (its plant and PID).
-    A record or a PGNN (no forward form) is refused by name. The controller runs at the file's sample time; ``ts`` (s) is the one to use when
-    the file gives none (older files; ``clm-sim diagnose`` passes the record's). Errors name
-    the file and the key."""
+    r"""The simulation's model of a machine, from a file, for :func:`diagnose`.
+
+    Parameters
+    ----------
+    path : str or Path
+        A model file (YAML: ``plant:``, optional ``controller:`` and ``ts``), a LIP parameter
+        file (``kind: lip``, as ``clm-sim identify``, ``clm-sim run`` and
+        ``LIPFeedforward.save`` write it; controller unknown), a ``diagnosis.json`` (its
+        extended model, at its record's sample time) or an experiment config (its plant and
+        PID).
+    ts : float, optional
+        Sample time (s) to use when the file gives none (older files; ``clm-sim diagnose``
+        passes the record's). The controller runs at the file's sample time.
+
+    Returns
+    -------
+    SimulationModel
+        ``plant`` (a :class:`Plant` with exactly the effects the file lists), ``controller``
+        (None when unknown), ``name`` and ``ts``.
+
+    Raises
+    ------
+    UserError
+        A record or a PGNN (no forward form) is refused by name; a missing file, an unknown
+        key or a bad value names the file and the key.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> from clm_sim import load_model
+    >>> _ = Path("model.yaml").write_text(
+    ...     "ts: 1.0e-4\nplant: {mass: 20.0, effects: []}\ncontroller: {crossover_hz: 30.0}\n")
+    >>> model = load_model("model.yaml")
+    >>> model.plant.mass, model.plant.effects, model.ts
+    (20.0, (), 0.0001)
+    >>> load_model("record.csv")
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: record.csv: a record (.csv), not a model file; a model is a .json (identify's lip.json, a diagnosis.json) or a .yaml (plant:, optional controller:)
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in RECORD_SUFFIXES:  # not 'cannot read (UnicodeDecodeError)'

@@ -41,28 +41,60 @@ from clm_sim.record import Run
 
 @dataclass(frozen=True)
 class DiagnosisSettings:
-    """Settings of the diagnosis; the significance rule is documented in ``search``.
+    """Settings of the diagnosis: its filter and its significance rule (docs/diagnosis.md).
 
-    regression_lowpass_hz: cut-off (Hz; capped at 0.2/ts) of the parallel filter, the setting of
-    the same name as in a config's ``features:`` and ``clm-sim identify``; 100 Hz rather than the
-    identification's 250 Hz: the narrower band keeps the encoder's quantization floor low and
-    still passes the 2.5 mm periodic force of the EMPS at its speed (README). folds: contiguous
-    blocks of the blocked cross-validation. min_gain: held-out MSE reduction (fraction of the current held-out
-    MSE) a candidate must bring; min_explained: the same reduction as a fraction of the held-out
-    MSE of the model's own residual (once the large causes are removed, the remaining residual
-    is the noise and quantization floor, where min_gain alone would name model bias; 2e-4 lies
-    between the artifacts seen on emulated records, <= 1e-5, and the weakest real effect in the
-    tests, 5e-4). p_value: F-test level on the estimation data (effective sample
-    count = filter bandwidth x duration). min_folds: folds in which the held-out MSE must drop.
-    max_findings: at most this many causes. holdout_fraction: final part of the record kept for
-    the out-of-sample gain when no validation record is given. min_force_fraction: the force a
-    cause explains (RMS of the held-out MSE drop, N) must be at least this fraction of the RMS
-    of the measured force: with a right model the residual is the noise and discretization floor
-    (1.7 mN on a 1 nm, 10 kHz foreign record, where 20 % of it looked like pre-sliding), and a
-    cause below a thousandth of the force is not worth a name. registration_fraction: first part
-    of a separate validation record on which its encoder origin is registered when the extended
-    model has a periodic effect (:mod:`experiments.diagnosis.origin`); that gain is measured on
-    the rest.
+    Parameters
+    ----------
+    regression_lowpass_hz : float
+        Cut-off (Hz; capped at 0.2/ts) of the parallel filter, the setting of the same name
+        as in a config's ``features:`` and ``clm-sim identify``; 100 Hz rather than the
+        identification's 250 Hz: the narrower band keeps the encoder's quantization floor low
+        and still passes the 2.5 mm periodic force of the EMPS at its speed.
+    folds : int
+        Contiguous blocks of the blocked cross-validation.
+    min_gain : float
+        Held-out MSE reduction (fraction of the current held-out MSE) a candidate must bring.
+    min_explained : float
+        The same reduction as a fraction of the held-out MSE of the model's own residual
+        (once the large causes are removed, the remaining residual is the noise and
+        quantization floor, where ``min_gain`` alone would name model bias; 2e-4 lies between
+        the artifacts seen on emulated records, <= 1e-5, and the weakest real effect in the
+        tests, 5e-4).
+    p_value : float
+        F-test level on the estimation data (effective sample count = filter bandwidth x
+        duration).
+    min_folds : int
+        Folds in which the held-out MSE must drop.
+    max_findings : int
+        At most this many causes.
+    holdout_fraction : float
+        Final part of the record kept for the out-of-sample gain when no validation record is
+        given.
+    min_force_fraction : float
+        The force a cause explains (RMS of the held-out MSE drop, N) must be at least this
+        fraction of the RMS of the measured force: with a right model the residual is the
+        noise and discretization floor (1.7 mN on a 1 nm, 10 kHz foreign record, where 20 % of
+        it looked like pre-sliding), and a cause below a thousandth of the force is not worth
+        a name.
+    registration_fraction : float
+        First part of a separate validation record on which its encoder origin is registered
+        when the extended model has a periodic effect; the gain is measured on the rest.
+
+    Raises
+    ------
+    UserError
+        A ``regression_lowpass_hz`` that is not a positive finite number.
+
+    Examples
+    --------
+    >>> from clm_sim import DiagnosisSettings
+    >>> strict = DiagnosisSettings(p_value=1e-6, max_findings=2)
+    >>> strict.min_gain, strict.holdout_fraction
+    (0.02, 0.25)
+    >>> DiagnosisSettings(regression_lowpass_hz=0)
+    Traceback (most recent call last):
+    ...
+    clm_sim.errors.UserError: regression_lowpass_hz: the diagnosis needs a cut-off > 0 Hz, got 0
     """
 
     regression_lowpass_hz: float = 100.0
