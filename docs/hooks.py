@@ -9,6 +9,7 @@
   names it and fails.
 * A tutorial, ``docs/tutorial/*.py`` in jupytext's percent format, becomes a page (its Markdown
   cells as text, its code cells as code) through jupytext; the script itself is on the site too.
+* The Sphinx roles some docstrings use (``:func:`name```) are shown as the code they name.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ COPIES = "repo"  # where files linked from outside docs/ are served
 TUTORIALS = "tutorial"
 # A Markdown link or image target: ](target) or ](target#anchor), relative, no scheme.
 LINK = re.compile(r"(\]\()([^)\s#]+)((?:#[^)\s]*)?\))")
+ROLE = re.compile(r":(?:func|class|meth|mod|data|attr|obj):(?=<code>)")
 
 _sources: dict[str, Path] = {}  # site src_uri -> the file it is read from
 
@@ -92,3 +94,7 @@ def on_page_markdown(markdown, page, config, files):
         return f"{match.group(1)}{relative}{match.group(3)}"
 
     return LINK.sub(rewrite, markdown)
+
+
+def on_page_content(html, page, config, files):
+    return ROLE.sub("", html)
