@@ -112,7 +112,7 @@ def simulate(plant: Plant, controller: DiscreteController, r: np.ndarray, ts: fl
     >>> simulate(plant, pid, r, 1e-3)
     Traceback (most recent call last):
     ...
-    clm_sim.errors.UserError: the controller (PIDController) has sample time 0.0001 s (10000 Hz) but is used at 0.001 s (1000 Hz); design or fit it at that rate
+    clm_sim.errors.UserError: the controller (PIDController) has sample time 0.0001 s ...
     """
     check_ts(getattr(controller, "ts", None), ts, f"the controller ({type(controller).__name__})")
     r = np.ascontiguousarray(r, dtype=np.float64)

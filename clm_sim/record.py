@@ -517,7 +517,7 @@ def load_record(path, columns: dict[str, str] | None = None,
     >>> load_record("log.csv")
     Traceback (most recent call last):
     ...
-    clm_sim.errors.UserError: log.csv: missing column 't' (signal t); columns present: pos, ref, time, volt
+    clm_sim.errors.UserError: log.csv: missing column 't' (signal t); columns present: ...time, volt
     """
     path = Path(path)
     if not path.exists():

@@ -198,7 +198,7 @@ class FeedforwardSpec:
     >>> FeedforwardSpec(kind="pgnn", training="sequential", lam=0.1, hidden=16)
     Traceback (most recent call last):
     ...
-    clm_sim.errors.UserError: lambda does not apply to a sequential pgnn (theta_phy is fixed at theta_LIP)
+    clm_sim.errors.UserError: lambda does not apply to a sequential pgnn (theta_phy is fixed ...
     """
 
     kind: Literal["none", "lip", "pgnn"]
@@ -383,7 +383,7 @@ class ExperimentConfig:
     >>> ExperimentConfig(replay=("r3",))
     Traceback (most recent call last):
     ...
-    clm_sim.errors.UserError: replay[0]: reference 'r3' is not defined under 'references' (defined: r1, r2)
+    clm_sim.errors.UserError: replay[0]: reference 'r3' is not defined under 'references' ...
     """
 
     name: str = "experiment"

@@ -189,7 +189,7 @@ def load_model(path, ts: float | None = None) -> SimulationModel:
     >>> load_model("record.csv")
     Traceback (most recent call last):
     ...
-    clm_sim.errors.UserError: record.csv: a record (.csv), not a model file; a model is a .json (identify's lip.json, a diagnosis.json) or a .yaml (plant:, optional controller:)
+    clm_sim.errors.UserError: record.csv: a record (.csv), not a model file; a model is a .json ...
     """
     path = Path(path)
     suffix = path.suffix.lower()
