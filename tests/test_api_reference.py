@@ -89,9 +89,11 @@ def test_docstring_examples_run(name, tmp_path, monkeypatch):
     assert runner.failures == 0, f"{name}: {runner.failures} of {runner.tries} examples failed"
 
 
+@pytest.mark.slow  # .ci/run builds the site too; this names what it must hold
 def test_built_site_shows_every_public_name(tmp_path):
     """The reference page as built: one rendered entry per public name (mkdocstrings names
-    an entry's heading by its full path)."""
+    an entry's heading by its full path); the tutorial is a page; every image a page shows is
+    on the site."""
     pytest.importorskip("mkdocstrings_handlers.python")
     site = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-q", "-d", str(site)],
@@ -99,3 +101,13 @@ def test_built_site_shows_every_public_name(tmp_path):
     html = (site / "reference" / "index.html").read_text(encoding="utf-8")
     missing = [name for name in NAMES if f'id="{where(name)}.{name}"' not in html]
     assert not missing, f"not rendered: {missing}"
+    tutorial = site / "tutorial" / "record_to_feedforward" / "index.html"
+    assert "From a measured record to a feedforward on the machine" in tutorial.read_text(
+        encoding="utf-8")
+    pages = list(site.rglob("*.html"))
+    images = [(page, src) for page in pages
+              for src in re.findall(r'<img [^>]*src="([^"]+)"', page.read_text(encoding="utf-8"))
+              if "://" not in src]
+    assert len(images) >= 5  # the results pages' figures
+    missing = [src for page, src in images if not (page.parent / src).resolve().is_file()]
+    assert not missing, f"images not on the site: {missing}"
