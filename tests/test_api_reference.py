@@ -96,7 +96,7 @@ def test_built_site_shows_every_public_name(tmp_path):
     on the site."""
     pytest.importorskip("mkdocstrings_handlers.python")
     site = tmp_path / "site"
-    subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-q", "-d", str(site)],
+    subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-d", str(site)],
                    cwd=ROOT, check=True)
     html = (site / "reference" / "index.html").read_text(encoding="utf-8")
     missing = [name for name in NAMES if f'id="{where(name)}.{name}"' not in html]
