@@ -111,3 +111,14 @@ def test_built_site_shows_every_public_name(tmp_path):
     assert len(images) >= 5  # the results pages' figures
     missing = [src for page, src in images if not (page.parent / src).resolve().is_file()]
     assert not missing, f"images not on the site: {missing}"
+
+
+def test_ci_builds_the_site_strictly():
+    """CI builds the site with --strict and without --quiet (which hides the warnings that
+    --strict turns into a failure), with the docs extra installed."""
+    run = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    build = [line for line in run.splitlines() if "mkdocs build" in line and
+             not line.lstrip().startswith("#")]
+    assert len(build) == 1 and "--strict" in build[0]
+    assert not re.search(r"\s(-q|--quiet)\b", build[0])
+    assert '".[dev,export,docs]"' in (ROOT / ".ci" / "install").read_text(encoding="utf-8")
