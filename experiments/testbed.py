@@ -4,14 +4,8 @@ machine, the tests, the benchmarks and notebooks.
     config -> plant + PID + references -> dithered training run (logged) -> LIP -> PGNN per seed
            -> replay on each reference (on the truth plant when one is given) -> metrics
 
->>> from clm_sim import Testbed
->>> tb = Testbed()                                   # the default CLM, PID, r1/r2, dither
->>> run = tb.training_run(seed=1)                    # doctest: +SKIP
->>> lip = tb.fit_lip(run)                            # doctest: +SKIP
->>> pgnn = tb.fit_pgnn(run, hidden=16, lam=0.01, seed=0)   # doctest: +SKIP
->>> tb.replay(pgnn, "r2").mae                        # doctest: +SKIP
-
-The README's "Python API" section is run by ``tests/test_testbed.py``.
+``Testbed``'s docstring has an example (run by ``tests/test_api_reference.py``); the README's
+"Python API" section is run by ``tests/test_testbed.py``.
 """
 
 from __future__ import annotations

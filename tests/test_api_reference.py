@@ -122,3 +122,14 @@ def test_ci_builds_the_site_strictly():
     assert len(build) == 1 and "--strict" in build[0]
     assert not re.search(r"\s(-q|--quiet)\b", build[0])
     assert '".[dev,export,docs]"' in (ROOT / ".ci" / "install").read_text(encoding="utf-8")
+
+
+def test_every_docstring_example_in_the_product_is_one_of_these():
+    """An example is run by the tests or not there: every ``>>>`` line of clm_sim, controllers
+    and experiments is in a public name's docstring, which the test above runs."""
+    prompt = re.compile(r"^\s*>>> ", re.M)
+    in_code = sum(len(prompt.findall(path.read_text(encoding="utf-8")))
+                  for package in ("clm_sim", "controllers", "experiments")
+                  for path in (ROOT / package).rglob("*.py"))
+    run = sum(len(prompt.findall(docstring(name))) for name in NAMES)
+    assert in_code == run

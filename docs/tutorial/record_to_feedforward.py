@@ -12,8 +12,9 @@
 # mass 8 % above the model's. Everything after that step sees only the record and the nominal
 # model; the machine is used only to say whether the answers are right.
 #
-# Run it from the repository root with `python docs/tutorial/record_to_feedforward.py` (about
-# half a minute), or open it as a notebook with
+# Run [the script](record_to_feedforward.py) from the repository root with
+# `python docs/tutorial/record_to_feedforward.py` (about half a minute), or open it as a
+# notebook with
 # `jupytext --to notebook docs/tutorial/record_to_feedforward.py`. The last step needs a C
 # compiler (`cc`, `gcc` or `clang`). `tests/test_tutorial.py` runs it and checks what each step
 # prints against the statements under **What must hold** below: those are the test's
