@@ -106,8 +106,8 @@ class PointToPoint:
     Raises
     ------
     UserError
-        Fewer than two points, a point or a bound that is not a finite number, a bound or a
-        dwell that is not positive.
+        Fewer than two points, a point or a bound that is not a finite number, a bound that
+        is not positive, a negative dwell.
 
     Examples
     --------
