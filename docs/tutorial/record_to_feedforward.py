@@ -75,7 +75,7 @@ print(f"record: {len(record)} samples at {1 / record.ts:.0f} Hz, "
 #
 # **What must hold:** the identified mass is within 1 % of the machine's (the model's is 8 %
 # off). Its printed standard error assumes white residuals; the cogging force the LIP lacks is
-# anything but white, so the error can exceed it several times.
+# anything but white, so the error can exceed it many times.
 
 # %%
 lip = LIPFeedforward().fit(y=record.y, u=record.u, ts=record.ts)
