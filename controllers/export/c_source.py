@@ -79,7 +79,10 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
     return template("header.h").substitute(
         exact=exact, model=model, trace=trace, ts=_c_double(wf.ts), lag=wf.lag, lead=wf.lead,
         half=wf.half, nsec=nsec, max_force=_limit(opt.max_force), max_slew=_limit(opt.max_slew),
-        count_m=_c_double(opt.count_m))
+        count_m=_c_double(opt.count_m), envelope=safe_text(opt.envelope),
+        r_min=_c_double(-1e6 if opt.r_min is None else opt.r_min),
+        r_max=_c_double(1e6 if opt.r_max is None else opt.r_max),
+        v_max=_limit(opt.v_max), a_max=_limit(opt.a_max))
 
 
 def source(wf: WindowFeedforward) -> str:
