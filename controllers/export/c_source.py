@@ -30,6 +30,7 @@ from controllers.export import selftest
 from controllers.export.c_law import activation_c, effect_c, rigid_body_c
 from controllers.export.c_literals import c_array, c_matrix, c_real
 from controllers.export.c_names import prefixed
+from controllers.export.c_reserved import check_names
 from controllers.export.c_runtime import runtime, template
 from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
 from controllers.export.options import ExportOptions, safe_text
@@ -257,6 +258,9 @@ def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -
     opt = options or ExportOptions()
     folder = Path(folder)
     paths = [folder / f"{opt.prefix}.h", folder / f"{opt.prefix}.c"]
-    paths[0].write_text(prefixed(header(wf, opt), opt.prefix))
-    paths[1].write_text(prefixed(source(wf), opt.prefix))
-    return paths + selftest.write(wf, folder, opt.prefix, c=True, count_m=opt.count_m)
+    texts = [prefixed(header(wf, opt), opt.prefix), prefixed(source(wf), opt.prefix)]
+    check_names(texts, opt.prefix)
+    paths[0].write_text(texts[0])
+    paths[1].write_text(texts[1])
+    return paths + selftest.write(wf, folder, opt.prefix, c=True, count_m=opt.count_m,
+                                  limits=opt.limits())
