@@ -402,20 +402,21 @@ def export(model_path, to: str, out, *, ts: float | None = None,
                 from None
         writer = onnx_graph.mlp_write if onnx_form == "mlp" else onnx_graph.write
     wf = load_feedforward(model_path, ts, float(filter_tail))
-    if to == "c":
-        limits, where, envelope = resolve_limits(model_path, wf, given, no_limits=no_limits,
-                                                 limits_from=limits_from)
-    else:
-        limits, where = dict.fromkeys(LIMIT_KEYS), "none (ONNX)"
-        envelope = training_envelope(model_path, wf)
-    options = ExportOptions.traced(model_path, prefix=options.prefix, count_m=count_m,
-                                   envelope=where, **limits)
-    check_vectors(wf, options, envelope, c=to == "c")
     out = Path(out)
     try:
         # the model (and the .pt or .json beside it) would be deleted with an earlier export
         with atomic_folder(out, marker="export.json", what="an exported feedforward",
                            subdirs=(), inputs=(model_path,)) as tmp:
+            if to == "c":
+                limits, where, envelope = resolve_limits(model_path, wf, given,
+                                                         no_limits=no_limits,
+                                                         limits_from=limits_from)
+            else:
+                limits, where = dict.fromkeys(LIMIT_KEYS), "none (ONNX)"
+                envelope = training_envelope(model_path, wf)
+            options = ExportOptions.traced(model_path, prefix=options.prefix, count_m=count_m,
+                                           envelope=where, **limits)
+            check_vectors(wf, options, envelope, c=to == "c")
             names = [p.name for p in writer(wf, tmp, options)]
             (tmp / "export.json").write_text(json.dumps({
                 "model": options.model_name, "kind": wf.kind, "to": to, "ts": wf.ts,

@@ -589,7 +589,7 @@ def test_filter_tail_shortens_the_window_at_a_bounded_cost(fitted, references, t
     model.save(tmp_path / "pgnn")
     out = tmp_path / "ff"
     assert main(["export-ff", str(tmp_path / "pgnn.pt"), "--to", "c", "--out", str(out),
-                 "--ts", str(TS), "--filter-tail", "1e-9"]) == 0
+                 "--ts", str(TS), "--filter-tail", "1e-9", "--no-limits"]) == 0
     capsys.readouterr()
     info = json.loads((out / "export.json").read_text())
     exact = from_pgnn(model, TS, "test")
@@ -674,7 +674,7 @@ def test_identify_output_exports(training_run, tmp_path, capsys):
 
 
 # -- fail-safe: bad samples, limits, restarts (issue 27) ------------------------------------------
-OK, REJECTED, DEGRADED, CLAMPED, SLEWED = 0, 1, 2, 4, 8
+OK, REJECTED, DEGRADED, CLAMPED, SLEWED, STOPPED = 0, 1, 2, 4, 8, 16
 
 
 def _padded(wf, r):
@@ -756,7 +756,9 @@ def test_start_from_a_window_on_a_moving_reference(name, fitted, effects_lip, re
         assert np.array_equal(u[k0:], want[k0:])
     bad = _padded(wf, r)
     bad[wf.lag + k0 - wf.lag] = np.nan  # the oldest sample of the window at k0
-    assert compiled[name].stream_status(bad, start=k0)[2] == REJECTED
+    u, st, init = compiled[name].stream_status(bad, start=k0)
+    assert init == REJECTED | STOPPED  # and it says so on every push, 0 N
+    assert np.all(st[k0:] == REJECTED | STOPPED) and np.all(u[k0 + 1:] == 0.0)
 
 
 @needs_cc
@@ -796,7 +798,8 @@ def test_export_time_limits_and_the_eval_clamp(fitted, references, tmp_path):
     lip.save(tmp_path / "lip.json")
     out = tmp_path / "ff"
     assert main(["export-ff", str(tmp_path / "lip.json"), "--to", "c", "--out", str(out),
-                 "--ts", str(TS), "--max-force", "5", "--max-slew", "1e5"]) == 0
+                 "--ts", str(TS), "--max-force", "5", "--max-slew", "1e5", "--position-range",
+                 "-1", "1", "--max-velocity", "10", "--max-acceleration", "1e3"]) == 0
     assert "#define CLM_FF_MAX_FORCE 5.0 " in (out / "clm_ff.h").read_text()
     c = CompiledFeedforward(out)
     wf = load_feedforward(tmp_path / "lip.json", TS)
@@ -847,7 +850,8 @@ def test_two_prefixed_exports_link_and_run_in_one_program(fitted, tmp_path):
     fitted["pgnn"].save(tmp_path / "pgnn")
     for prefix, model in (("ax", "lip.json"), ("ay", "pgnn.pt")):
         assert main(["export-ff", str(tmp_path / model), "--to", "c", "--out",
-                     str(tmp_path / prefix), "--ts", str(TS), "--prefix", prefix]) == 0
+                     str(tmp_path / prefix), "--ts", str(TS), "--prefix", prefix,
+                     "--no-limits"]) == 0
         assert sorted(p.name for p in (tmp_path / prefix).iterdir()) == [
             f"{prefix}.c", f"{prefix}.h", f"{prefix}_kat.csv", f"{prefix}_selftest.c",
             "export.json"]
@@ -895,7 +899,7 @@ def test_a_model_file_name_cannot_inject_code(fitted, tmp_path):
     fitted["lip"].save(folder / name)
     out = tmp_path / "ff"
     assert main(["export-ff", str(folder / name), "--to", "c", "--out", str(out),
-                 "--ts", str(TS)]) == 0
+                 "--ts", str(TS), "--no-limits"]) == 0
     h = (out / "clm_ff.h").read_text()
     assert "\\" not in h and "??" not in h and '"q"' not in h
     assert h.count("*/") == h.count("/*")  # every comment closes where it was opened
