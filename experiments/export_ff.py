@@ -309,9 +309,9 @@ def resolve_limits(path, wf: WindowFeedforward, given: dict, *, no_limits: bool 
 
 def check_vectors(wf: WindowFeedforward, options: ExportOptions, envelope: Envelope | None,
                   c: bool) -> None:
-    """Refuse a model whose known-answer forces are not finite, or absurd for its data: more
-    than ``ABSURD`` times the data's largest force (or the export's force limit) on a motion
-    inside its envelope; and a float-build count that leaves the vectors' motion without
+    """Refuse a model whose known-answer forces are not finite, or absurd for its data (where it
+    is known): more than ``ABSURD`` times the data's largest force on a motion inside its
+    envelope (not the force limit: a limit below the model's forces is a user's choice); and a float-build count that leaves the vectors' motion without
     resolution or beyond the counts' range."""
     limits = options.limits()
     r, u = selftest.vectors(wf, limits)
@@ -319,12 +319,11 @@ def check_vectors(wf: WindowFeedforward, options: ExportOptions, envelope: Envel
     if not np.all(np.isfinite(u)):
         raise UserError(f"{options.model_name}: the model's force on the known-answer motion "
                         f"is not finite (NaN or inf); not a usable model")
-    scale = envelope.force_n if envelope is not None else options.max_force
-    if scale and peak > ABSURD * scale:
-        what = "its data's largest force" if envelope is not None else "--max-force"
+    if envelope is not None and peak > ABSURD * envelope.force_n:
         raise UserError(f"{options.model_name}: a force of {peak:.3g} N on a motion inside its "
-                        f"envelope, more than {ABSURD:g} times {what} ({scale:.4g} N); not a "
-                        f"fit of that data (a parameter in the wrong unit?)")
+                        f"envelope, more than {ABSURD:g} times its data's largest force "
+                        f"({envelope.force_n:.4g} N); not a fit of that data (a parameter in the "
+                        f"wrong unit?)")
     if c:
         counts = np.abs(r) / options.count_m
         move = (np.max(r) - np.min(r)) / options.count_m
