@@ -447,7 +447,9 @@ def test_cli_exports_a_run_pgnn_that_matches_on_an_unseen_reference(run_folder, 
     assert json.loads((tmp_path / "mlp" / "export.json").read_text())["onnx_form"] == "mlp"
     if compiler() is None:
         pytest.skip("no C compiler")
-    assert main(["export-ff", str(pt), "--to", "c", "--out", str(tmp_path / "c")]) == 0
+    # the reference reaches 0.15 m, the run's training data 0.01 m: beyond the default limits
+    assert main(["export-ff", str(pt), "--to", "c", "--out", str(tmp_path / "c"),
+                 "--no-limits"]) == 0
     c = CompiledFeedforward(tmp_path / "c")
     assert _rel(c.stream(r), want) < 1e-9
     # a harness of its own, as a user writes it from the header: a program, plain cc -O2
@@ -466,6 +468,9 @@ def test_cli_exports_the_run_lip(run_folder, tmp_path):
     assert main(["export-ff", str(lip_file), "--to", "c", "--out", str(tmp_path / "c")]) == 0
     assert sorted(p.name for p in (tmp_path / "c").iterdir()) == [
         "clm_ff.c", "clm_ff.h", "clm_ff_kat.csv", "clm_ff_selftest.c", "export.json"]
+    info = json.loads((tmp_path / "c" / "export.json").read_text())
+    assert info["limits_from"].startswith("training.npz")  # the run's data, found beside it
+    assert info["r_min"] < -0.01 and info["r_max"] > 0.01 and info["max_force"] > 0
 
 
 def test_identify_and_diagnosis_files_load(fitted, effects_lip, tmp_path):

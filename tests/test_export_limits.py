@@ -390,7 +390,7 @@ def test_every_recipe_compiles_and_runs_against_both_builds(name, build, shipped
     peak = np.max(np.abs(want))
     for i, block in enumerate(recipes()):
         key = next(k for k in RUNS if k in block)
-        for extra in ([], [f"-DCLM_FF_MAX_FORCE={0.2 * peak!r}"]) if key == "axis_cycle" \
+        for extra in ([], [f"-DCLM_FF_MAX_FORCE={float(0.2 * peak)!r}"]) if key == "axis_cycle" \
                 else ([],):
             (tmp_path / "recipe.c").write_text(block)
             (tmp_path / "main.c").write_text(DRIVER.replace("RUN", RUNS[key]))
