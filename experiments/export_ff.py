@@ -279,6 +279,11 @@ def training_envelope(path, wf: WindowFeedforward, limits_from=None) -> Envelope
     return None
 
 
+# The option that sets each limit.
+_OPTION = {"max_force": "--max-force", "max_slew": "--max-slew", "r_min": "--position-range",
+           "r_max": "--position-range", "v_max": "--max-velocity", "a_max": "--max-acceleration"}
+
+
 def resolve_limits(path, wf: WindowFeedforward, given: dict, *, no_limits: bool = False,
                    limits_from=None) -> tuple[dict, str, Envelope | None]:
     """The C export's limits: each given option, else the training data's envelope widened by
@@ -294,13 +299,10 @@ def resolve_limits(path, wf: WindowFeedforward, given: dict, *, no_limits: bool 
               for k in LIMIT_KEYS}
     missing = [k for k in LIMIT_KEYS if k != "max_slew" and limits[k] is None]
     if missing:
-        options = ", ".join("--position-range" if k in ("r_min", "r_max") else
-                            "--" + k.replace("_", "-").replace("v-max", "max-velocity")
-                            .replace("a-max", "max-acceleration") for k in missing)
+        names = dict.fromkeys(_OPTION[k] for k in missing)
         raise UserError(f"{path}: the default limits come from the data the model was fitted "
                         f"on, and no readable record of it was found beside the model; give "
-                        f"--limits-from RECORD, or {', '.join(dict.fromkeys(options.split(', ')))}"
-                        f", or --no-limits")
+                        f"--limits-from RECORD, or {', '.join(names)}, or --no-limits")
     where = "the options" if envelope is None else envelope.describe()
     if envelope is not None and any(given.get(k) is not None for k in LIMIT_KEYS):
         where += " (some set by options)"
@@ -311,8 +313,9 @@ def check_vectors(wf: WindowFeedforward, options: ExportOptions, envelope: Envel
                   c: bool) -> None:
     """Refuse a model whose known-answer forces are not finite, or absurd for its data (where it
     is known): more than ``ABSURD`` times the data's largest force on a motion inside its
-    envelope (not the force limit: a limit below the model's forces is a user's choice); and a float-build count that leaves the vectors' motion without
-    resolution or beyond the counts' range."""
+    envelope (not the force limit: a limit below the model's forces is a user's choice); and a
+    float-build count that leaves the vectors' motion without resolution or beyond the counts'
+    range."""
     limits = options.limits()
     r, u = selftest.vectors(wf, limits)
     peak = float(np.max(np.abs(u)))
@@ -325,13 +328,13 @@ def check_vectors(wf: WindowFeedforward, options: ExportOptions, envelope: Envel
                         f"({envelope.force_n:.4g} N); not a fit of that data (a parameter in the "
                         f"wrong unit?)")
     if c:
-        counts = np.abs(r) / options.count_m
-        move = (np.max(r) - np.min(r)) / options.count_m
-        if not np.all(counts < 2.0 ** 61) or move < 1e4:
-            raise UserError(f"--count-m: {options.count_m!r} m gives the known-answer motion "
-                            f"{'counts beyond 2^61' if move >= 1e4 else f'{move:.3g} counts of travel'}"
-                            f"; the float build needs at least 1e4 counts over its "
-                            f"{np.max(r) - np.min(r):.3g} m and positions within 2^61 counts")
+        travel = (np.max(r) - np.min(r)) / options.count_m
+        if travel < 1e4 or not np.max(np.abs(r)) / options.count_m < 2.0 ** 61:
+            raise UserError(f"--count-m: {options.count_m!r} m puts the known-answer motion "
+                            f"({np.max(r) - np.min(r):.3g} m of travel, up to "
+                            f"{np.max(np.abs(r)):.3g} m) on {travel:.3g} counts; the float "
+                            f"build needs at least 1e4 counts of travel and positions within "
+                            f"2^61 counts")
         with np.errstate(over="ignore", invalid="ignore"):
             uq = wf.apply(selftest.counts(r, options.count_m) * options.count_m)
         if not np.all(np.isfinite(uq)):

@@ -127,8 +127,9 @@ class ExportOptions:
         for key in ("max_force", "max_slew", "count_m", "v_max", "a_max"):
             value = getattr(self, key)
             if value is not None and not (_number(value) and 0 < float(value) < float("inf")):
-                raise UserError(f"--{key.replace('_', '-')}: expected a positive number, "
-                                f"got {value!r}")
+                option = {"v_max": "max-velocity", "a_max": "max-acceleration"}.get(
+                    key, key.replace("_", "-"))
+                raise UserError(f"--{option}: expected a positive number, got {value!r}")
         ends = (self.r_min, self.r_max)
         if (None in ends) != (ends == (None, None)) or not (
                 ends == (None, None) or (all(_number(x) and abs(x) < 1e300 for x in ends)
