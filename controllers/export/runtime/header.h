@@ -156,8 +156,8 @@ unsigned clm_ff_stream_step(clm_ff_stream *s, clm_ff_pos r_newest, clm_ff_real *
 clm_ff_real clm_ff_stream_push(clm_ff_stream *s, clm_ff_pos r_newest);
 
 /* Known-answer self-test (clm_ff_selftest.c, vectors in clm_ff_kat.csv): 0 if the compiled code
- * gives the product's forces on the vectors' motion, else 1 + the first failing sample; it sets
- * no limits of its own and none of the export's act on it. scratch: a stream the test
+ * gives the product's forces on the vectors' motion, else 1 + the first failing sample. No force
+ * or slew limit acts on it (its motion lies inside the envelope). scratch: a stream the test
  * overwrites (afterwards its limits are the export's: init it, set yours again). */
 int clm_ff_selftest(clm_ff_stream *scratch);
 
