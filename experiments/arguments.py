@@ -104,9 +104,24 @@ def export_ff(p: argparse.ArgumentParser) -> None:
                         "and look-ahead, less exact; see docs/export.md)")
     p.add_argument("--prefix", help="names of the public symbols, macros and files "
                    "(default clm_ff; two exports with different prefixes link together)")
-    p.add_argument("--max-force", type=float, metavar="N", help="C: |force| limit (N)")
+    p.add_argument("--max-force", type=float, metavar="N",
+                   help="C: |force| limit (N; default: the training data's, widened 50 %%)")
+    p.add_argument("--max-velocity", type=float, metavar="M_PER_S",
+                   help="C: |velocity| the model reads (m/s; default: the training data's, "
+                        "widened 50 %%)")
+    p.add_argument("--max-acceleration", type=float, metavar="M_PER_S2",
+                   help="C: |acceleration| the model reads (m/s2; default as --max-velocity)")
+    p.add_argument("--position-range", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                   help="C: positions accepted (m; default: the training data's range, widened "
+                        "by half of it at each end)")
+    p.add_argument("--limits-from", metavar="RECORD",
+                   help="C: the record the model was fitted on, for the default limits (default: "
+                        "the one the model's files name)")
+    p.add_argument("--no-limits", action="store_true",
+                   help="C: no force, velocity, acceleration or position limits")
     p.add_argument("--max-slew", type=float, metavar="N_PER_S",
-                   help="C: the stream's rate limit (N/s; changeable at run time)")
+                   help="C: the stream's rate limit (N/s; none by default; changeable at run "
+                        "time)")
     p.add_argument("--count-m", type=float, metavar="M",
                    help="C, float build (-DCLM_FF_FLOAT): one count of its int64 fixed-point "
                         "reference, m (default 1e-12)")

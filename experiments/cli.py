@@ -68,7 +68,9 @@ def _cmd_export_ff(args) -> int:
 
     files = export(args.model, args.to, args.out, ts=args.ts, filter_tail=args.filter_tail,
                    prefix=args.prefix, max_force=args.max_force, max_slew=args.max_slew,
-                   count_m=args.count_m, onnx_form=args.onnx_form)
+                   max_velocity=args.max_velocity, max_acceleration=args.max_acceleration,
+                   position_range=args.position_range, limits_from=args.limits_from,
+                   no_limits=args.no_limits, count_m=args.count_m, onnx_form=args.onnx_form)
     print(f"wrote {', '.join(str(f) for f in files)} (see docs/export.md)")
     return 0
 

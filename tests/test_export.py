@@ -447,7 +447,9 @@ def test_cli_exports_a_run_pgnn_that_matches_on_an_unseen_reference(run_folder, 
     assert json.loads((tmp_path / "mlp" / "export.json").read_text())["onnx_form"] == "mlp"
     if compiler() is None:
         pytest.skip("no C compiler")
-    assert main(["export-ff", str(pt), "--to", "c", "--out", str(tmp_path / "c")]) == 0
+    # the reference reaches 0.15 m, the run's training data 0.01 m: beyond the default limits
+    assert main(["export-ff", str(pt), "--to", "c", "--out", str(tmp_path / "c"),
+                 "--no-limits"]) == 0
     c = CompiledFeedforward(tmp_path / "c")
     assert _rel(c.stream(r), want) < 1e-9
     # a harness of its own, as a user writes it from the header: a program, plain cc -O2
@@ -466,6 +468,9 @@ def test_cli_exports_the_run_lip(run_folder, tmp_path):
     assert main(["export-ff", str(lip_file), "--to", "c", "--out", str(tmp_path / "c")]) == 0
     assert sorted(p.name for p in (tmp_path / "c").iterdir()) == [
         "clm_ff.c", "clm_ff.h", "clm_ff_kat.csv", "clm_ff_selftest.c", "export.json"]
+    info = json.loads((tmp_path / "c" / "export.json").read_text())
+    assert info["limits_from"].startswith("training.npz")  # the run's data, found beside it
+    assert info["r_min"] < -0.01 and info["r_max"] > 0.01 and info["max_force"] > 0
 
 
 def test_identify_and_diagnosis_files_load(fitted, effects_lip, tmp_path):
@@ -589,7 +594,7 @@ def test_filter_tail_shortens_the_window_at_a_bounded_cost(fitted, references, t
     model.save(tmp_path / "pgnn")
     out = tmp_path / "ff"
     assert main(["export-ff", str(tmp_path / "pgnn.pt"), "--to", "c", "--out", str(out),
-                 "--ts", str(TS), "--filter-tail", "1e-9"]) == 0
+                 "--ts", str(TS), "--filter-tail", "1e-9", "--no-limits"]) == 0
     capsys.readouterr()
     info = json.loads((out / "export.json").read_text())
     exact = from_pgnn(model, TS, "test")
@@ -674,7 +679,7 @@ def test_identify_output_exports(training_run, tmp_path, capsys):
 
 
 # -- fail-safe: bad samples, limits, restarts (issue 27) ------------------------------------------
-OK, REJECTED, DEGRADED, CLAMPED, SLEWED = 0, 1, 2, 4, 8
+OK, REJECTED, DEGRADED, CLAMPED, SLEWED, STOPPED = 0, 1, 2, 4, 8, 16
 
 
 def _padded(wf, r):
@@ -756,7 +761,9 @@ def test_start_from_a_window_on_a_moving_reference(name, fitted, effects_lip, re
         assert np.array_equal(u[k0:], want[k0:])
     bad = _padded(wf, r)
     bad[wf.lag + k0 - wf.lag] = np.nan  # the oldest sample of the window at k0
-    assert compiled[name].stream_status(bad, start=k0)[2] == REJECTED
+    u, st, init = compiled[name].stream_status(bad, start=k0)
+    assert init == REJECTED | STOPPED  # and it says so on every push, 0 N
+    assert np.all(st[k0:] == REJECTED | STOPPED) and np.all(u[k0 + 1:] == 0.0)
 
 
 @needs_cc
@@ -796,7 +803,8 @@ def test_export_time_limits_and_the_eval_clamp(fitted, references, tmp_path):
     lip.save(tmp_path / "lip.json")
     out = tmp_path / "ff"
     assert main(["export-ff", str(tmp_path / "lip.json"), "--to", "c", "--out", str(out),
-                 "--ts", str(TS), "--max-force", "5", "--max-slew", "1e5"]) == 0
+                 "--ts", str(TS), "--max-force", "5", "--max-slew", "1e5", "--position-range",
+                 "-1", "1", "--max-velocity", "10", "--max-acceleration", "1e3"]) == 0
     assert "#define CLM_FF_MAX_FORCE 5.0 " in (out / "clm_ff.h").read_text()
     c = CompiledFeedforward(out)
     wf = load_feedforward(tmp_path / "lip.json", TS)
@@ -847,7 +855,8 @@ def test_two_prefixed_exports_link_and_run_in_one_program(fitted, tmp_path):
     fitted["pgnn"].save(tmp_path / "pgnn")
     for prefix, model in (("ax", "lip.json"), ("ay", "pgnn.pt")):
         assert main(["export-ff", str(tmp_path / model), "--to", "c", "--out",
-                     str(tmp_path / prefix), "--ts", str(TS), "--prefix", prefix]) == 0
+                     str(tmp_path / prefix), "--ts", str(TS), "--prefix", prefix,
+                     "--no-limits"]) == 0
         assert sorted(p.name for p in (tmp_path / prefix).iterdir()) == [
             f"{prefix}.c", f"{prefix}.h", f"{prefix}_kat.csv", f"{prefix}_selftest.c",
             "export.json"]
@@ -895,7 +904,7 @@ def test_a_model_file_name_cannot_inject_code(fitted, tmp_path):
     fitted["lip"].save(folder / name)
     out = tmp_path / "ff"
     assert main(["export-ff", str(folder / name), "--to", "c", "--out", str(out),
-                 "--ts", str(TS)]) == 0
+                 "--ts", str(TS), "--no-limits"]) == 0
     h = (out / "clm_ff.h").read_text()
     assert "\\" not in h and "??" not in h and '"q"' not in h
     assert h.count("*/") == h.count("/*")  # every comment closes where it was opened
@@ -1009,7 +1018,7 @@ def test_export_is_traced_and_reproducible(fitted, tmp_path, monkeypatch):
     outs = []
     for i in range(2):
         out = tmp_path / f"ff{i}"
-        export(tmp_path / "lip.json", "c", out, ts=TS)
+        export(tmp_path / "lip.json", "c", out, ts=TS, no_limits=True)
         outs.append(out)
     for name in ("clm_ff.h", "clm_ff.c", "export.json"):
         assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name

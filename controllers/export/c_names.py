@@ -13,13 +13,15 @@ from controllers.export.options import DEFAULT_PREFIX
 _LOCAL_MACROS = ("R", "MATHF", "SIN", "EXP", "POW", "FABS", "LOG1P", "ERF", "SQRT", "SGN",
                  "KERNEL", "IN_MEAN", "IN_STD", "OUT_W", "OUT_B", "OUT_WP", "SOS", "SOS_ZI",
                  "BACK", "INV_TS2", "INV_2TS", "HALF", "NETWORK_AVX2", "NETWORK2_AVX2", "D1", "D2",
-                 "POS_UNIT", "VEL", "ACC", "POS", "RHUGE", "TINY")
+                 "POS_UNIT", "VEL", "ACC", "POS", "RHUGE", "TINY", "COUNT_LO", "COUNT_HI")
 _LOCAL_FUNCTIONS = ("physical", "advance", "flush_tiny", "features_finite", "is_finite_bits",
                     "network", "network_avx2",
                     "network1_avx2", "network2_avx2", "forward", "backward", "backward_avx2",
                     "stream_point", "raw_features", "filtered_features", "filtered_features_avx2",
                     "exp_avx2", "in_range", "clamp", "reset", "accept", "finish", "differences",
-                    "steady", "fill_at_rest", "fill_window")
+                    "steady", "fill_at_rest", "fill_window", "window_force", "sample_ok",
+                    "window_ok", "extrapolated", "clip", "clip_features", "limits_key",
+                    "keep_limits", "stop")
 _MACRO_RE = re.compile(r"(?<![A-Za-z0-9_])(" + "|".join(_LOCAL_MACROS) + r"|[WB]\d+[TP]?)"
                        r"(?![A-Za-z0-9_])")
 _FUNCTION_RE = re.compile(r"(?<![A-Za-z0-9_])(" + "|".join(_LOCAL_FUNCTIONS) + r")(?=\s*\()")

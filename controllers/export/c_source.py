@@ -30,6 +30,7 @@ from controllers.export import selftest
 from controllers.export.c_law import activation_c, effect_c, rigid_body_c
 from controllers.export.c_literals import c_array, c_matrix, c_real
 from controllers.export.c_names import prefixed
+from controllers.export.c_reserved import check_names
 from controllers.export.c_runtime import runtime, template
 from controllers.export.c_stream import GENERIC_STREAM, STREAM_COMMON, fast_stream
 from controllers.export.options import ExportOptions, safe_text
@@ -79,7 +80,10 @@ def header(wf: WindowFeedforward, options: "ExportOptions | None" = None) -> str
     return template("header.h").substitute(
         exact=exact, model=model, trace=trace, ts=_c_double(wf.ts), lag=wf.lag, lead=wf.lead,
         half=wf.half, nsec=nsec, max_force=_limit(opt.max_force), max_slew=_limit(opt.max_slew),
-        count_m=_c_double(opt.count_m))
+        count_m=_c_double(opt.count_m), envelope=safe_text(opt.envelope),
+        r_min=_c_double(-1e6 if opt.r_min is None else opt.r_min),
+        r_max=_c_double(1e6 if opt.r_max is None else opt.r_max),
+        v_max=_limit(opt.v_max), a_max=_limit(opt.a_max))
 
 
 def source(wf: WindowFeedforward) -> str:
@@ -254,6 +258,9 @@ def write(wf: WindowFeedforward, folder, options: ExportOptions | None = None) -
     opt = options or ExportOptions()
     folder = Path(folder)
     paths = [folder / f"{opt.prefix}.h", folder / f"{opt.prefix}.c"]
-    paths[0].write_text(prefixed(header(wf, opt), opt.prefix))
-    paths[1].write_text(prefixed(source(wf), opt.prefix))
-    return paths + selftest.write(wf, folder, opt.prefix, c=True, count_m=opt.count_m)
+    texts = [prefixed(header(wf, opt), opt.prefix), prefixed(source(wf), opt.prefix)]
+    check_names(texts, opt.prefix)
+    paths[0].write_text(texts[0])
+    paths[1].write_text(texts[1])
+    return paths + selftest.write(wf, folder, opt.prefix, c=True, count_m=opt.count_m,
+                                  limits=opt.limits())

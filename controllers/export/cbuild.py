@@ -58,7 +58,8 @@ class CompiledFeedforward:
         up = ctypes.POINTER(ctypes.c_uint)
         self.lib.clm_ff_record_status.restype = ctypes.c_uint
         self.lib.clm_ff_record_status.argtypes = [dp, ctypes.c_long, ctypes.c_long,
-                                                  ctypes.c_double, ctypes.c_double, dp, up]
+                                                  ctypes.c_double, ctypes.c_double,
+                                                  ctypes.c_int, dp, up]
         self.lib.clm_ff_eval_windows.restype = None
         self.lib.clm_ff_eval_windows.argtypes = [dp, ctypes.c_long, ctypes.c_long, dp, up]
         self.lag = int(self.lib.clm_ff_lag())
@@ -94,10 +95,13 @@ class CompiledFeedforward:
         return out
 
     def stream_status(self, r_padded: np.ndarray, *, start: int | None = None,
-                      max_force: float | None = None, max_slew: float | None = None):
+                      max_force: float | None = None, max_slew: float | None = None,
+                      limits_first: bool = False, restart: bool = False):
         """The streaming form over ``r_padded`` (``r[k] = r_padded[k + lag]``, held ends
         included, any values, NaN too): started at rest (``start=None``) or from the window of
-        sample ``start``; limits (N, N/s) set after that. Returns ``(u_ff, status, init_status)``
+        sample ``start``; limits (N, N/s) set after that (``limits_first``: before init or
+        start; ``restart``: the stream initialised at rest, its limits set, then started at
+        ``start``). Returns ``(u_ff, status, init_status)``
         for the ``len(r_padded) - lag - lead`` samples (before ``start``: NaN, status 0)."""
         rp = np.ascontiguousarray(r_padded, dtype=np.float64)
         n = len(rp) - self.lag - self.lead
@@ -106,7 +110,8 @@ class CompiledFeedforward:
         limit = -1.0 if max_force is None else float(max_force)
         slew = float("inf") if max_slew is None else float(max_slew)
         init = self.lib.clm_ff_record_status(
-            self._ptr(rp), n, -1 if start is None else int(start), limit, slew, self._ptr(out),
+            self._ptr(rp), n, -1 if start is None else int(start), limit, slew,
+            int(limits_first) | 2 * int(restart), self._ptr(out),
             status.ctypes.data_as(ctypes.POINTER(ctypes.c_uint)))
         return out, status, int(init)
 

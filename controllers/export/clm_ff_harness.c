@@ -4,6 +4,7 @@
 #include "clm_ff.h"
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 #include <time.h>
 
 int clm_ff_lag(void) { return CLM_FF_LAG; }
@@ -80,22 +81,30 @@ void clm_ff_record(const double *r, long n, double *out)
 
 /* The streaming form over a padded record rp[0 .. n+LAG+LEAD-1] (r[k] = rp[k + LAG], any value
  * allowed, NaN too), with its status: started at rest at rp[0] (k0 < 0) or from the window of
- * sample k0 (out[k0] from clm_ff_stream_start); limits set after that unless max_force < 0.
+ * sample k0 (out[k0] from clm_ff_stream_start; pushed on after a rejected start too); limits
+ * set after that unless max_force < 0. flags: 1, the limits set before init or start instead;
+ * 2, a stream initialised at rest at rp[0] (and its limits set) before the start at k0.
  * Returns the status of init/start/limits (OR). */
 unsigned clm_ff_record_status(const double *rp, long n, long k0, double max_force,
-                              double max_slew, double *out, unsigned *status)
+                              double max_slew, int flags, double *out, unsigned *status)
 {
     clm_ff_stream s;
     clm_ff_pos *p = record_pos(rp, n + CLM_FF_LAG + CLM_FF_LEAD);
-    clm_ff_real u;
-    unsigned st;
+    clm_ff_real u = 0;
+    unsigned st = CLM_FF_OK;
     long k, j;
+    const int limits = !(max_force < 0.0); /* -1: none; NaN and 0 reach clm_ff_stream_limits */
     if (!p)
         return CLM_FF_REJECTED;
-    if (k0 < 0) {
-        st = clm_ff_stream_init(&s, p[0]);
-        if (!(max_force < 0.0)) /* -1: none; NaN and 0 reach clm_ff_stream_limits */
+    memset(&s, 0, sizeof s);
+    if (limits && (flags & 1))
+        st |= clm_ff_stream_limits(&s, (clm_ff_real)max_force, (clm_ff_real)max_slew);
+    if (k0 < 0 || (flags & 2)) {
+        st |= clm_ff_stream_init(&s, p[0]);
+        if (limits && !(flags & 1))
             st |= clm_ff_stream_limits(&s, (clm_ff_real)max_force, (clm_ff_real)max_slew);
+    }
+    if (k0 < 0) {
         for (j = 0; j < n + CLM_FF_LEAD; ++j) {
             const unsigned sj = clm_ff_stream_step(&s, p[CLM_FF_LAG + j], &u);
             if (j >= CLM_FF_LEAD) {
@@ -106,14 +115,10 @@ unsigned clm_ff_record_status(const double *rp, long n, long k0, double max_forc
         free(p);
         return st;
     }
-    st = clm_ff_stream_start(&s, p + CLM_FF_LAG + k0, &u);
+    st |= clm_ff_stream_start(&s, p + CLM_FF_LAG + k0, &u);
     out[k0] = (double)u;
     status[k0] = st;
-    if (st != CLM_FF_OK) {
-        free(p);
-        return st; /* refused: the stream was not filled */
-    }
-    if (!(max_force < 0.0))
+    if (limits && !(flags & 3))
         st |= clm_ff_stream_limits(&s, (clm_ff_real)max_force, (clm_ff_real)max_slew);
     for (k = k0 + 1; k < n; ++k) {
         status[k] = clm_ff_stream_step(&s, p[CLM_FF_LAG + k + CLM_FF_LEAD], &u);

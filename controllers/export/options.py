@@ -41,6 +41,10 @@ def check_prefix(prefix: str) -> str:
     return prefix
 
 
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
 def safe_text(text: str) -> str:
     """``text`` with every character outside a safe set (see ``_SAFE``) replaced by ``_``: what
     a file name or a description may put into a generated comment or string."""
@@ -89,17 +93,29 @@ def export_date() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(stamp))
 
 
+# The limits of an export (the C's macros): output force (N), slew (N/s), the position envelope
+# (m) and the velocity (m/s) and acceleration (m/s^2) envelope of what the model reads.
+LIMIT_KEYS = ("max_force", "max_slew", "r_min", "r_max", "v_max", "a_max")
+
+
 @dataclass(frozen=True)
 class ExportOptions:
     """prefix: the names' prefix (``clm_ff``); max_force (N) and max_slew (N/s): the export's
-    output limits (``None``: none); count_m (m): one count of the float build's reference
-    (integer counts, as a drive's set-point); model_name, model_sha256, version, commit, date:
-    the trace."""
+    output limits (``None``: none); r_min, r_max (m): the position envelope (a sample outside it
+    is rejected); v_max (m/s), a_max (m/s^2): the velocity and acceleration the model reads are
+    cut to these (``None``: none); envelope: where the limits come from (one line); count_m
+    (m): one count of the float build's reference (integer counts, as a drive's set-point);
+    model_name, model_sha256, version, commit, date: the trace."""
 
     prefix: str = DEFAULT_PREFIX
     max_force: float | None = None
     max_slew: float | None = None
     count_m: float = DEFAULT_COUNT_M
+    r_min: float | None = None
+    r_max: float | None = None
+    v_max: float | None = None
+    a_max: float | None = None
+    envelope: str = "none"
     model_name: str = "unknown"
     model_sha256: str = "unknown"
     version: str = "unknown"
@@ -108,12 +124,22 @@ class ExportOptions:
 
     def __post_init__(self):
         check_prefix(self.prefix)
-        for key in ("max_force", "max_slew", "count_m"):
+        for key in ("max_force", "max_slew", "count_m", "v_max", "a_max"):
             value = getattr(self, key)
-            if value is not None and not (isinstance(value, (int, float))
-                                          and 0 < float(value) < float("inf")):
-                raise UserError(f"--{key.replace('_', '-')}: expected a positive number, "
-                                f"got {value!r}")
+            if value is not None and not (_number(value) and 0 < float(value) < float("inf")):
+                option = {"v_max": "max-velocity", "a_max": "max-acceleration"}.get(
+                    key, key.replace("_", "-"))
+                raise UserError(f"--{option}: expected a positive number, got {value!r}")
+        ends = (self.r_min, self.r_max)
+        if (None in ends) != (ends == (None, None)) or not (
+                ends == (None, None) or (all(_number(x) and abs(x) < 1e300 for x in ends)
+                                         and self.r_min < self.r_max)):
+            raise UserError(f"--position-range: expected two finite positions, the lower "
+                            f"first (m), got {self.r_min!r} {self.r_max!r}")
+
+    def limits(self) -> dict:
+        """The limits as export.json states them (``None``: none)."""
+        return {key: getattr(self, key) for key in LIMIT_KEYS}
 
     @classmethod
     def traced(cls, model_path, **kwargs) -> "ExportOptions":
@@ -131,6 +157,7 @@ class ExportOptions:
                 "model_sha256": self.model_sha256}
 
     def trace_line(self) -> str:
-        lim = (f"; limits {self.max_force or 'none'} N, {self.max_slew or 'none'} N per s")
+        lim = (f"; limits {self.max_force or 'none'} N, {self.max_slew or 'none'} N per s, "
+               f"from {self.envelope}")
         return (f"clm-sim {self.version}, commit {self.commit}, exported {self.date}; model file "
                 f"{self.model_name}, sha256 {self.model_sha256}{lim}; names {self.prefix}")

@@ -21,26 +21,44 @@ TOL_DOUBLE = 1e-9
 TOL_FLOAT = 1e-4
 
 
-def motion(wf: WindowFeedforward) -> np.ndarray:
-    """The vectors' reference (m): rest, a 2 mm move and back (smooth, both directions, a
-    reversal), rest again; long enough for the window to rest at both ends."""
-    move = 600
-    s = np.linspace(0.0, 1.0, move)
-    step = 2e-3 * (10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5)  # zero velocity and acceleration at ends
+def motion(wf: WindowFeedforward, limits: dict | None = None) -> np.ndarray:
+    """The vectors' reference (m): rest, a move and back (smooth, both directions, a reversal),
+    rest again; long enough for the window to rest at both ends. Without ``limits`` 2 mm from
+    0.01 m in 60 ms; with them (``r_min``, ``r_max`` in m, ``v_max``, ``a_max``) centred in the
+    position envelope and at no more than a quarter of its speed and acceleration, so that no
+    limit acts on the self-test."""
+    amplitude, n, start = 2e-3, 600, 0.01
+    if limits and limits.get("r_min") is not None:
+        lo, hi = limits["r_min"], limits["r_max"]
+        v = limits.get("v_max") or np.inf
+        a = limits.get("a_max") or np.inf
+        amplitude = min(amplitude, 0.1 * (hi - lo))
+        duration = max(0.06, 1.875 * amplitude / (0.25 * v),
+                       np.sqrt(5.7735 * amplitude / (0.25 * a)))
+        n = int(np.ceil(duration / wf.ts))
+        if n > 6000:  # a slow envelope: a smaller move, not a longer file
+            n = 6000
+            duration = n * wf.ts
+            amplitude = min(amplitude, 0.25 * v * duration / 1.875,
+                            0.25 * a * duration ** 2 / 5.7735)
+        start = 0.5 * (lo + hi) - 0.5 * amplitude
+    s = np.linspace(0.0, 1.0, n)
+    step = amplitude * (10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5)  # rests at both ends
     rest = np.zeros(wf.lead + 20)
-    return np.concatenate([rest, step, step[::-1], rest]) + 0.01
+    return np.concatenate([rest, step, step[::-1], rest]) + start
 
 
-def vectors(wf: WindowFeedforward) -> tuple[np.ndarray, np.ndarray]:
+def vectors(wf: WindowFeedforward, limits: dict | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
     """``(r, u_ff)``: the motion and the product's feedforward on it (the numpy window form,
     held at the ends)."""
-    r = motion(wf)
-    with np.errstate(over="ignore"):  # e^x of a saturated unit: inf, and the activation's limit
+    r = motion(wf, limits)
+    with np.errstate(over="ignore", invalid="ignore"):  # e^x of a saturated unit: inf
         return r, wf.apply(r)
 
 
-def kat_csv(wf: WindowFeedforward) -> str:
-    r, u = vectors(wf)
+def kat_csv(wf: WindowFeedforward, limits: dict | None = None) -> str:
+    r, u = vectors(wf, limits)
     rows = "".join(f"{k},{float(r[k])!r},{float(u[k])!r}\n" for k in range(len(r)))
     return (f"# known-answer vectors: u_ff (N) of the reference r (m) at ts = {wf.ts!r} s, the "
             f"reference held at its ends; tolerance {TOL_DOUBLE:g} of max |u_ff| (float build "
@@ -72,14 +90,15 @@ def counts(r: np.ndarray, count_m: float) -> np.ndarray:
     return (np.sign(c) * np.floor(np.abs(c) + 0.5)).astype(np.int64)  # halves away from 0
 
 
-def selftest_c(wf: WindowFeedforward, count_m: float = DEFAULT_COUNT_M) -> str:
+def selftest_c(wf: WindowFeedforward, count_m: float = DEFAULT_COUNT_M,
+               limits: dict | None = None) -> str:
     """``clm_ff_selftest.c`` (names as written here; the writer prefixes them). The float build's
     vectors are the motion in counts of ``count_m`` m and the product's force on those counts."""
-    r, u = vectors(wf)
+    r, u = vectors(wf, limits)
     n = len(r)
     peak = float(np.max(np.abs(u)))
     c = counts(r, count_m)
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):
         uq = wf.apply(c * count_m)
     peak_q = float(np.max(np.abs(uq)))
     return f"""\
@@ -87,7 +106,10 @@ def selftest_c(wf: WindowFeedforward, count_m: float = DEFAULT_COUNT_M) -> str:
  * int clm_ff_selftest(clm_ff_stream *scratch): runs the stream (from rest, every sample) and
  * the stateless call (every 7th sample) over the motion of clm_ff_kat.csv and compares with the
  * product's forces. Returns 0 if all are within CLM_FF_KAT_TOL of the largest force, else
- * 1 + the first sample that is not (scratch: a stream the test may overwrite). The float build
+ * 1 + the first sample that is not (scratch: a stream the test may overwrite). The test sets
+ * no force or slew limit on the stream (its own or the export's), so that a build whose limits
+ * are below the motion's forces passes; the motion lies inside the export's envelope. Afterwards
+ * scratch's limits are the export's again (init it before use). The float build
  * takes the motion in counts of CLM_FF_COUNT_M m and the product's forces on those counts. */
 #include "clm_ff.h"
 #include <math.h>
@@ -116,13 +138,18 @@ int clm_ff_selftest(clm_ff_stream *scratch)
     clm_ff_pos w[CLM_FF_WINDOW];
     clm_ff_real u;
     long k, j;
-    if (clm_ff_stream_init(scratch, clm_ff_kat_r(0)) != CLM_FF_OK)
-        return 1;
-    for (k = -CLM_FF_LEAD; k < CLM_FF_KAT_N; ++k) {{
+    int failed = 0;
+    if (clm_ff_stream_limits(scratch, (clm_ff_real)HUGE_VAL, (clm_ff_real)HUGE_VAL) != CLM_FF_OK
+        || clm_ff_stream_init(scratch, clm_ff_kat_r(0)) != CLM_FF_OK)
+        failed = 1;
+    for (k = -CLM_FF_LEAD; k < CLM_FF_KAT_N && !failed; ++k) {{
         const unsigned st = clm_ff_stream_step(scratch, clm_ff_kat_r(k + CLM_FF_LEAD), &u);
         if (k >= 0 && (st != CLM_FF_OK || !(CLM_FF_KAT_ABS(u - CLM_FF_KAT_U[k]) <= CLM_FF_KAT_TOL)))
-            return (int)(1 + k);
+            failed = (int)(1 + k);
     }}
+    scratch->limits_key = 0UL; /* the next init gives the export's limits */
+    if (failed)
+        return failed;
     for (k = 0; k < CLM_FF_KAT_N; k += 7) {{
         for (j = 0; j < CLM_FF_WINDOW; ++j)
             w[j] = clm_ff_kat_r(k - CLM_FF_LAG + j);
@@ -136,14 +163,15 @@ int clm_ff_selftest(clm_ff_stream *scratch)
 
 
 def write(wf: WindowFeedforward, folder, prefix: str, c: bool,
-          count_m: float = DEFAULT_COUNT_M) -> list[Path]:
-    """``<prefix>_kat.csv`` and, for C, ``<prefix>_selftest.c`` in ``folder``."""
+          count_m: float = DEFAULT_COUNT_M, limits: dict | None = None) -> list[Path]:
+    """``<prefix>_kat.csv`` and, for C, ``<prefix>_selftest.c`` in ``folder`` (the motion inside
+    ``limits``, see :func:`motion`)."""
     folder = Path(folder)
     paths = [folder / f"{prefix}_kat.csv"]
-    paths[0].write_text(kat_csv(wf))
+    paths[0].write_text(kat_csv(wf, limits))
     if c:
         paths.append(folder / f"{prefix}_selftest.c")
-        paths[1].write_text(prefixed(selftest_c(wf, count_m), prefix))
+        paths[1].write_text(prefixed(selftest_c(wf, count_m, limits), prefix))
     return paths
 
 

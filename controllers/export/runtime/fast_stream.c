@@ -87,11 +87,13 @@ static void backward(const clm_ff_stream *s, clm_ff_real f[4])
     f[0] = a0 + a1; f[1] = v0 + v1; f[2] = s0 + s1; f[3] = y0 + y1;
 }
 
-/* Force at the oldest instant of the forward outputs held. */
-static clm_ff_real stream_point(const clm_ff_stream *s)
+/* Force at the oldest instant of the forward outputs held; *st gets CLM_FF_CLAMPED where the
+ * features were cut to the envelope. */
+static clm_ff_real stream_point(const clm_ff_stream *s, unsigned *st)
 {
     clm_ff_real f[4];
     backward(s, f);
+    clip_features(f, st);
 #ifdef CLM_FF_AVX2
     if (CLM_FF_HAS_AVX2())
         return physical(f) + NETWORK_AVX2(f);
@@ -121,9 +123,12 @@ static void steady(clm_ff_stream *s, const clm_ff_real x[4])
 
 unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0)
 {
-    const unsigned st = fill_at_rest(s, &r0);
     clm_ff_real x[4];
+    unsigned st = CLM_FF_OK;
     int i;
+    if (!sample_ok(r0))
+        return stop(s);
+    fill_at_rest(s, r0);
     /* at rest: a = v = sign v = 0, y = r0; the sections in their steady state */
     x[0] = x[1] = x[2] = R(0.0);
     x[3] = (clm_ff_real)POS(r0);
@@ -133,18 +138,19 @@ unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0)
         s->fwd[3][i] = x[3];
     }
     s->fnext = 0;
-    s->p_next = stream_point(s);
-    reset(s, r0, s->p_next);
-    s->status = st;
-    return st;
+    s->p_next = stream_point(s, &st);
+    reset(s, s->p_next);
+    return CLM_FF_OK;
 }
 
 unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real *u_ff)
 {
     clm_ff_real x[4], p;
+    unsigned st = CLM_FF_OK;
     int i;
-    if (!fill_window(s, r))
-        return CLM_FF_REJECTED;
+    if (!window_ok(r))
+        return stop(s);
+    fill_window(s, r);
     /* The sections started in the steady state of the oldest instant's features, then run over
      * the window's 2 HALF + 2 instants: what they forget of that start decays as the filter's
      * impulse response, below the export's tolerance after HALF samples. */
@@ -155,13 +161,13 @@ unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real 
         differences(r + i, x);
         forward(s, x);
     }
-    p = stream_point(s);                 /* force at k */
+    p = stream_point(s, &st);            /* force at k */
     differences(r + HALF + 1, x);
     forward(s, x);
-    s->p_next = stream_point(s);         /* force at k+1 */
+    s->p_next = stream_point(s, &st);    /* force at k+1 */
     *u_ff = R(0.5) * (p + s->p_next);
-    reset(s, r[CLM_FF_LEAD], *u_ff);
-    return CLM_FF_OK;
+    reset(s, *u_ff);
+    return st;
 }
 
 /* One push before the limits: the force (N) and *st. */
@@ -176,7 +182,7 @@ static CLM_FF_INLINE clm_ff_real advance(clm_ff_stream *s, clm_ff_pos r_newest, 
     r = &s->buf[s->next + CLM_FF_LAG];   /* r[k] */
     differences(r + CLM_FF_LAG, x);      /* r[k + HALF + 1]: the newest instant with differences */
     forward(s, x);                       /* forward outputs now cover k+1 .. k+HALF+1 */
-    p = stream_point(s);                 /* force at k+1 */
+    p = stream_point(s, st);             /* force at k+1 */
     u = R(0.5) * (s->p_next + p);
     s->p_next = p;
     return u;

@@ -1,19 +1,23 @@
 
 unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0)
 {
-    const unsigned st = fill_at_rest(s, &r0);
-    reset(s, r0, clm_ff(&s->buf[CLM_FF_LAG]));
-    s->status = st;
-    return st;
+    unsigned st = CLM_FF_OK;
+    if (!sample_ok(r0))
+        return stop(s);
+    fill_at_rest(s, r0);
+    reset(s, window_force(&s->buf[CLM_FF_LAG], &st));
+    return CLM_FF_OK;
 }
 
 unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real *u_ff)
 {
-    if (!fill_window(s, r))
-        return CLM_FF_REJECTED;
-    *u_ff = clm_ff(r);
-    reset(s, r[CLM_FF_LEAD], *u_ff);
-    return CLM_FF_OK;
+    unsigned st = CLM_FF_OK;
+    if (!window_ok(r))
+        return stop(s);
+    fill_window(s, r);
+    *u_ff = window_force(r, &st);
+    reset(s, *u_ff);
+    return st;
 }
 
 /* One push before the limits: the force (N) and *st. */
@@ -24,5 +28,5 @@ static CLM_FF_INLINE clm_ff_real advance(clm_ff_stream *s, clm_ff_pos r_newest, 
     s->buf[s->next + CLM_FF_WINDOW] = r_newest;
     s->next = (s->next + 1) % CLM_FF_WINDOW;
     /* The oldest sample is at buf[next]; r[k] is CLM_FF_LAG after it. */
-    return clm_ff(&s->buf[s->next + CLM_FF_LAG]);
+    return window_force(&s->buf[s->next + CLM_FF_LAG], st);
 }

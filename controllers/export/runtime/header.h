@@ -18,16 +18,21 @@
  * ${exact}.
  *
  * Bad input. clm_ff returns NaN (both builds) for a window holding a NaN or an infinity;
- * clm_ff_eval returns CLM_FF_REJECTED and 0 N instead. The stream rejects a sample that is not
- * finite or beyond +-CLM_FF_R_MAX m: it holds the last good sample in its place and reports
- * CLM_FF_REJECTED, then CLM_FF_DEGRADED until the held sample has left the window
+ * clm_ff_eval returns CLM_FF_REJECTED and 0 N for a window holding a sample that is not usable
+ * (not finite, or outside [CLM_FF_R_MIN, CLM_FF_R_MAX] m: the same check as the stream's). The
+ * stream puts the three newest samples continued at constant acceleration in place of such a
+ * sample and reports CLM_FF_REJECTED, then CLM_FF_DEGRADED until that sample has left the window
  * (CLM_FF_WINDOW pushes); after that its force is the exact one again (to the export's
- * tolerance: the filter's recursion forgets the held sample as its impulse response decays).
+ * tolerance: the filter's recursion forgets the sample as its impulse response decays). A
+ * rejected init or start stops the stream: every push returns 0 N and
+ * CLM_FF_REJECTED | CLM_FF_STOPPED until a good init or start.
  *
  * Limits. clm_ff_eval and the stream clamp the force to +-CLM_FF_MAX_FORCE (N); the stream
  * also limits its rate of change to CLM_FF_MAX_SLEW (N/s); both from the export, changeable
- * per stream at run time (clm_ff_stream_limits). Every status word is 0 (CLM_FF_OK) or an OR
- * of the CLM_FF_* bits below.
+ * per stream at run time (clm_ff_stream_limits; init and start keep what it set). The velocity
+ * and acceleration the model reads are cut to the envelope (CLM_FF_V_MAX, CLM_FF_A_MAX) in
+ * every call. Inside the limits and the envelope nothing is changed. Every status word is 0
+ * (CLM_FF_OK) or an OR of the CLM_FF_* bits below.
  *
  * Model:
 ${model}
@@ -59,8 +64,20 @@ ${trace}
 #ifndef CLM_FF_MAX_SLEW
 #define CLM_FF_MAX_SLEW ${max_slew} /* N/s: the stream's rate limit, as exported (a -D overrides it) */
 #endif
+/* The envelope: a reference sample outside [CLM_FF_R_MIN, CLM_FF_R_MAX] m is rejected as a
+ * NaN is; the velocity and acceleration the model reads are cut to +-CLM_FF_V_MAX m/s and
+ * +-CLM_FF_A_MAX m/s^2 (CLM_FF_CLAMPED). As exported (${envelope}); a -D overrides each. */
+#ifndef CLM_FF_R_MIN
+#define CLM_FF_R_MIN ${r_min}
+#endif
 #ifndef CLM_FF_R_MAX
-#define CLM_FF_R_MAX 1e6 /* m: a stream sample beyond +-this is rejected as not finite is */
+#define CLM_FF_R_MAX ${r_max}
+#endif
+#ifndef CLM_FF_V_MAX
+#define CLM_FF_V_MAX ${v_max}
+#endif
+#ifndef CLM_FF_A_MAX
+#define CLM_FF_A_MAX ${a_max}
 #endif
 
 /* The build's types. Default: the reference in m (double), forces in N (double). With
@@ -80,10 +97,11 @@ typedef double clm_ff_real; /* force (N) and arithmetic */
 
 /* Status bits (0: CLM_FF_OK, the exact force of the product). */
 #define CLM_FF_OK 0u
-#define CLM_FF_REJECTED 1u /* this input was not finite (or out of range): not used */
+#define CLM_FF_REJECTED 1u /* this input was not usable (not finite, outside the envelope) */
 #define CLM_FF_DEGRADED 2u /* the window holds a held sample in place of a rejected one */
-#define CLM_FF_CLAMPED 4u  /* the force was limited to +-max_force */
+#define CLM_FF_CLAMPED 4u  /* the force was limited to +-max_force, or the envelope cut v or a */
 #define CLM_FF_SLEWED 8u   /* the force's change was limited to max_slew */
+#define CLM_FF_STOPPED 16u /* a rejected init or start: 0 N until a good one */
 
 #ifdef __cplusplus
 extern "C" {
@@ -106,24 +124,29 @@ typedef struct {
     clm_ff_real fwd[4][2 * (CLM_FF_HALF + 1)];
     int fnext;
     clm_ff_real p_next;
-    clm_ff_pos last_good;   /* the newest sample accepted */
-    int degraded;           /* pushes until a held sample has left the window */
+    int degraded;           /* pushes until an extrapolated sample has left the window */
+    int stopped;            /* a rejected init or start: no window */
     clm_ff_real max_force;  /* N */
     clm_ff_real max_step;   /* N per sample: max_slew * CLM_FF_TS */
     clm_ff_real u_last;     /* N: the force returned last */
+    unsigned long limits_key; /* check word of limits set by clm_ff_stream_limits */
     unsigned status;    /* of the last call */
 } clm_ff_stream;
 
 /* Fill the window with the rest position r0 (m): the machine at rest before the motion; the
- * limits from the export. CLM_FF_REJECTED (and the stream at 0 m) if r0 is not finite. */
+ * limits set on this stream by clm_ff_stream_limits, else the export's. A sample that is not
+ * usable stops the stream (CLM_FF_REJECTED | CLM_FF_STOPPED, on every push until a good init
+ * or start). */
 unsigned clm_ff_stream_init(clm_ff_stream *s, clm_ff_pos r0);
 
 /* Start on a moving reference: r points at r[k] (m), r[-CLM_FF_LAG..CLM_FF_LEAD] valid; the
- * next push takes r[k+1+CLM_FF_LEAD] and returns u_ff[k+1]. *u_ff: u_ff[k] (N, unlimited; the
- * slew limit starts from it). CLM_FF_REJECTED (stream unchanged) if the window is not finite. */
+ * next push takes r[k+1+CLM_FF_LEAD] and returns u_ff[k+1]. *u_ff: u_ff[k] (N, not clamped;
+ * the slew limit starts from it); limits kept as by init. A window holding a sample that is
+ * not usable stops the stream, as init does (*u_ff untouched). */
 unsigned clm_ff_stream_start(clm_ff_stream *s, const clm_ff_pos *r, clm_ff_real *u_ff);
 
-/* Set the limits (N, N/s; HUGE_VAL: none). CLM_FF_REJECTED (unchanged) unless both > 0. */
+/* Set the limits (N, N/s; HUGE_VAL: none), kept by later inits and starts of this stream (may
+ * come before the first init). CLM_FF_REJECTED (unchanged) unless both > 0. */
 unsigned clm_ff_stream_limits(clm_ff_stream *s, clm_ff_real max_force, clm_ff_real max_slew);
 
 /* Push the newest reference sample r[k + CLM_FF_LEAD] (m); *u_ff = u_ff[k] (N); the status. */
@@ -133,8 +156,9 @@ unsigned clm_ff_stream_step(clm_ff_stream *s, clm_ff_pos r_newest, clm_ff_real *
 clm_ff_real clm_ff_stream_push(clm_ff_stream *s, clm_ff_pos r_newest);
 
 /* Known-answer self-test (clm_ff_selftest.c, vectors in clm_ff_kat.csv): 0 if the compiled code
- * gives the product's forces on the vectors' motion, else 1 + the first failing sample. scratch:
- * a stream the test overwrites (re-init yours afterwards). */
+ * gives the product's forces on the vectors' motion, else 1 + the first failing sample. No force
+ * or slew limit acts on it (its motion lies inside the envelope). scratch: a stream the test
+ * overwrites (afterwards its limits are the export's: init it, set yours again). */
 int clm_ff_selftest(clm_ff_stream *scratch);
 
 #ifdef __cplusplus

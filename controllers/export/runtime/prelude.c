@@ -67,3 +67,18 @@ static int is_finite_bits(clm_ff_real x)
     return x == x && x - x == R(0.0);
 #endif
 }
+
+/* x cut to +-lim (lim > 0; HUGE_VAL: none); *st gets CLM_FF_CLAMPED where it was. A NaN
+ * passes unchanged (the finite checks catch it). */
+static CLM_FF_INLINE clm_ff_real clip(clm_ff_real x, clm_ff_real lim, unsigned *st)
+{
+    if (x > lim) {
+        *st |= CLM_FF_CLAMPED;
+        return lim;
+    }
+    if (x < -lim) {
+        *st |= CLM_FF_CLAMPED;
+        return -lim;
+    }
+    return x;
+}

@@ -1,24 +1,36 @@
 
-/* A stream sample it can use: finite and within +-CLM_FF_R_MAX m (float build: counts within
- * +-CLM_FF_COUNT_MAX, so that no difference overflows). */
-static int in_range(clm_ff_pos r)
-{
+/* A usable reference sample, the one check of every call that takes samples (clm_ff_eval on
+ * each sample of its window, the stream on each push, init and start): finite and within the
+ * position envelope [CLM_FF_R_MIN, CLM_FF_R_MAX] m; the float build: counts within that
+ * envelope and within +-CLM_FF_COUNT_MAX, so that no difference overflows. The finite test
+ * reads the bits (-ffast-math cannot assume it away); & rather than &&: no branch, a loop of it
+ * vectorises. */
 #ifdef CLM_FF_FLOAT
-    return r >= -CLM_FF_COUNT_MAX && r <= CLM_FF_COUNT_MAX;
-#elif DBL_MANT_DIG == 53 && DBL_MAX_EXP == 1024
-    /* |r| <= R_MAX as integers: positive doubles order as their bits, and NaN and inf lie
-     * above every finite value (one compare, and -ffast-math cannot drop it) */
-    const double limit = CLM_FF_R_MAX;
-    unsigned long long b, m;
-    memcpy(&b, &r, sizeof b);
-    memcpy(&m, &limit, sizeof m);
-    return (b & 0x7fffffffffffffffULL) <= m;
+static const clm_ff_pos COUNT_LO = CLM_FF_R_MIN / CLM_FF_COUNT_M <= -2.3e18
+    ? -CLM_FF_COUNT_MAX : (clm_ff_pos)(CLM_FF_R_MIN / CLM_FF_COUNT_M);
+static const clm_ff_pos COUNT_HI = CLM_FF_R_MAX / CLM_FF_COUNT_M >= 2.3e18
+    ? CLM_FF_COUNT_MAX : (clm_ff_pos)(CLM_FF_R_MAX / CLM_FF_COUNT_M);
+static CLM_FF_INLINE int sample_ok(clm_ff_pos r)
+{
+    return (r >= COUNT_LO) & (r <= COUNT_HI);
+}
 #else
-    return is_finite_bits(r) && r >= -CLM_FF_R_MAX && r <= CLM_FF_R_MAX;
+static CLM_FF_INLINE int sample_ok(clm_ff_pos r)
+{
+    return is_finite_bits(r) & (r >= CLM_FF_R_MIN) & (r <= CLM_FF_R_MAX);
+}
 #endif
+
+/* Every sample of the window r[-LAG .. LEAD] is usable. */
+static int window_ok(const clm_ff_pos *r)
+{
+    int i, ok = 1;
+    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
+        ok &= sample_ok(r[i]);
+    return ok;
 }
 
-/* The force (N) clamped to +-max_force, with its status bit. */
+/* The force clamped to +-max_force, with its status bit. */
 static clm_ff_real clamp(clm_ff_real u, clm_ff_real max_force, unsigned *st)
 {
     if (u > max_force) {
@@ -32,10 +44,21 @@ static clm_ff_real clamp(clm_ff_real u, clm_ff_real max_force, unsigned *st)
     return u;
 }
 
+clm_ff_real clm_ff(const clm_ff_pos *r)
+{
+    unsigned st = CLM_FF_OK;
+    return window_force(r, &st);
+}
+
 unsigned clm_ff_eval(const clm_ff_pos *r, clm_ff_real *u_ff)
 {
     unsigned st = CLM_FF_OK;
-    const clm_ff_real u = clm_ff(r);
+    clm_ff_real u;
+    if (!window_ok(r)) {
+        *u_ff = R(0.0);
+        return CLM_FF_REJECTED;
+    }
+    u = window_force(r, &st);
     if (!is_finite_bits(u)) {
         *u_ff = R(0.0);
         return CLM_FF_REJECTED;
@@ -44,44 +67,29 @@ unsigned clm_ff_eval(const clm_ff_pos *r, clm_ff_real *u_ff)
     return st;
 }
 
-/* Init's buffer: every sample r0 (0 when r0 is unusable, with CLM_FF_REJECTED); returns the
- * status and the sample it filled with. */
-static unsigned fill_at_rest(clm_ff_stream *s, clm_ff_pos *r0)
+/* A check word of the limits a stream holds: init and start keep limits whose word matches
+ * (set by clm_ff_stream_limits on this stream); a stream never given limits (or not yet
+ * initialised) gets the export's. */
+static unsigned long limits_key(const clm_ff_stream *s)
 {
-    unsigned st = CLM_FF_OK;
-    int i;
-    if (!in_range(*r0)) {
-        *r0 = 0;
-        st = CLM_FF_REJECTED;
+    unsigned char b[2 * sizeof(clm_ff_real)];
+    unsigned long k = 0x2545f491UL;
+    size_t i;
+    memcpy(b, &s->max_force, sizeof s->max_force);
+    memcpy(b + sizeof(clm_ff_real), &s->max_step, sizeof s->max_step);
+    for (i = 0; i < sizeof b; ++i)
+        k = (k * 31UL + b[i]) & 0xffffffffUL;
+    return k | 1UL; /* never 0: a zeroed stream does not match */
+}
+
+/* The limits kept if set on this stream, else the export's. */
+static void keep_limits(clm_ff_stream *s)
+{
+    if (s->limits_key != limits_key(s) || !(s->max_force > R(0.0) && s->max_step > R(0.0))) {
+        s->max_force = (clm_ff_real)CLM_FF_MAX_FORCE;
+        s->max_step = (clm_ff_real)(CLM_FF_MAX_SLEW * CLM_FF_TS);
+        s->limits_key = 0UL;
     }
-    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
-        s->buf[i] = *r0;
-    s->next = 0;
-    return st;
-}
-
-/* Start's buffer: the window r[-LAG..LEAD] if every sample is usable (1), else nothing (0). */
-static int fill_window(clm_ff_stream *s, const clm_ff_pos *r)
-{
-    int i;
-    for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
-        if (!in_range(r[i]))
-            return 0;
-    for (i = 0; i < CLM_FF_WINDOW; ++i)
-        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
-    s->next = 0;
-    return 1;
-}
-
-/* The state after init or start: the newest sample, the force last returned, export limits. */
-static void reset(clm_ff_stream *s, clm_ff_pos last_good, clm_ff_real u)
-{
-    s->last_good = last_good;
-    s->degraded = 0;
-    s->max_force = (clm_ff_real)CLM_FF_MAX_FORCE;
-    s->max_step = (clm_ff_real)(CLM_FF_MAX_SLEW * CLM_FF_TS);
-    s->u_last = u;
-    s->status = CLM_FF_OK;
 }
 
 unsigned clm_ff_stream_limits(clm_ff_stream *s, clm_ff_real max_force, clm_ff_real max_slew)
@@ -90,17 +98,73 @@ unsigned clm_ff_stream_limits(clm_ff_stream *s, clm_ff_real max_force, clm_ff_re
         return CLM_FF_REJECTED;
     s->max_force = max_force;
     s->max_step = max_slew * (clm_ff_real)CLM_FF_TS;
+    s->limits_key = limits_key(s);
     return CLM_FF_OK;
 }
 
-/* The newest sample, or the last good one in place of a rejected one; *st: the status so far. */
+/* A rejected init or start: the stream says so on every push (0 N, REJECTED | STOPPED) until
+ * a good init or start. */
+static unsigned stop(clm_ff_stream *s)
+{
+    keep_limits(s);
+    s->stopped = 1;
+    s->degraded = 0;
+    s->u_last = R(0.0);
+    s->status = CLM_FF_REJECTED | CLM_FF_STOPPED;
+    return s->status;
+}
+
+/* Init's buffer: every sample r0 (usable). */
+static void fill_at_rest(clm_ff_stream *s, clm_ff_pos r0)
+{
+    int i;
+    for (i = 0; i < 2 * CLM_FF_WINDOW; ++i)
+        s->buf[i] = r0;
+    s->next = 0;
+}
+
+/* Start's buffer: the window r[-LAG..LEAD] (usable). */
+static void fill_window(clm_ff_stream *s, const clm_ff_pos *r)
+{
+    int i;
+    for (i = 0; i < CLM_FF_WINDOW; ++i)
+        s->buf[i] = s->buf[i + CLM_FF_WINDOW] = r[i - CLM_FF_LAG];
+    s->next = 0;
+}
+
+/* The state after a good init or start: the force last returned, the limits kept. */
+static void reset(clm_ff_stream *s, clm_ff_real u)
+{
+    keep_limits(s);
+    s->stopped = 0;
+    s->degraded = 0;
+    s->u_last = u;
+    s->status = CLM_FF_OK;
+}
+
+/* The sample put in place of a rejected one: the three newest continued at constant
+ * acceleration (a machine at rest stays where it is, bit for bit; a move goes on as it went),
+ * or the newest itself where that continuation is not a usable sample. */
+static clm_ff_pos extrapolated(const clm_ff_stream *s)
+{
+    const clm_ff_pos *b = &s->buf[s->next + CLM_FF_WINDOW]; /* b[-1]: the newest */
+    const clm_ff_pos d1 = b[-1] - b[-2], d2 = b[-2] - b[-3];
+    clm_ff_pos x;
+#ifdef CLM_FF_FLOAT
+    const clm_ff_pos big = (clm_ff_pos)1 << 59; /* so that the sum below cannot overflow */
+    if (d1 > big || d1 < -big || d2 > big || d2 < -big)
+        return b[-1];
+#endif
+    x = b[-1] + (d1 + (d1 - d2));
+    return sample_ok(x) ? x : b[-1];
+}
+
+/* The newest sample, or its extrapolation in place of a rejected one; *st: the status so far. */
 static CLM_FF_INLINE clm_ff_pos accept(clm_ff_stream *s, clm_ff_pos r_newest, unsigned *st)
 {
     *st = CLM_FF_OK;
-    if (in_range(r_newest)) {
-        s->last_good = r_newest;
-    } else {
-        r_newest = s->last_good;
+    if (!sample_ok(r_newest)) {
+        r_newest = extrapolated(s);
         *st = CLM_FF_REJECTED;
         s->degraded = CLM_FF_WINDOW;
     }
