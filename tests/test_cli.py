@@ -363,14 +363,43 @@ def test_study_trains_every_seed_it_reports(tmp_path, capsys, monkeypatch):
     cfg.write_text(SMALL.split("feedforwards:")[0]
                    + "study:\n  lambdas: [0, 0.01]\n  hidden: 4\n  seeds: 2\n"
                    "  outside: [r2]\n  pgnn: {max_iter: 5}\n")
-    code, _, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    code, stdout, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 0, err
+    # the screen: the report's findings, then where the full report is (not the whole report)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert stdout.splitlines()[0] == report.splitlines()[0]
+    assert stdout.splitlines()[-1].startswith(f"Full report: {tmp_path / 'out' / 'report.md'}")
+    assert "## Findings" in stdout and "## Table" not in stdout and "## Table" in report
     summary = json.loads((tmp_path / "out" / "study.json").read_text())
     assert ExtrapolationResult.from_json(summary).to_json() == summary
     for key in ("sequential", "lambda=0", "lambda=0.01"):
         variant = summary["variants"][key]
         assert len(variant["theta_phy_per_seed"]) == 2, key
         assert all(len(m["per_seed"]) == 2 for m in variant["mae"].values()), key
+
+
+def test_run_ends_its_output_with_the_table_the_comparisons_in_brief_and_the_report(
+        tmp_path, capsys, monkeypatch):
+    """stdout is the results table, one line per compared quantity and setting, and where the
+    full report is; each comparison in full is in table.md, not on the screen."""
+    import experiments.workers
+
+    monkeypatch.setattr(experiments.workers, "cores", lambda: 1)  # as in the study test above
+    cfg = tmp_path / "pair.yaml"
+    cfg.write_text(SMALL + "".join(
+        f"  - {{kind: pgnn, training: simultaneous, lambda: {lam}, hidden: 4, seeds: 2, "
+        "pgnn: {max_iter: 5, continuation_lambda: 0}}\n" for lam in (0, 0.01)))
+    code, stdout, err = _cli(["run", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 0, err
+    out = tmp_path / "out"
+    table_md = (out / "table.md").read_text()
+    lines = stdout.splitlines()
+    assert stdout.startswith(table_md.split("\n\n")[0])  # the table, as table.md has it
+    assert any(line.startswith("  MAE on r2, varies lambda: ") and " of 1 hold" in line
+        for line in lines), lines
+    assert lines[-1].startswith(f"Full report: {out / 'table.md'}")
+    assert not any(line.startswith("- mae") for line in lines)
+    assert sum(line.startswith("- mae") for line in table_md.splitlines()) >= 2
 
 
 def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys):
