@@ -798,7 +798,7 @@ if __name__ == "__main__":
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 def test_a_stopped_pools_cpu_counts_in_its_owners_children(tmp_path):
-    """``/usr/bin/time`` of a command counts its workers' CPU (issue 24 measures the paper table
+    """``/usr/bin/time`` of a command counts its workers' CPU (the paper table's CPU is measured
     so): a stopped pool's workers are reaped by the fork server before it is ended, and the
     server by the command. Killed and left to init instead, a worker's CPU vanished from the
     figure (the paper table's 148 s read 38 s)."""

@@ -673,7 +673,7 @@ def test_identify_output_exports(training_run, tmp_path, capsys):
         assert _rel(CompiledFeedforward(tmp_path / "c").stream(r), want) == 0.0
 
 
-# -- fail-safe: bad samples, limits, restarts (issue 27) ------------------------------------------
+# -- fail-safe: bad samples, limits, restarts --------------------------------------------------
 OK, REJECTED, DEGRADED, CLAMPED, SLEWED = 0, 1, 2, 4, 8
 
 
@@ -884,7 +884,7 @@ def test_a_bad_prefix_is_refused(prefix, tmp_path):
 
 @needs_cc
 def test_a_model_file_name_cannot_inject_code(fitted, tmp_path):
-    """Issue 28 item 3: a file name with a backslash-newline (line splicing), a comment end,
+    """A file name with a backslash-newline (line splicing), a comment end,
     a trigraph and a quote. The name reaches the header and export.json only as safe text,
     and a program that includes the header does not see the injected declaration."""
     import subprocess
