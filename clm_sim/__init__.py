@@ -12,7 +12,7 @@ package's modules never import a layer above them.
 
 from clm_sim.lazy import lazy_exports
 
-__version__ = "0.1.0"
+__version__ = "0.6.0"  # the newest version of CHANGELOG.md (tests/test_no_history.py)
 
 # public name -> module that defines it
 _EXPORTS = {
