@@ -56,7 +56,7 @@ def comparison_lines(pairs: list[dict]) -> list[str]:
             text += f" ({_diff(c, c['diff'])}{ci})"
         elif stars:
             diffs = sorted(c["diff"] for c in stars)
-            text += f" (a − b from {_diff(stars[0], diffs[0])} to {_diff(stars[0], diffs[-1])})"
+            text += f" ({_diff(stars[0], diffs[0])} to {_diff(stars[0], diffs[-1])})"
         lines.append(text)
     if quiet:
         lines.append(f"  and {quiet} comparisons of θ drift and data cost, none holding")
@@ -102,6 +102,7 @@ def report_summary(out: Path, name: str = "report.md") -> str:
 
 
 def _files_line(out: Path, report: str, holds: str) -> str:
+    """Where the full report is, and the figures where the command drew any."""
     figures = out / "figures"
-    tail = f"; figures in {figures}/" if figures.is_dir() and any(figures.iterdir()) else ""
-    return f"Full report: {out / report} ({holds}){tail}; all results in {out}/."
+    drawn = figures.is_dir() and any(figures.iterdir())
+    return f"Full report: {out / report} ({holds})" + (f"\nFigures: {figures}/" if drawn else "")

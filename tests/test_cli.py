@@ -368,7 +368,7 @@ def test_study_trains_every_seed_it_reports(tmp_path, capsys, monkeypatch):
     # the screen: the report's findings, then where the full report is (not the whole report)
     report = (tmp_path / "out" / "report.md").read_text()
     assert stdout.splitlines()[0] == report.splitlines()[0]
-    assert stdout.splitlines()[-1].startswith(f"Full report: {tmp_path / 'out' / 'report.md'}")
+    assert stdout.splitlines()[-2].startswith(f"Full report: {tmp_path / 'out' / 'report.md'}")
     assert "## Findings" in stdout and "## Table" not in stdout and "## Table" in report
     summary = json.loads((tmp_path / "out" / "study.json").read_text())
     assert ExtrapolationResult.from_json(summary).to_json() == summary
@@ -397,7 +397,8 @@ def test_run_ends_its_output_with_the_table_the_comparisons_in_brief_and_the_rep
     assert stdout.startswith(table_md.split("\n\n")[0])  # the table, as table.md has it
     assert any(line.startswith("  MAE on r2, varies lambda: ") and " of 1 hold" in line
         for line in lines), lines
-    assert lines[-1].startswith(f"Full report: {out / 'table.md'}")
+    assert lines[-2].startswith(f"Full report: {out / 'table.md'}")
+    assert lines[-1] == f"Figures: {out / 'figures'}/"
     assert not any(line.startswith("- mae") for line in lines)
     assert sum(line.startswith("- mae") for line in table_md.splitlines()) >= 2
 
