@@ -1117,7 +1117,7 @@ RECIPES = r"""
 #include <stdio.h>
 #include <stdlib.h>
 #include "clm_ff.h"
-/* The integration recipes of docs/export.md with their delay semantics, over a record r[0..n-1]
+/* The integration recipes of docs/export_targets.md with their delay semantics, over a record r[0..n-1]
  * (argv[1], doubles; held at its ends) whose generator runs CLM_FF_LEAD samples ahead:
  * g(k) = r[k + LEAD]. Writes argv[2]: per sample k, four doubles:
  *   Simulink Tapped Delay, CLM_FF_WINDOW - 1 delays, current input included, oldest first,

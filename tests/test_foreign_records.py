@@ -33,7 +33,7 @@ the cells where the test asks for it.
 Naming: a constant force beside a cogging force is ``force_offset`` and ``cogging``
 (the parsimony rule), and LuGre friction with critically damped bristles and no Stribeck curve is
 pre-sliding or unexplained, never a Stribeck curve (its law: the same force while the speed rises
-and falls). Measured before and after in ``docs/diagnosis.md``.
+and falls). Measured in ``docs/diagnosis.md``.
 """
 
 from __future__ import annotations
