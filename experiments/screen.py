@@ -82,21 +82,19 @@ def run_summary(out: Path) -> str:
 
 
 def report_summary(out: Path, name: str = "report.md") -> str:
-    """What ``clm-sim study`` prints: its report up to the end of its findings (the sections
-    up to the first heading that follows a findings section, or up to the second section when
-    the report names none), then where the full report and the figures are."""
+    """What ``clm-sim study`` prints: its report up to the end of its findings (the section named
+    for them, where the report has one; else everything before its figures), then where the
+    full report and the figures are."""
     out = Path(out)
     lines = (out / name).read_text().splitlines()
     heads = [i for i, line in enumerate(lines) if line.startswith("## ")]
     found = [k for k, i in enumerate(heads) if "finding" in lines[i].lower()
              or "generated from this run" in lines[i]]
-    if found and found[0] + 1 < len(heads):
-        cut = heads[found[0] + 1]
-    elif found or not heads:
-        cut = len(lines)
+    figures = [i for i in heads if lines[i].lower().startswith("## figures")]
+    if found:
+        cut = heads[found[0] + 1] if found[0] + 1 < len(heads) else len(lines)
     else:
-        content = any(line.strip() and not line.startswith("# ") for line in lines[:heads[0]])
-        cut = heads[0] if content else (heads[1] if len(heads) > 1 else len(lines))
+        cut = figures[0] if figures else len(lines)
     head = "\n".join(lines[:cut]).rstrip("\n")
     return head + "\n\n" + _files_line(out, name, "every table and section") + "\n"
 
