@@ -246,7 +246,7 @@ _scan_lock = threading.Lock()
 def _controller(threadpoolctl):
     """threadpoolctl's view of the loaded libraries, scanned again only after an import: a scan
     (every shared object of the process) cost 5 ms, twice per block, and a table replays every
-    fitted network inside a block (docs/performance.md)."""
+    fitted network inside a block."""
     key = len(sys.modules)  # a library loaded since the last scan came with a new module
     with _scan_lock:
         ctl = _controllers.get(key)
