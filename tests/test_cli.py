@@ -735,9 +735,9 @@ if __name__ == "__main__":
 def test_a_command_whose_stderr_is_gone_still_ends_on_a_signal(tmp_path):
     """Ctrl-C while the main thread is inside a long library call: the signal thread ends the
     process. With stderr a pipe nobody reads any more (``clm-sim run … 2>&1 | head``), writing
-    the line fails; the process still ends with 130. The signal thread used to die there: the
-    command ran on, and an interrupted one waited forever for the lock that thread held (a
-    stress run left such a process)."""
+    the line fails; the process still ends with 130. Were the signal thread to die there, the
+    command would run on, and an interrupted one would wait forever for the lock that thread
+    held."""
     proc = _script(tmp_path, BUSY_WITH_STDERR_GONE)
     started = _wait_for(proc, lambda: (tmp_path / "computing").exists())
     proc.stderr.close()
@@ -886,8 +886,8 @@ def test_a_signal_after_the_results_are_written_ends_with_its_code(phase, tmp_pa
     """docs/cli.md: a signal after the results were written still ends the command with 130
     or 143 and one line. It may come while the exit handlers run (the fit pool, the fork
     server, the libraries' clean-ups are stopped), where the signal thread answers; the
-    interpreter's shutdown, where no thread answered any more (the signal was lost and the
-    command exited 0), no longer runs: a finalizer it would run never starts."""
+    interpreter's shutdown, where no thread answers any more (the signal would be lost and the
+    command exit 0), does not run: a finalizer it would run never starts."""
     proc = _script(tmp_path, AFTER_THE_COMMAND, phase)
     reached = _wait_for(proc, lambda: (tmp_path / "in phase").exists())
     if reached:

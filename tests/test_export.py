@@ -724,7 +724,7 @@ def test_a_bad_sample_pushed_gives_a_status_and_the_exact_force_after_the_window
 def test_stateless_call_flags_a_bad_window_in_both_builds(name, fitted, effects_lip, references,
                                                           compiled):
     """A NaN or an infinity anywhere in the window: clm_ff gives NaN in both builds (the AVX2
-    path no longer turns it into a finite force), clm_ff_eval REJECTED and 0 N."""
+    path does not turn it into a finite force), clm_ff_eval REJECTED and 0 N."""
     _, wf = _model(name, fitted, effects_lip)
     w = wf.windows(references["r2"])[1000:1001].repeat(3 * wf.width, axis=0).copy()
     for i in range(wf.width):

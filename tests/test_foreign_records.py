@@ -90,7 +90,7 @@ STAGES = {
     # whose force runs from 3.39 to 3.41 N).
     "offset_cogging": ref.Stage(offset=3.4, cogging=4.0, cogging_period=0.005, cogging_phase=0.7),
     # LuGre friction with the textbook bristle damping sigma1 = 2*sqrt(sigma0*m) (critically
-    # damped bristles) and no Stribeck curve (was named a Stribeck peak).
+    # damped bristles) and no Stribeck curve (not to be named a Stribeck peak).
     "lugre_damped": ref.Stage(coulomb=0.0, lugre_level=7.21, lugre_sigma0=2.0e6,
                               lugre_sigma1=2 * math.sqrt(2.0e6 * 18.8)),
 }
