@@ -27,6 +27,7 @@ import resource
 import subprocess
 import sys
 import tempfile
+import textwrap
 import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -335,21 +336,21 @@ multiply-adds. The first call on a fresh clone compiles (about 3 s of CPU) and c
 
 def write_page(rows: list[Row], failed: list[str], jobs: dict, source: str, out: Path) -> None:
     quick = [name for name, job in jobs.items() if job.get("quick")]
-    head = ["# Performance", "",
-            "Today's figures, each with the benchmark that prints it and what it is judged by. "
-            "This page is",
-            "written by `python benchmarks/report.py` from the benchmarks' own output; edit the "
-            "script, not",
-            "the page. The machine, the versions, the load and when each figure was measured are "
-            "in the",
-            "generated table below the figures; the figures move with the load of a shared "
-            "machine.", ""]
+    paragraphs = [
+        "Today's figures, each with the benchmark that prints it and what it is judged by. This "
+        "page is written by `python benchmarks/report.py` from the benchmarks' own output; edit "
+        "the script, not the page. The machine, the versions, the load and when each figure was "
+        "measured are in the generated table below the figures; the figures move with the load "
+        "of a shared machine."]
     if quick:
-        head += ["Run with `--quick` (shorter runs: fewer samples, seeds and repeats): "
-                 + ", ".join(f"`{n}`" for n in quick) + ".", ""]
+        paragraphs.append("Run with `--quick` (shorter runs: fewer samples, seeds and repeats): "
+                          + ", ".join(f"`{n}`" for n in quick) + ".")
+    head = ["# Performance", ""]
+    for text in paragraphs:
+        head += textwrap.wrap(text, width=100, break_on_hyphens=False) + [""]
     if failed:
-        head += [f"**Not read** (the benchmark failed or printed nothing this script reads): "
-                 f"{', '.join(failed)}.", ""]
+        head += textwrap.wrap(f"**Not read** (the benchmark failed or printed nothing this script "
+                              f"reads): {', '.join(failed)}.", width=100) + [""]
     table = ["| figure | today | judged by | ratio | printed by |", "|---|---|---|---|---|"]
     table += [f"| {r.figure} | {r.today} | {r.judged_by} | {r.ratio} | {r.source} |"
               for r in rows]
