@@ -40,7 +40,7 @@ def comparison_lines(pairs: list[dict]) -> list[str]:
     for c in pairs:
         groups.setdefault((_where(c), c["varies"]), []).append(c)
     held = sum(bool(c.get("starred")) for c in pairs)
-    lines = [f"Paired comparisons (a − b, same seeds; one setting apart or against the LIP): "
+    lines = [f"Paired comparisons (a − b, same seeds; one setting apart or vs the LIP): "
              f"{len(pairs)}, {held} hold after Holm:"]
     quiet = 0
     for (where, varies), cs in groups.items():
