@@ -64,7 +64,7 @@ _TODAY = textwrap.dedent("""
         rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=tuple(spawn)))
         c0 = time.process_time()
         m = PGNNFeedforward(**json.loads(sys.argv[4])).fit_data(data=data, theta_lip=lip, rng=rng)
-        f = m.fit_ if isinstance(m.fit_, dict) else m.fit_.to_json()  # a dict before 2026-11-26
+        f = m.fit_ if isinstance(m.fit_, dict) else m.fit_.to_json()  # a dict in older model files
         out.append({"cpu_s": time.process_time() - c0, "stop": f["stop"],
                     "iterations": f["iterations"], "cost": f["data_cost"] + f["reg_cost"]})
     print(json.dumps(out))

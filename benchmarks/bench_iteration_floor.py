@@ -1,6 +1,6 @@
 """How far a cheaper arithmetic could take the paper table's fits (a benchmark, not a test).
 
-Issue 24's bar for the paper table is 60 s of CPU; the fits run 12,268 LM iterations
+A bar of 60 s of CPU for the paper table the fits run 12,268 LM iterations
 (``benchmarks/bench_table.py``), so that bar allows under 5 ms per iteration even if nothing
 else in the table cost anything. This script times one LM iteration of a paper's-cost fit (lambda = 0, no weight decay:
 the rows that are 64 % of those iterations) on the paper table's training data, two ways, on one

@@ -31,7 +31,7 @@ from clm_sim.plant import Plant
 from controllers.pid import PIDDesign, design_pid
 from experiments.config import ExperimentConfig
 
-AGREEMENT_M = 1e-9  # the bar of issue 2, item 9: 1 % of an encoder count
+AGREEMENT_M = 1e-9  # the agreement asked of the loop: 1 % of an encoder count
 
 
 def python_twin(dispatcher):

@@ -47,7 +47,7 @@ _FITS = textwrap.dedent("""
         if own is not None:
             settings = {(k if k in own else old.get(k, k)): v for k, v in settings.items()}
         m = PGNNFeedforward(**settings).fit_data(data=data, theta_lip=lip, rng=rng)
-        f = m.fit_ if isinstance(m.fit_, dict) else m.fit_.to_json()  # a dict before 2026-11-26
+        f = m.fit_ if isinstance(m.fit_, dict) else m.fit_.to_json()  # a dict in older model files
         out.append({"cpu_s": time.process_time() - c0, "stop": f["stop"],
                     "iterations": f["iterations_total"], "theta": m.theta_,
                     "cost": f["data_cost"] + f["reg_cost"]})

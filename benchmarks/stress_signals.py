@@ -17,10 +17,10 @@ with its delay and the end of its stderr; the last line is
     python benchmarks/stress_signals.py [--runs 40] [--signal TERM|INT] [--window 0.6 2.6]
                                         [--command run|sweep] [--twice 0 0.1] [--seed 0]
 
-Five faults were found with it (a sixth by the suite) (eleventh session, docs/performance.md): a worker forked at the
-moment of the signal outlived the command with a traceback, a signal taken in a finalizer was
-dropped, one during the interpreter's shutdown was lost, and with ``--twice`` a fork server was
-left stopped for good, and the signal thread died when stderr was a closed pipe. A command that
+What it guards against (each fixed, see CHANGELOG.md): a worker forked at the moment of the
+signal outliving the command with a traceback, a signal taken in a finalizer dropped, one
+during the interpreter's shutdown lost, a fork server left stopped for good with ``--twice``,
+the signal thread dying when stderr is a closed pipe. A command that
 hangs is given 60 s, then killed and reported with what it left and those processes' states.
 """
 

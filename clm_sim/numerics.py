@@ -92,7 +92,7 @@ def one_thread_per_process() -> bool:
     worker processes, each on one thread; a sum a library splits over its threads comes out in
     another order, so without this a command's last digits followed the machine's cores or the
     caller's ``OPENBLAS_NUM_THREADS`` wherever it had no :func:`single_threaded` block of its
-    own (the EMPS benchmark study did, until 2026-11-26). Returns False, and does nothing, once
+    own. Returns False, and does nothing, once
     a numerical library is loaded (in-process callers: the blocks around fits, the LIP and
     the diagnosis hold there)."""
     if any(name in sys.modules for name in _HEAVY):
@@ -203,7 +203,7 @@ def single_threaded():
 def _load_scipy_blas() -> None:
     """Load scipy's own OpenBLAS (it comes with ``scipy.linalg``) before the limit is set: a
     library loaded inside the block escapes it, and a block that first used scipy there ran its
-    sums on every core (the diagnosis did, until the seventh session of 2026-11-26). Only in a
+    sums on every core. Only in a
     process that has numpy already: this module imports no numerical library by itself."""
     if "numpy" in sys.modules and "scipy.linalg" not in sys.modules:
         with contextlib.suppress(ImportError):
@@ -246,7 +246,7 @@ _scan_lock = threading.Lock()
 def _controller(threadpoolctl):
     """threadpoolctl's view of the loaded libraries, scanned again only after an import: a scan
     (every shared object of the process) cost 5 ms, twice per block, and a table replays every
-    fitted network inside a block (docs/performance.md)."""
+    fitted network inside a block."""
     key = len(sys.modules)  # a library loaded since the last scan came with a new module
     with _scan_lock:
         ctl = _controllers.get(key)

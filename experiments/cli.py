@@ -33,7 +33,8 @@ def _cmd_run(args) -> int:
     _warn(args.config, config_warnings(config))
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
-    print((out / "table.md").read_text(), end="")  # what the run wrote: nothing computed twice
+    from experiments.screen import run_summary
+    print(run_summary(out), end="")  # read back from what the run wrote
     return 0
 
 

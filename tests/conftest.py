@@ -74,7 +74,7 @@ def default_training_run(default_pid, r1, r1_dither):
     return simulate(Plant(), default_pid, r1, TS, dither=r1_dither)
 
 
-# The slow tier, measured (`pytest -n auto --durations=0` on the 2-core machine, sixth session:
+# The slow tier, measured (`pytest -n auto --durations=0` on a 2-core machine:
 # seconds of one case, setup included, wall time in a full run: a ranking, not a figure): tests
 # of which one case takes more than about a second of CPU — end-to-end CLI runs, subprocesses
 # that import torch, PGNN fits to convergence, the foreign-record diagnoses. Kept here, in one
@@ -107,7 +107,7 @@ SLOW = {
                      "test_result_does_not_depend_on_the_callers_thread_count": 2,
                      "test_orthogonal_projection_keeps_theta_lip": 1},
     "test_testbed.py": {"test_readme_api_example_runs_from_any_folder": 11,
-                        # tenth session, -n 0: two testbeds, one on the fit pool
+                        # -n 0: two testbeds, one on the fit pool
                         "test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool": 7},
     "test_cli.py": {"test_a_run_whose_rows_reuse_fits_ends_with_nothing_on_stderr": 15,
                     "test_a_command_killed_outright_leaves_no_worker_behind": 10,
@@ -203,7 +203,7 @@ def pytest_sessionstart(session):
                                    "conftest.compile_open_loop()"], cwd=Path(__file__).parent)
     simulate(Plant(), ZeroController(), np.zeros(20), TS)  # the closed loop
     # The foreign records' integrator: on a ramp (at rest on zeros the stage sticks and nothing
-    # is integrated, which left it to compile in every worker until the tenth session).
+    # is integrated, and it would compile in every worker).
     reference_sim.run_loop(reference_sim.Stage(), reference_sim.Cascade(60.0, 4700.0, 1e-3),
                            np.linspace(0.0, 1e-2, 20), 1e-3, resolution=1e-7)
     from clm_sim.kernel import dahl_states

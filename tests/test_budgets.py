@@ -1,4 +1,4 @@
-"""Budgets and files that never end (issue 28 items 5 and 10): the work a config asks for is
+"""Budgets and files that never end: the work a config asks for is
 bounded before it starts, with the estimate in the message; no record or config is read from a
 device or pipe; rows whose names share a file are refused before the work."""
 

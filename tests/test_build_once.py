@@ -48,7 +48,7 @@ def test_a_build_that_raised_is_built_again_from_an_empty_folder(tmp_path, monke
                       lambda folder: sorted(p.name for p in folder.iterdir())) == []
 
 
-def test_without_xdist_every_session_builds_in_its_own_folder(tmp_path_factory, monkeypatch):
+def test_without_xdist_every_test_run_builds_in_its_own_folder(tmp_path_factory, monkeypatch):
     monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
     folders = [build_once(tmp_path_factory, "thing", str) for _ in range(2)]
     assert folders[0] != folders[1]

@@ -363,14 +363,44 @@ def test_study_trains_every_seed_it_reports(tmp_path, capsys, monkeypatch):
     cfg.write_text(SMALL.split("feedforwards:")[0]
                    + "study:\n  lambdas: [0, 0.01]\n  hidden: 4\n  seeds: 2\n"
                    "  outside: [r2]\n  pgnn: {max_iter: 5}\n")
-    code, _, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    code, stdout, err = _cli(["study", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 0, err
+    # the screen: the report's findings, then where the full report is (not the whole report)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert stdout.splitlines()[0] == report.splitlines()[0]
+    assert stdout.splitlines()[-2].startswith(f"Full report: {tmp_path / 'out' / 'report.md'}")
+    assert "## Findings" in stdout and "## Table" not in stdout and "## Table" in report
     summary = json.loads((tmp_path / "out" / "study.json").read_text())
     assert ExtrapolationResult.from_json(summary).to_json() == summary
     for key in ("sequential", "lambda=0", "lambda=0.01"):
         variant = summary["variants"][key]
         assert len(variant["theta_phy_per_seed"]) == 2, key
         assert all(len(m["per_seed"]) == 2 for m in variant["mae"].values()), key
+
+
+def test_run_ends_its_output_with_the_table_the_comparisons_in_brief_and_the_report(
+        tmp_path, capsys, monkeypatch):
+    """stdout is the results table, one line per compared quantity and setting, and where the
+    full report is; each comparison in full is in table.md, not on the screen."""
+    import experiments.workers
+
+    monkeypatch.setattr(experiments.workers, "cores", lambda: 1)  # as in the study test above
+    cfg = tmp_path / "pair.yaml"
+    cfg.write_text(SMALL + "".join(
+        f"  - {{kind: pgnn, training: simultaneous, lambda: {lam}, hidden: 4, seeds: 2, "
+        "pgnn: {max_iter: 5, continuation_lambda: 0}}\n" for lam in (0, 0.01)))
+    code, stdout, err = _cli(["run", cfg, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 0, err
+    out = tmp_path / "out"
+    table_md = (out / "table.md").read_text()
+    lines = stdout.splitlines()
+    assert stdout.startswith(table_md.split("\n\n")[0])  # the table, as table.md has it
+    assert any(line.startswith("  MAE on r2, varies lambda: ") and " of 1 hold" in line
+        for line in lines), lines
+    assert lines[-2].startswith(f"Full report: {out / 'table.md'}")
+    assert lines[-1] == f"Figures: {out / 'figures'}/"
+    assert not any(line.startswith("- mae") for line in lines)
+    assert sum(line.startswith("- mae") for line in table_md.splitlines()) >= 2
 
 
 def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys):
@@ -705,9 +735,9 @@ if __name__ == "__main__":
 def test_a_command_whose_stderr_is_gone_still_ends_on_a_signal(tmp_path):
     """Ctrl-C while the main thread is inside a long library call: the signal thread ends the
     process. With stderr a pipe nobody reads any more (``clm-sim run … 2>&1 | head``), writing
-    the line fails; the process still ends with 130. The signal thread used to die there: the
-    command ran on, and an interrupted one waited forever for the lock that thread held (a
-    stress run left such a process)."""
+    the line fails; the process still ends with 130. Were the signal thread to die there, the
+    command would run on, and an interrupted one would wait forever for the lock that thread
+    held."""
     proc = _script(tmp_path, BUSY_WITH_STDERR_GONE)
     started = _wait_for(proc, lambda: (tmp_path / "computing").exists())
     proc.stderr.close()
@@ -769,7 +799,7 @@ if __name__ == "__main__":
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 def test_a_stopped_pools_cpu_counts_in_its_owners_children(tmp_path):
-    """``/usr/bin/time`` of a command counts its workers' CPU (issue 24 measures the paper table
+    """``/usr/bin/time`` of a command counts its workers' CPU (the paper table's CPU is measured
     so): a stopped pool's workers are reaped by the fork server before it is ended, and the
     server by the command. Killed and left to init instead, a worker's CPU vanished from the
     figure (the paper table's 148 s read 38 s)."""
@@ -856,8 +886,8 @@ def test_a_signal_after_the_results_are_written_ends_with_its_code(phase, tmp_pa
     """docs/cli.md: a signal after the results were written still ends the command with 130
     or 143 and one line. It may come while the exit handlers run (the fit pool, the fork
     server, the libraries' clean-ups are stopped), where the signal thread answers; the
-    interpreter's shutdown, where no thread answered any more (the signal was lost and the
-    command exited 0), no longer runs: a finalizer it would run never starts."""
+    interpreter's shutdown, where no thread answers any more (the signal would be lost and the
+    command exit 0), does not run: a finalizer it would run never starts."""
     proc = _script(tmp_path, AFTER_THE_COMMAND, phase)
     reached = _wait_for(proc, lambda: (tmp_path / "in phase").exists())
     if reached:

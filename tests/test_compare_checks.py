@@ -1,4 +1,4 @@
-"""``clm-sim compare`` says "reproduces" only for what it checked (issue 28 item 6): a table it
+"""``clm-sim compare`` says "reproduces" only for what it checked: a table it
 cannot check is refused in one line (exit 2), the columns it skipped are listed, and the
 ``force rms`` columns of a ``data:`` table are compared."""
 

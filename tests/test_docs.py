@@ -1,5 +1,6 @@
 """The front door and the house behind it: the README stays short and starts with the two set-up
-commands, `.ci/run` runs exactly the README's test command, and no link into the repository is
+commands, `.ci/run` runs exactly the README's test command, the table the README shows is the
+published table's, the pages keep their length and width, and no link into the repository is
 broken."""
 
 from __future__ import annotations
@@ -14,10 +15,54 @@ PAGES = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").rglo
 LINK = re.compile(r"\[[^\]]*\]\(([^)#\s]+)(?:#[^)]*)?\)")
 
 
+# Results pages rewritten with their results elsewhere; each may fail the length test until it
+# lands. The lead empties this set when they are merged: nothing here is excluded for good.
+PENDING = {"docs/results/lambda0.md", "docs/results/paper_table.md",
+           "docs/results/emps_benchmark.md"}
+
+
 def test_readme_is_a_front_door():
     lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
-    assert len(lines) <= 200, f"README.md has {len(lines)} lines (at most 200: the rest goes to docs/)"
+    assert len(lines) <= 150, f"README.md has {len(lines)} lines (at most 150: the rest goes to docs/)"
+    first = "\n".join(lines[:25])
+    assert "clm-sim run experiments/configs/paper_table.yaml" in first  # the main job
+    assert "python -m pytest" in first  # the tests
     assert len(list((ROOT / "docs").rglob("*.md"))) >= 4
+
+
+def _cells(line: str) -> list[str]:
+    return [c.strip() for c in line.strip().strip("|").split("|")]
+
+
+def test_the_readmes_table_is_the_published_tables():
+    """Each row the README shows is a row of docs/results/paper_table.md, cell for cell."""
+    def rows(path):  # the first table with an MAE r1 column
+        text = (ROOT / path).read_text(encoding="utf-8")
+        block = text[text.index("| feedforward | seeds | MAE r1"):].split("\n\n", 1)[0]
+        return {_cells(line)[0]: _cells(line) for line in block.splitlines()[2:]}
+    shown, published = rows("README.md"), rows("docs/results/paper_table.md")
+    excerpt = {k: v for k, v in shown.items() if k in ("feedback only", "LIP") or
+               k.startswith("PGNN")}
+    assert len(excerpt) == 5, sorted(excerpt)
+    for label, cells in excerpt.items():
+        assert published.get(label, [])[:len(cells)] == cells, label
+
+
+def _pages(under: str) -> list[Path]:
+    return sorted((ROOT / under).glob("*.md"))
+
+
+@pytest.mark.parametrize("page", [ROOT / "README.md", *_pages("docs"), *_pages("docs/results")],
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_a_page_keeps_its_length_and_width(page):
+    name = str(page.relative_to(ROOT))
+    if name in PENDING:
+        pytest.xfail(f"{name}: pending (see PENDING)")
+    lines = page.read_text(encoding="utf-8").splitlines()
+    limit = 150 if name == "README.md" else 250 if "/results/" in name else 400
+    assert len(lines) <= limit, f"{name}: {len(lines)} lines (at most {limit})"
+    wide = [i for i, line in enumerate(lines, 1) if len(line) > 100 and not line.startswith("|")]
+    assert not wide, f"{name}: lines over 100 characters outside tables: {wide}"
 
 
 def test_ci_runs_the_readmes_test_command():

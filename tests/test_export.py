@@ -678,7 +678,7 @@ def test_identify_output_exports(training_run, tmp_path, capsys):
         assert _rel(CompiledFeedforward(tmp_path / "c").stream(r), want) == 0.0
 
 
-# -- fail-safe: bad samples, limits, restarts (issue 27) ------------------------------------------
+# -- fail-safe: bad samples, limits, restarts --------------------------------------------------
 OK, REJECTED, DEGRADED, CLAMPED, SLEWED, STOPPED = 0, 1, 2, 4, 8, 16
 
 
@@ -729,7 +729,7 @@ def test_a_bad_sample_pushed_gives_a_status_and_the_exact_force_after_the_window
 def test_stateless_call_flags_a_bad_window_in_both_builds(name, fitted, effects_lip, references,
                                                           compiled):
     """A NaN or an infinity anywhere in the window: clm_ff gives NaN in both builds (the AVX2
-    path no longer turns it into a finite force), clm_ff_eval REJECTED and 0 N."""
+    path does not turn it into a finite force), clm_ff_eval REJECTED and 0 N."""
     _, wf = _model(name, fitted, effects_lip)
     w = wf.windows(references["r2"])[1000:1001].repeat(3 * wf.width, axis=0).copy()
     for i in range(wf.width):
@@ -893,7 +893,7 @@ def test_a_bad_prefix_is_refused(prefix, tmp_path):
 
 @needs_cc
 def test_a_model_file_name_cannot_inject_code(fitted, tmp_path):
-    """Issue 28 item 3: a file name with a backslash-newline (line splicing), a comment end,
+    """A file name with a backslash-newline (line splicing), a comment end,
     a trigraph and a quote. The name reaches the header and export.json only as safe text,
     and a program that includes the header does not see the injected declaration."""
     import subprocess
@@ -1126,7 +1126,7 @@ RECIPES = r"""
 #include <stdio.h>
 #include <stdlib.h>
 #include "clm_ff.h"
-/* The integration recipes of docs/export.md with their delay semantics, over a record r[0..n-1]
+/* The integration recipes of docs/export_targets.md with their delay semantics, over a record r[0..n-1]
  * (argv[1], doubles; held at its ends) whose generator runs CLM_FF_LEAD samples ahead:
  * g(k) = r[k + LEAD]. Writes argv[2]: per sample k, four doubles:
  *   Simulink Tapped Delay, CLM_FF_WINDOW - 1 delays, current input included, oldest first,

@@ -1,5 +1,5 @@
 """Each effect's force law is written once (``Effect.law(y, v, u, xp)``): numpy, the simulator's
-kernel, the exported C and the exported ONNX graph compute the same force (issue 25 item 3).
+kernel, the exported C and the exported ONNX graph compute the same force.
 
 Oracle: the numpy law through the product's own LIP (``feedforward``), against which the C
 (compiled, called through ctypes) and ONNX Runtime are held; the kernel's separate lowering (the

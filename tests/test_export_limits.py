@@ -1,7 +1,7 @@
 """The export as shipped: limits from the data the model was fitted on, one check of a bad sample,
 a stream that says when it has no window, limits that survive a restart, a self-test free of the
 limits, no spike from a rejected sample in motion, models and options that make no sense refused,
-and every C recipe of docs/export.md compiled and run against the double and the float build.
+and every C recipe of docs/export.md and docs/export_targets.md compiled and run against the double and the float build.
 
 Oracle: the window form (:class:`~controllers.export.window.WindowFeedforward`), which
 tests/test_export.py holds to the product's feedforward; inside the envelope the default build
@@ -37,7 +37,8 @@ from controllers.export.window import from_lip, from_pgnn
 from experiments.cli import main
 
 OK, REJECTED, DEGRADED, CLAMPED, SLEWED, STOPPED = 0, 1, 2, 4, 8, 16
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "export.md"
+DOCS = [Path(__file__).resolve().parents[1] / "docs" / name
+        for name in ("export.md", "export_targets.md")]
 
 
 @pytest.fixture(scope="module")
@@ -356,8 +357,9 @@ RUNS = {
 
 
 def recipes() -> list[str]:
-    """The C blocks of docs/export.md that are programs' parts (they include the header)."""
-    blocks = re.findall(r"```c\n(.*?)```", DOCS.read_text(), flags=re.S)
+    """The C blocks of the export's pages that are programs' parts (they include the header)."""
+    blocks = [b for page in DOCS
+              for b in re.findall(r"```c\n(.*?)```", page.read_text(), flags=re.S)]
     return [b for b in blocks if '#include "clm_ff.h"' in b]
 
 

@@ -30,10 +30,10 @@ there: nothing at all is named, not even a friction dip in its place). The cable
 identifiable in every cell; a friction curve on top of Coulomb (a Stribeck peak or a dip) in
 the cells where the test asks for it.
 
-Naming (issue 15): a constant force beside a cogging force is ``force_offset`` and ``cogging``
+Naming: a constant force beside a cogging force is ``force_offset`` and ``cogging``
 (the parsimony rule), and LuGre friction with critically damped bristles and no Stribeck curve is
 pre-sliding or unexplained, never a Stribeck curve (its law: the same force while the speed rises
-and falls). Measured before and after in ``docs/diagnosis.md``.
+and falls). Measured in ``docs/diagnosis.md``.
 """
 
 from __future__ import annotations
@@ -86,11 +86,11 @@ STAGES = {
     # Coulomb at standstill, rising to it over 10 mm/s: velocity-strengthening, as EMPS shows).
     "peak": ref.Stage(stribeck_peak=2.0, stribeck_velocity=0.005),
     "dip": ref.Stage(stribeck_peak=-3.0, stribeck_velocity=0.01),
-    # Issue 15's naming cases. A constant force beside a cogging force (was named a 9th-order
-    # cable_slab whose force ran from 3.39 to 3.41 N).
+    # The naming cases. A constant force beside a cogging force (not a 9th-order cable_slab
+    # whose force runs from 3.39 to 3.41 N).
     "offset_cogging": ref.Stage(offset=3.4, cogging=4.0, cogging_period=0.005, cogging_phase=0.7),
     # LuGre friction with the textbook bristle damping sigma1 = 2*sqrt(sigma0*m) (critically
-    # damped bristles) and no Stribeck curve (was named a Stribeck peak).
+    # damped bristles) and no Stribeck curve (not to be named a Stribeck peak).
     "lugre_damped": ref.Stage(coulomb=0.0, lugre_level=7.21, lugre_sigma0=2.0e6,
                               lugre_sigma1=2 * math.sqrt(2.0e6 * 18.8)),
 }

@@ -1,5 +1,4 @@
-"""Hostile input, generated (issue 16's property, extended by issue 28 to the surface added
-since): model files to ``export-ff``, tables to ``compare``, sweep task files to the store,
+"""Hostile input, generated, over every surface that reads a file: model files to ``export-ff``, tables to ``compare``, sweep task files to the store,
 ``data:`` configs to ``run``. Every generated input ends in success with a true result (finite
 numbers, nothing outside --out), exit 1 only where ``compare`` found a difference, or exit 2 with
 one stderr line; never a traceback (an exception out of ``main``).

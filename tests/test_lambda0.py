@@ -623,8 +623,7 @@ def test_the_report_refuses_what_it_cannot_read_in_one_line(content, expected, t
 def test_every_shipped_lambda_comparison_varies_lambda_alone():
     """The product runs a continuation start at lambda = 0 by default and at no lambda > 0, so a
     config that compares lambda = 0 with lambda > 0 must turn it off, or its pairs differ in two
-    settings (the extrapolation study, the failure map and the lambda x n_l sweep did until
-    2026-11-27). The mechanism studies and the paper table's rows say it row by row."""
+    settings. The mechanism studies and the paper table's rows say it row by row."""
     from experiments.config import load_config
     from experiments.studies.extrapolation import load_study
     from experiments.studies.failure_map import load_failure_map

@@ -1,4 +1,4 @@
-"""Every model file is validated on load (issue 28 item 2): a lip.json, a PGNN's .json and .pt
+"""Every model file is validated on load: a lip.json, a PGNN's .json and .pt
 and a diagnosis.json that cannot be a model are refused in one line (exit 2) by every consumer
 (``export-ff``, ``diagnose --model``, the loaders of the Python API), before any work and
 before a network is allocated."""

@@ -9,7 +9,7 @@
    bit; elsewhere each seed may move as a machine difference moves it (``_seed_tolerance``).
 
 The full rerun of all ten seeds compared with the page is the documented command
-(docs/performance.md, "The paper table in the suite"), not a test: it costs four minutes of CPU.
+(docs/reproducibility.md), not a test: it costs minutes of CPU (docs/performance.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""One set of record guards for every command that identifies from a record (issue 28 item 1):
+"""One set of record guards for every command that identifies from a record:
 ``identify``, ``diagnose`` and ``run`` with a ``data:`` section refuse in one line a record that
 identifies nothing and warn where the result is suspect; the quantization warning's bias
 estimate is checked against the bias it predicts; the top-level guard turns an internal error

@@ -23,6 +23,7 @@ import pytest
 from build_once import build_once
 from small_config import SMALL_CONFIG
 
+import clm_sim
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write
 from experiments import table
@@ -129,11 +130,11 @@ def test_config_without_sweep_section_is_one_task(tmp_path):
 
 def test_task_key_follows_config_and_code_version():
     config = {"seed": 1, "plant": {"mass": 18.8}}
-    key = task_key(config, "0.1.0+aaaa")
-    assert key == task_key(json.loads(json.dumps(config)), "0.1.0+aaaa")
-    assert key != task_key({**config, "seed": 2}, "0.1.0+aaaa")
-    assert key != task_key(config, "0.1.0+bbbb")
-    assert code_version().startswith("0.1.0+")
+    key = task_key(config, "0.6.0+aaaa")
+    assert key == task_key(json.loads(json.dumps(config)), "0.6.0+aaaa")
+    assert key != task_key({**config, "seed": 2}, "0.6.0+aaaa")
+    assert key != task_key(config, "0.6.0+bbbb")
+    assert code_version().startswith(clm_sim.__version__ + "+")
 
 
 def test_code_version_hashes_the_sources_that_compute_results():
@@ -146,7 +147,7 @@ def test_code_version_hashes_the_sources_that_compute_results():
                  "experiments/table.py", "experiments/config.py"):
         assert must in files, must
     assert not any(f.startswith(("experiments/diagnosis", "experiments/sweeps")) for f in files)
-    assert code_version() != "0.1.0+" + hashlib.sha256().hexdigest()[:12]
+    assert code_version() != "0.6.0+" + hashlib.sha256().hexdigest()[:12]
 
 
 @pytest.mark.parametrize("grid, expected", [

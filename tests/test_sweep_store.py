@@ -1,4 +1,4 @@
-"""The sweep store trusts no task file (issue 28 item 4): a file that is not strict JSON, holds
+"""The sweep store trusts no task file: a file that is not strict JSON, holds
 NaN, belongs to another task or was edited, or is a link is said in one line, removed and its
 task recomputed; no symbolic link inside a sweep's --out is written through."""
 

@@ -52,7 +52,7 @@ def test_readme_api_example_runs_from_any_folder(tmp_path):
     assert mae["feedback only"][0] > mae["LIP"][0] > mae["PGNN"][0], mae
     # And the README prints what it prints: feedback and LIP to their printed digits (no
     # optimizer), the PGNN (a converged lambda = 0.01 fit, which ends where it ends within a few
-    # parts per million across machines: docs/performance.md, "Same minimizer") within 1 %.
+    # parts per million across machines: benchmarks/same_minimizer.py) within 1 %.
     promised = _maes(readme_api_output())
     assert promised.keys() == mae.keys()
     assert out.stdout.splitlines()[0] == readme_api_output().splitlines()[0]  # the stop

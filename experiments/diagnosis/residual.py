@@ -17,10 +17,9 @@ direction: monotone over ``y[k-2..k+2]`` (every one of the four steps at least o
 the same way), and where the velocity cannot reach zero within the sample at the acceleration
 the held forces give through the model (a stage that stops for part of a sample, as under dither
 at a few counts per sample, holds less than its sliding friction there). This keeps slow
-monotone motion (down to one count per sample, half the speed the diagnosis used to need) and the
-samples soon after a reversal, where pre-sliding friction lives, and drops the turning samples,
-standstill, dither jitter and stick-slip. Dropped samples are
-zeroed in the residual *and* in every column before the filter, which keeps the parallel-filter
+monotone motion (down to one count per sample) and the samples soon after a reversal, where
+pre-sliding friction lives, and drops the turning samples, standstill, dither jitter and
+stick-slip. Dropped samples are zeroed in the residual *and* in every column before the filter, which keeps the parallel-filter
 relation exact (``0 = sum theta_i * 0``); fits then use the samples whose filter window is mostly
 (>= 90 %) made of kept samples.
 """

@@ -98,12 +98,13 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
 
 def main(config_path, out=None, *, quiet: bool = False) -> int:
     """``clm-sim study CONFIG`` for ``kind: extrapolation``: checked as ``clm-sim run`` checks,
-    before any work; prints the report."""
+    before any work; prints the report's findings and where the report is."""
     config, study = load_study(config_path)
     out = Path(out) if out else Path("results") / Path(config_path).stem
     check_writable(out, inputs=(config_path,))  # before the work
     run_study(config, study, out, quiet=quiet)
-    print((out / "report.md").read_text(), end="")
+    from experiments.screen import report_summary
+    print(report_summary(out), end="")
     return 0
 
 

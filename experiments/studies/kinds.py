@@ -111,9 +111,11 @@ def run_checked(config_path, out, load, run, *, workers: int | None = None,
     """``clm-sim study CONFIG`` for a study run on an experiment config: ``load(config_path)``
     gives ``(config, settings)``, the checks ``clm-sim run`` makes before any computation (errors
     name the file), ``run(config, settings, out, workers=, quiet=)`` into ``out`` (default
-    ``results/<config stem>``); prints the report and returns the run's result."""
+    ``results/<config stem>``); prints the report's findings and where the report is, and
+    returns the run's result."""
     from clm_sim.outdir import check_writable
     from experiments.runner import preflight
+    from experiments.screen import report_summary
 
     config, settings = load(config_path)
     try:
@@ -123,5 +125,5 @@ def run_checked(config_path, out, load, run, *, workers: int | None = None,
     out = Path(out) if out else Path("results") / Path(config_path).stem
     check_writable(out, inputs=(config_path,))  # before the work
     result = run(config, settings, out, workers=workers, quiet=quiet)
-    print((out / "report.md").read_text(), end="")
+    print(report_summary(out), end="")
     return result
