@@ -1,7 +1,7 @@
 """How far a cheaper arithmetic could take the paper table's fits (a benchmark, not a test).
 
-A bar of 60 s of CPU for the paper table the fits run 12,268 LM iterations
-(``benchmarks/bench_table.py``), so that bar allows under 5 ms per iteration even if nothing
+For the paper table, whose fits run 12,268 LM iterations (``benchmarks/bench_table.py``), a
+bar of 60 s of CPU allows under 5 ms per iteration even if nothing
 else in the table cost anything. This script times one LM iteration of a paper's-cost fit (lambda = 0, no weight decay:
 the rows that are 64 % of those iterations) on the paper table's training data, two ways, on one
 thread, CPU time:
