@@ -21,15 +21,15 @@ static CLM_FF_INLINE int sample_ok(clm_ff_pos r)
 }
 #endif
 
-/* Every sample of the window r[-LAG .. LEAD] is usable: sample_ok of each. The double build
- * first takes the window's sums, least and largest values, four independent chains so that the
+/* Every sample of the window r[-LAG .. LEAD] is usable: sample_ok of each. For a long window
+ * the double build first takes the window's sums, least and largest values, four independent chains so that the
  * additions overlap: finite sums mean no NaN or infinity, and then the extremes decide; only a
  * window that fails that (or whose sum overflowed) is checked sample by sample, so the answer is
  * sample_ok's. */
 static int window_ok(const clm_ff_pos *r)
 {
     int i, ok = 1;
-#ifndef CLM_FF_FLOAT
+#if !defined(CLM_FF_FLOAT) && CLM_FF_WINDOW > 16 /* a LIP's 4 samples: the plain loop */
     const clm_ff_pos *w = r - CLM_FF_LAG;
     clm_ff_pos s[4] = {0, 0, 0, 0}, lo[4], hi[4];
     int j;
