@@ -21,10 +21,39 @@ static CLM_FF_INLINE int sample_ok(clm_ff_pos r)
 }
 #endif
 
-/* Every sample of the window r[-LAG .. LEAD] is usable. */
+/* Every sample of the window r[-LAG .. LEAD] is usable: sample_ok of each. For a long window
+ * the double build first takes the window's sums, least and largest values, four independent chains so that the
+ * additions overlap: finite sums mean no NaN or infinity, and then the extremes decide; only a
+ * window that fails that (or whose sum overflowed) is checked sample by sample, so the answer is
+ * sample_ok's. */
 static int window_ok(const clm_ff_pos *r)
 {
     int i, ok = 1;
+#if !defined(CLM_FF_FLOAT) && CLM_FF_WINDOW > 16 /* a LIP's 4 samples: the plain loop */
+    const clm_ff_pos *w = r - CLM_FF_LAG;
+    clm_ff_pos s[4] = {0, 0, 0, 0}, lo[4], hi[4];
+    int j;
+    for (j = 0; j < 4; ++j)
+        lo[j] = hi[j] = w[0];
+    for (i = 0; i + 4 <= CLM_FF_WINDOW; i += 4)
+        for (j = 0; j < 4; ++j) {
+            s[j] += w[i + j];
+            lo[j] = w[i + j] < lo[j] ? w[i + j] : lo[j];
+            hi[j] = w[i + j] > hi[j] ? w[i + j] : hi[j];
+        }
+    for (; i < CLM_FF_WINDOW; ++i) {
+        s[0] += w[i];
+        lo[0] = w[i] < lo[0] ? w[i] : lo[0];
+        hi[0] = w[i] > hi[0] ? w[i] : hi[0];
+    }
+    for (j = 1; j < 4; ++j) {
+        lo[0] = lo[j] < lo[0] ? lo[j] : lo[0];
+        hi[0] = hi[j] > hi[0] ? hi[j] : hi[0];
+    }
+    if (is_finite_bits((s[0] + s[1]) + (s[2] + s[3])) && lo[0] >= CLM_FF_R_MIN
+        && hi[0] <= CLM_FF_R_MAX)
+        return 1;
+#endif
     for (i = -CLM_FF_LAG; i <= CLM_FF_LEAD; ++i)
         ok &= sample_ok(r[i]);
     return ok;
