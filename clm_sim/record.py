@@ -14,6 +14,7 @@ Measured records need only ``t, r, y, u``; columns can be renamed and scaled on 
 from __future__ import annotations
 
 import json
+import os
 import re
 import warnings
 from dataclasses import dataclass, field
@@ -150,11 +151,20 @@ def save_mat(run: Run, path: Path) -> None:
 
 def convert(path, to: str, out=None) -> tuple[Path, int]:
     """``clm-sim export``: the record at ``path`` written as ``to`` (``csv`` or ``mat``) to
-    ``out`` (default: ``path`` with that suffix); returns the file and its sample count."""
-    run = load_record(path)
+    ``out`` (default: ``path`` with that suffix); returns the file and its sample count. Writes
+    no file that exists (the input above all: a CSV exported over itself would lose every column
+    beyond the signals), so nothing of the user's is ever overwritten."""
     out = Path(out) if out else Path(path).with_suffix("." + to)
     if out.suffix.lower() != "." + to:
         raise UserError(f"{out}: --to {to} needs a .{to} file name")
+    for target in (out, out.with_name(out.name + ".meta.json")) if to == "csv" else (out,):
+        if target.exists() or target.is_symlink():
+            same = target.exists() and Path(path).exists() and os.path.samefile(target, path)
+            raise UserError(f"{target}: " + ("is the input; clm-sim export writes a new file"
+                                             if same else "exists; clm-sim export does not "
+                                             "write over a file") +
+                            "; choose another --out or move the file")
+    run = load_record(path)
     (save_csv if to == "csv" else save_mat)(run, out)
     return out, len(run)
 

@@ -63,7 +63,7 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
     if config.data is not None:  # a run on records saves only its PGNN models
         subdirs = ("params",) if any(s.kind == "pgnn" for s in config.feedforwards) else ()
     records = (config.data.training, config.data.validation) if config.data else ()
-    with atomic_folder(out, marker="config.resolved.yaml", what="clm-sim results",
+    with atomic_folder(out, what="clm-sim results",
                        subdirs=subdirs, inputs=(config_path, *records)) as tmp:
         try:
             rows = _run(config, tmp, progress, config_path)
