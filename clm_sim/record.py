@@ -190,6 +190,13 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             if any(n and n[0] in "0123456789-+." for n in names):
                 raise UserError(f"{path}: the first line must be a header of column names "
                                 f"(t, r, y, u), got numbers")
+            seen: dict[str, int] = {}
+            for i, n in enumerate(names):
+                if n in seen:  # a dict of columns would keep the last one silently
+                    raise UserError(f"{path}: the header names column {n!r} twice (columns "
+                                    f"{seen[n] + 1} and {i + 1}); give every column its own "
+                                    f"name")
+                seen[n] = i
             data = _read_csv_rows(path, names)
             if data.size == 0:
                 raise UserError(f"{path}: no data rows after the header")
@@ -479,6 +486,13 @@ def load_record(path, columns: dict[str, str] | None = None,
         if key not in raw:
             raise UserError(f"{path}: missing column {key!r} (signal {name}); "
                             f"columns present: {have}")
+    read_by: dict[str, str] = {}
+    for name in SIGNALS:  # one column is one signal: y read as r too gives a zero error
+        key = columns.get(name, name)
+        if key in raw and key in read_by:
+            raise UserError(f"{path}: signals {read_by[key]} and {name} would both be read from "
+                            f"column {key!r}; map each signal to a column of its own")
+        read_by.setdefault(key, name)
     out = {}
     for name in SIGNALS:
         key = columns.get(name, name)
