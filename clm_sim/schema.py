@@ -50,6 +50,16 @@ class _StrictLoader(yaml.SafeLoader):
         finally:
             self._depth -= 1
 
+    def construct_yaml_int(self, node):
+        value = super().construct_yaml_int(node)
+        try:  # every number of a config is used as a float somewhere
+            float(value)
+        except OverflowError:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"the integer {node.value[:12]}... ({len(node.value)} digits) is "
+                f"beyond the range of a number (about 1.8e308)", node.start_mark) from None
+        return value
+
     def construct_mapping(self, node, deep=False):
         seen = set()
         for key_node, _ in node.value:
@@ -66,6 +76,9 @@ class _StrictLoader(yaml.SafeLoader):
 # A config is kilobytes (a reference of the 10,000 points a config may give: ~0.2 MB); its file
 # size is checked before a byte is parsed, and at most 1 MiB of YAML parses in about a second.
 MAX_BYTES = 2 ** 20
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_yaml_int)
 
 
 class TooLarge(Exception):

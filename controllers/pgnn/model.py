@@ -111,11 +111,11 @@ MIN_FIT_SAMPLES = 50  # samples below which a network fit is a fit of noise, wha
 
 def fit_memory_bytes(parameters: int, samples: int, optimizer: str) -> int:
     """The memory (bytes) a fit's float64 matrices take at most: the Jacobian and its two
-    work copies (samples x parameters), and for the Gauss-Newton optimizers (``lm``,
+    work copies, the network's own Jacobian and layer outputs (eight of samples x parameters), and for the Gauss-Newton optimizers (``lm``,
     ``varpro``) six square matrices of the parameters (the normal matrix, its damped copy, its
     Cholesky factor, the identity, an eigen-decomposition's vectors and a spare)."""
     square = 0 if optimizer == "adam" else 6 * parameters ** 2
-    return 8 * (square + 3 * samples * parameters)
+    return 8 * (square + 8 * samples * parameters)
 
 
 class PGNNFeedforward:
