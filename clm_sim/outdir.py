@@ -154,13 +154,14 @@ def hold_also(signum: int) -> None:
 
 @contextlib.contextmanager
 def _signals_held():
-    """Ctrl-C and SIGTERM (and :data:`_HELD_ALSO`) wait until the block ends (main thread,
+    """Ctrl-C, SIGTERM, SIGHUP and SIGQUIT (and :data:`_HELD_ALSO`) wait until the block ends (main thread,
     POSIX), and :func:`abandon` waits for it in any thread."""
     import signal
 
     hold = (hasattr(signal, "pthread_sigmask")
             and threading.current_thread() is threading.main_thread())
-    signals = {signal.SIGINT, signal.SIGTERM, *_HELD_ALSO}
+    signals = {signal.SIGINT, signal.SIGTERM, *_HELD_ALSO,
+               *(getattr(signal, name) for name in ("SIGHUP", "SIGQUIT") if hasattr(signal, name))}
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, signals) if hold else None
     try:
         with _WRITING:
