@@ -16,6 +16,7 @@ import glob
 import json
 import os
 import shutil
+import stat
 import tempfile
 import threading
 from collections.abc import Callable
@@ -216,10 +217,17 @@ def _sha256(path: Path) -> str:
     import hashlib
 
     digest = hashlib.sha256()
-    with open(path, "rb") as fh:
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0))
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # swapped for a FIFO since
+            return "not a regular file"
         while chunk := fh.read(_HASH_CHUNK):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def _regular(path: Path) -> bool:
+    return stat.S_ISREG(path.lstat().st_mode)
 
 
 def entries(folder: Path) -> tuple[list[str], list[str]]:
@@ -242,9 +250,12 @@ def write_manifest(folder: Path, what: str) -> None:
     """Record in ``folder`` every file and folder it holds as written by clm-sim (``what``: the
     kind of result, e.g. ``a simulation``)."""
     folders, files = entries(folder)
+    # Only regular files are clm-sim's (a FIFO put in a folder would block the hash): anything
+    # else is listed without a hash, so the folder is never taken for clm-sim's alone.
     listing = {"format": _MANIFEST_FORMAT, "what": what, "folders": folders,
-               "files": {f: {"bytes": (folder / f).stat().st_size,
-                             "sha256": _sha256(folder / f)} for f in files}}
+               "files": {f: {"bytes": (folder / f).lstat().st_size,
+                             "sha256": _sha256(folder / f) if _regular(folder / f) else None}
+                         for f in files}}
     atomic_write(folder / MANIFEST, json.dumps(listing, indent=1) + "\n")
 
 
@@ -289,7 +300,7 @@ def check_replaceable(out, given, what: str) -> None:
     for rel in files:
         entry = listing["files"].get(rel)
         path = out / rel
-        if entry is None or path.is_symlink() or not path.is_file():
+        if entry is None or not _regular(path) or entry.get("sha256") is None:
             raise UserError(f"{given}: holds {rel}, which clm-sim did not write; nothing is "
                             f"replaced; move it or choose another --out")
         if path.stat().st_size != entry.get("bytes") or _sha256(path) != entry.get("sha256"):

@@ -182,3 +182,18 @@ def test_an_empty_folder_is_used(tmp_path):
     (tmp_path / "o").mkdir()
     _result(tmp_path / "o")
     assert (tmp_path / "o" / "m.json").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs")
+def test_a_fifo_in_a_folder_is_listed_unread_and_never_replaced(tmp_path):
+    """Hashing a FIFO would block for ever: it is listed without a hash, so a folder that holds
+    one is never taken for clm-sim's own (a sweep resumed into it does not hang)."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "a.json").write_text("{}")
+    os.mkfifo(out / "pipe")
+    outdir.write_manifest(out, "w")
+    listing = json.loads((out / outdir.MANIFEST).read_text())
+    assert listing["files"]["pipe"]["sha256"] is None
+    with pytest.raises(UserError, match="holds pipe"):
+        outdir.check_output_folder(out, what="w")
