@@ -155,8 +155,8 @@ def hold_also(signum: int) -> None:
 
 @contextlib.contextmanager
 def _signals_held():
-    """Ctrl-C, SIGTERM, SIGHUP and SIGQUIT (and :data:`_HELD_ALSO`) wait until the block ends (main thread,
-    POSIX), and :func:`abandon` waits for it in any thread."""
+    """Ctrl-C, SIGTERM, SIGHUP and SIGQUIT (and :data:`_HELD_ALSO`) wait until the block ends
+    (main thread, POSIX), and :func:`abandon` waits for it in any thread."""
     import signal
 
     hold = (hasattr(signal, "pthread_sigmask")

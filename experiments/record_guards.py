@@ -96,9 +96,10 @@ def force_line(theta: dict, run) -> str | None:
     forces = reference_force(theta, run)
     if forces is None or forces[0] <= FORCE_RATIO * forces[1]:
         return None
+    shown = ", ".join(f"{k} {v:.4g}" for k, v in theta.items())
     return (f"the identified model asks {forces[0]:.3g} N to follow the record's reference r, "
             f"{forces[0] / forces[1]:.3g} times the record's peak force {forces[1]:.3g} N: the "
-            f"parameters are not the machine's ({', '.join(f'{k} {v:.4g}' for k, v in theta.items())})")
+            f"parameters are not the machine's ({shown})")
 
 
 def simulated_fit_checks(run, features, theta: dict, std: dict, *, machine_mass: float,

