@@ -99,6 +99,7 @@ class FeatureMap:
         if cutoff >= nyquist:
             raise UserError(f"features: {key} {cutoff:g} Hz is at or above the Nyquist "
                             f"frequency {nyquist:g} Hz of this record")
+        check_realisable(cutoff, nyquist, f"features: {key}")
         # Here, not at the top: scipy.signal (with scipy.stats) is a second of imports that a
         # PGNN fit worker, which only unpickles a FeatureMap, never needs.
         import scipy.signal
@@ -149,6 +150,20 @@ class TrainingRange:
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
+
+
+# A low-pass cut-off below this fraction of the Nyquist frequency has poles that float64 cannot
+# tell from 1 (scipy's filter then fails, or passes nothing but the mean); 1e-6 of 5 kHz is 5 mHz.
+MIN_CUTOFF_FRACTION = 1e-6
+
+
+def check_realisable(cutoff: float, nyquist: float, key: str) -> None:
+    """Refuse (``UserError`` naming ``key``) a cut-off (Hz) too low to be a digital filter at
+    a Nyquist frequency ``nyquist`` (Hz): see :data:`MIN_CUTOFF_FRACTION`."""
+    if cutoff < MIN_CUTOFF_FRACTION * nyquist:
+        raise UserError(f"{key} {cutoff:g} Hz is below {MIN_CUTOFF_FRACTION:g} of the Nyquist "
+                        f"frequency {nyquist:g} Hz: no digital filter has such a cut-off; is "
+                        f"it in Hz?")
 
 
 def motion(y: np.ndarray, ts: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -25,6 +25,18 @@ def _no_constant(name: str):
     raise ValueError(f"{name} is not a number in strict JSON")
 
 
+def _finite_int(text: str) -> int:
+    """A JSON integer, refused where no float holds it (a 400-digit integer is valid JSON, and
+    every parameter is used as a float)."""
+    value = int(text)
+    try:
+        float(value)
+    except OverflowError:
+        raise ValueError(f"the integer {text[:12]}... ({len(text)} digits) is beyond the range "
+                         f"of a number (about 1.8e308)") from None
+    return value
+
+
 def regular_file(path, what: str = "file") -> Path:
     """``path`` if it is a regular file (not a folder, a device, a FIFO); else one line."""
     path = Path(path)
@@ -42,7 +54,8 @@ def read_json(path, what: str = "model file") -> dict:
         if path.stat().st_size > MAX_BYTES:
             raise UserError(f"{path}: {path.stat().st_size} bytes; a {what} has at most "
                             f"{MAX_BYTES} bytes")
-        data = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
+        data = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant,
+                          parse_int=_finite_int)
     except UserError:
         raise
     except RecursionError:
@@ -59,7 +72,11 @@ def number(value, key: str, *, positive: bool = False) -> float:
     """``value`` as a finite float (``positive``: > 0); booleans, text and null refused."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise UserError(f"{key}: expected a number, got {json.dumps(value)[:60]}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:
+        raise UserError(f"{key}: expected a number, got an integer of {len(str(value))} "
+                        f"digits, beyond the range of a number") from None
     if not math.isfinite(value):
         raise UserError(f"{key}: expected a finite number, got {value}")
     if positive and not value > 0:

@@ -254,3 +254,24 @@ def _controller(threadpoolctl):
             _controllers.clear()
             ctl = _controllers[key] = threadpoolctl.ThreadpoolController()
     return ctl
+
+
+def available_memory_bytes() -> int | None:
+    """Memory this process may still allocate (bytes): the kernel's ``MemAvailable`` estimate,
+    capped by a cgroup's limit less its usage (a container); ``None`` where neither is known."""
+    found = []
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) * 1024)
+    with contextlib.suppress(OSError, ValueError):
+        with open("/sys/fs/cgroup/memory.max") as fh:
+            limit = fh.read().strip()
+        if limit != "max":
+            with open("/sys/fs/cgroup/memory.current") as fh:
+                found.append(int(limit) - int(fh.read().strip()))
+    if not found:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    return max(min(found), 0) if found else None

@@ -13,8 +13,10 @@ from __future__ import annotations
 import contextlib
 import errno
 import glob
+import json
 import os
 import shutil
+import stat
 import tempfile
 import threading
 from collections.abc import Callable
@@ -153,13 +155,14 @@ def hold_also(signum: int) -> None:
 
 @contextlib.contextmanager
 def _signals_held():
-    """Ctrl-C and SIGTERM (and :data:`_HELD_ALSO`) wait until the block ends (main thread,
-    POSIX), and :func:`abandon` waits for it in any thread."""
+    """Ctrl-C, SIGTERM, SIGHUP and SIGQUIT (and :data:`_HELD_ALSO`) wait until the block ends
+    (main thread, POSIX), and :func:`abandon` waits for it in any thread."""
     import signal
 
     hold = (hasattr(signal, "pthread_sigmask")
             and threading.current_thread() is threading.main_thread())
-    signals = {signal.SIGINT, signal.SIGTERM, *_HELD_ALSO}
+    signals = {signal.SIGINT, signal.SIGTERM, *_HELD_ALSO,
+               *(getattr(signal, name) for name in ("SIGHUP", "SIGQUIT") if hasattr(signal, name))}
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, signals) if hold else None
     try:
         with _WRITING:
@@ -201,18 +204,116 @@ def _umask() -> int:
     return mask
 
 
-def _check_kind(out: Path, given, marker: str, what: str) -> None:
-    if out.is_dir() and any(out.iterdir()) and not (out / marker).exists():
-        raise UserError(f"{given}: output folder exists and does not hold {what}; "
+# The manifest a result folder carries: every file and folder clm-sim wrote in it, each file
+# with its size and SHA-256. A folder is replaced only when it holds exactly what its manifest
+# lists, unchanged: nothing else is ever deleted (a user's file beside the results, a result
+# the user edited, a folder of another program that happens to hold a file of the same name).
+MANIFEST = ".clm-sim-manifest.json"
+_MANIFEST_FORMAT = "clm-sim result folder"
+_HASH_CHUNK = 1 << 20
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0))
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # swapped for a FIFO since
+            return "not a regular file"
+        while chunk := fh.read(_HASH_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _regular(path: Path) -> bool:
+    return stat.S_ISREG(path.lstat().st_mode)
+
+
+def entries(folder: Path) -> tuple[list[str], list[str]]:
+    """The folders and the other entries (files, links, anything) under ``folder``, as sorted
+    relative POSIX paths, the manifest excluded; links are not followed."""
+    folders, files = [], []
+    for root, dirs, names in os.walk(folder, followlinks=False):
+        rel = Path(root).relative_to(folder)
+        for d in list(dirs):
+            if (Path(root) / d).is_symlink():  # a link to a folder is an entry, not a folder
+                dirs.remove(d)
+                names.append(d)
+            else:
+                folders.append((rel / d).as_posix())
+        files += [(rel / n).as_posix() for n in names if (rel / n).as_posix() != MANIFEST]
+    return sorted(folders), sorted(files)
+
+
+def write_manifest(folder: Path, what: str) -> None:
+    """Record in ``folder`` every file and folder it holds as written by clm-sim (``what``: the
+    kind of result, e.g. ``a simulation``)."""
+    folders, files = entries(folder)
+    # Only regular files are clm-sim's (a FIFO put in a folder would block the hash): anything
+    # else is listed without a hash, so the folder is never taken for clm-sim's alone.
+    listing = {"format": _MANIFEST_FORMAT, "what": what, "folders": folders,
+               "files": {f: {"bytes": (folder / f).lstat().st_size,
+                             "sha256": _sha256(folder / f) if _regular(folder / f) else None}
+                         for f in files}}
+    atomic_write(folder / MANIFEST, json.dumps(listing, indent=1) + "\n")
+
+
+def manifest(out: Path) -> dict | None:
+    """``out``'s manifest if it is one clm-sim wrote (a regular file of the expected shape),
+    else ``None``."""
+    path = out / MANIFEST
+    try:
+        if path.is_symlink() or not path.is_file() or path.stat().st_size > 1 << 26:
+            return None
+        listing = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(listing, dict) and listing.get("format") == _MANIFEST_FORMAT
+            and isinstance(listing.get("what"), str) and isinstance(listing.get("files"), dict)
+            and isinstance(listing.get("folders"), list)
+            and all(isinstance(v, dict) for v in listing["files"].values())):
+        return None
+    return listing
+
+
+def check_replaceable(out, given, what: str) -> None:
+    """Refuse (``UserError``) to replace ``out`` unless it is absent, an empty folder, or a
+    result folder of kind ``what`` that holds exactly the files its manifest lists, unchanged
+    since clm-sim wrote them. The line names the first file that is not clm-sim's."""
+    out = Path(out)
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    listing = manifest(out)
+    if listing is None:
+        raise UserError(f"{given}: output folder exists and was not written by clm-sim (it has "
+                        f"no {MANIFEST}); clm-sim replaces only its own results; choose another "
+                        f"--out")
+    if listing["what"] != what:
+        raise UserError(f"{given}: output folder holds {listing['what']}, not {what}; "
                         f"choose another --out")
+    folders, files = entries(out)
+    for rel in folders:
+        if rel not in listing["folders"]:
+            raise UserError(f"{given}: holds the folder {rel}, which clm-sim did not write; "
+                            f"nothing is replaced; move it or choose another --out")
+    for rel in files:
+        entry = listing["files"].get(rel)
+        path = out / rel
+        if entry is None or not _regular(path) or entry.get("sha256") is None:
+            raise UserError(f"{given}: holds {rel}, which clm-sim did not write; nothing is "
+                            f"replaced; move it or choose another --out")
+        if path.stat().st_size != entry.get("bytes") or _sha256(path) != entry.get("sha256"):
+            raise UserError(f"{given}: {rel} was changed after clm-sim wrote it; nothing is "
+                            f"replaced; move it or choose another --out")
 
 
-def check_output_folder(out, *, marker: str, what: str, inputs=()) -> None:
+def check_output_folder(out, *, what: str, inputs=()) -> None:
     """What :func:`atomic_folder` will refuse, checked before the work: call it first so that a
     command never computes a result it cannot write."""
     check_writable(out, inputs)
     try:
-        _check_kind(Path(out), out, marker, what)
+        check_replaceable(Path(out), out, what)
     except OSError as exc:
         raise write_error(out, exc) from None
 
@@ -261,12 +362,13 @@ def output_lock(out: Path, given):
 
 
 @contextlib.contextmanager
-def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("figures",),
-                  inputs=()):
+def atomic_folder(out, *, what: str, subdirs: tuple[str, ...] = ("figures",), inputs=()):
     """Build a result folder in a temporary sibling and move it into place on success.
 
-    ``out`` may already exist only if it holds ``marker`` (an earlier result of the same kind,
-    which is replaced); ``what`` names that kind in the error. One command at a time writes a
+    ``out`` may already exist only as an empty folder or an earlier result of the same kind
+    ``what`` that holds only the files its manifest lists, unchanged (:func:`check_replaceable`):
+    it is then replaced; nothing clm-sim did not write is ever deleted. The new folder carries
+    its own manifest (:data:`MANIFEST`). One command at a time writes a
     given ``out``: the others are refused (``.<name>.lock`` beside it). The temporary folder
     ``.<name>.partial-<pid>-<random>`` is this run's alone; the final rename is the only moment
     the result appears, so ``out`` always holds exactly one run's files. On any exception
@@ -286,7 +388,7 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
         raise write_error(given, exc) from None
     tmp = None
     try:
-        _check_kind(out, given, marker, what)
+        check_replaceable(out, given, what)
         # Under the lock every other temporary folder of this output is a killed run's.
         for stale in out.parent.glob(f".{glob.escape(out.name)}.partial*"):
             shutil.rmtree(stale, ignore_errors=True)
@@ -298,7 +400,8 @@ def atomic_folder(out, *, marker: str, what: str, subdirs: tuple[str, ...] = ("f
         for sub in subdirs:
             (tmp / sub).mkdir(parents=True)
         yield tmp
-        _check_kind(out, given, marker, what)  # again: a writer without our lock may have come
+        write_manifest(tmp, what)
+        check_replaceable(out, given, what)  # again: a writer without our lock may have come
         with _signals_held():  # a Ctrl-C now takes effect once the result is in place
             old = None
             if out.exists():  # moved aside, not deleted first: the result is never a mix

@@ -37,6 +37,12 @@ def _substep_matrices(mass, viscous, stiffness, substeps, ts):
     ad, bd = np.ascontiguousarray(e[:2, :2]), np.ascontiguousarray(e[:2, 2])
     ad.flags.writeable = bd.flags.writeable = False
     return h, ad, bd
+# Hard bounds, far beyond any machine (the plausible range is a warning:
+# experiments.suspicions.MASS_RANGE_KG): a value past them is a mistake of units or a typo, and
+# overflows the simulation (a mass of 1e308 kg times an acceleration is inf).
+PHYSICAL_BOUND = {"mass": 1e6, "viscous": 1e9, "coulomb": 1e9, "stiffness": 1e12}
+UNITS = {"mass": "kg", "viscous": "N s/m", "coulomb": "N", "stiffness": "N/m"}
+MIN_MASS_KG = 1e-6
 MAX_ENCODER_RESOLUTION = 1e-3  # m per count; a coarser value is a unit mistake (um or nm)
 
 
@@ -115,6 +121,14 @@ class Plant:
             if value < 0 or (value == 0 and not zero_ok):
                 raise UserError(f"plant: {key} must be {'>= 0' if zero_ok else '> 0'}, "
                                 f"got {value!r}")
+        for key, value in (("mass", self.mass), ("viscous", self.viscous),
+                           ("coulomb", self.coulomb), ("stiffness", self.stiffness)):
+            if isinstance(value, (int, float)) and abs(value) > PHYSICAL_BOUND[key]:
+                raise UserError(f"plant: {key} {value:g} is beyond any machine (at most "
+                                f"{PHYSICAL_BOUND[key]:g} {UNITS[key]}); is it in SI units?")
+        if self.mass < MIN_MASS_KG:
+            raise UserError(f"plant: mass {self.mass:g} kg is below {MIN_MASS_KG:g} kg, lighter "
+                            f"than any moving part; is it in kg?")
         if self.encoder_resolution > MAX_ENCODER_RESOLUTION:
             raise UserError(f"plant: encoder_resolution is in m per count; "
                             f"{self.encoder_resolution!r} m is coarser than any linear encoder "

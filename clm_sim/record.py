@@ -14,6 +14,7 @@ Measured records need only ``t, r, y, u``; columns can be renamed and scaled on 
 from __future__ import annotations
 
 import json
+import os
 import re
 import warnings
 from dataclasses import dataclass, field
@@ -194,11 +195,20 @@ def save_mat(run: Run, path: Path) -> None:
 
 def convert(path, to: str, out=None) -> tuple[Path, int]:
     """``clm-sim export``: the record at ``path`` written as ``to`` (``csv`` or ``mat``) to
-    ``out`` (default: ``path`` with that suffix); returns the file and its sample count."""
-    run = load_record(path)
+    ``out`` (default: ``path`` with that suffix); returns the file and its sample count. Writes
+    no file that exists (the input above all: a CSV exported over itself would lose every column
+    beyond the signals), so nothing of the user's is ever overwritten."""
     out = Path(out) if out else Path(path).with_suffix("." + to)
     if out.suffix.lower() != "." + to:
         raise UserError(f"{out}: --to {to} needs a .{to} file name")
+    for target in (out, out.with_name(out.name + ".meta.json")) if to == "csv" else (out,):
+        if target.exists() or target.is_symlink():
+            same = target.exists() and Path(path).exists() and os.path.samefile(target, path)
+            raise UserError(f"{target}: " + ("is the input; clm-sim export writes a new file"
+                                             if same else "exists; clm-sim export does not "
+                                             "write over a file") +
+                            "; choose another --out or move the file")
+    run = load_record(path)
     (save_csv if to == "csv" else save_mat)(run, out)
     return out, len(run)
 
@@ -224,6 +234,13 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             if any(n and n[0] in "0123456789-+." for n in names):
                 raise UserError(f"{path}: the first line must be a header of column names "
                                 f"(t, r, y, u), got numbers")
+            seen: dict[str, int] = {}
+            for i, n in enumerate(names):
+                if n in seen:  # a dict of columns would keep the last one silently
+                    raise UserError(f"{path}: the header names column {n!r} twice (columns "
+                                    f"{seen[n] + 1} and {i + 1}); give every column its own "
+                                    f"name")
+                seen[n] = i
             data = _read_csv_rows(path, names)
             if data.size == 0:
                 raise UserError(f"{path}: no data rows after the header")
@@ -544,6 +561,13 @@ def load_record(path, columns: dict[str, str] | None = None,
         if key not in raw:
             raise UserError(f"{path}: missing column {key!r} (signal {name}); "
                             f"columns present: {have}")
+    read_by: dict[str, str] = {}
+    for name in SIGNALS:  # one column is one signal: y read as r too gives a zero error
+        key = columns.get(name, name)
+        if key in raw and key in read_by:
+            raise UserError(f"{path}: signals {read_by[key]} and {name} would both be read from "
+                            f"column {key!r}; map each signal to a column of its own")
+        read_by.setdefault(key, name)
     out = {}
     for name in SIGNALS:
         key = columns.get(name, name)

@@ -152,6 +152,15 @@ class PointToPoint:
                 raise UserError(f"reference: dwell_s must be >= 0 s, got {value:g}")
             if name != "dwell_s" and value <= 0.0:
                 raise UserError(f"reference: {name} must be > 0 {unit}, got {value:g}")
+        try:  # limits too small for the distances give times no float holds
+            moves = [sum(_s_curve_times(b - a, self.max_velocity, self.max_acceleration,
+                                        self.max_jerk)) for a, b in zip(points, points[1:])]
+        except (OverflowError, ZeroDivisionError):
+            moves = [math.inf]
+        if not all(math.isfinite(m) for m in moves):
+            raise UserError("reference: max_velocity, max_acceleration and max_jerk are too "
+                            "small for the moves between points_m: a move would take forever; "
+                            "are they in m/s, m/s^2 and m/s^3?")
 
     def _segments(self) -> tuple[np.ndarray, ...]:
         """Constant-jerk segments as arrays ``(start_s, r0_m, v0, a0, jerk)``.

@@ -25,7 +25,7 @@ from clm_sim.record import RECORD_SUFFIXES
 
 
 MAX_DEPTH = 64  # nesting levels: a config has fewer than ten; deeper is a generated file
-MAX_NODES = 100_000  # values after alias expansion: configs have hundreds, alias bombs billions
+MAX_NODES = 50_000  # values after alias expansion: configs have hundreds, alias bombs billions
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -34,17 +34,31 @@ class _StrictLoader(yaml.SafeLoader):
     and documents of more than ``MAX_NODES`` values once aliases are expanded."""
 
     _depth = 0
+    _nodes = 0
 
     def compose_node(self, parent, index):
         self._depth += 1
+        self._nodes += 1
         try:
             if self._depth > MAX_DEPTH:
                 raise yaml.composer.ComposerError(
                     None, None, f"nesting deeper than {MAX_DEPTH} levels",
                     self.peek_event().start_mark)
+            if self._nodes > MAX_NODES:  # refused while composing: no time spent on the rest
+                raise TooLarge
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+    def construct_yaml_int(self, node):
+        value = super().construct_yaml_int(node)
+        try:  # every number of a config is used as a float somewhere
+            float(value)
+        except OverflowError:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"the integer {node.value[:12]}... ({len(node.value)} digits) is "
+                f"beyond the range of a number (about 1.8e308)", node.start_mark) from None
+        return value
 
     def construct_mapping(self, node, deep=False):
         seen = set()
@@ -59,7 +73,16 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-MAX_BYTES = 16 * 2 ** 20  # a config is kilobytes
+# A config is kilobytes (a reference of the 10,000 points a config may give: ~0.2 MB); its file
+# size is checked before a byte is parsed, and at most 1 MiB of YAML parses in about a second.
+MAX_BYTES = 2 ** 20
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_yaml_int)
+
+
+class TooLarge(Exception):
+    """A document with more than ``MAX_NODES`` values, found while composing it."""
 
 
 def load_yaml(path) -> dict:
@@ -79,6 +102,7 @@ def load_yaml(path) -> dict:
         raise UserError(f"{path}: file not found") from None
     except (IsADirectoryError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: cannot read ({type(exc).__name__})") from None
+    _prescan(text, path)
     loader = _StrictLoader(text)
     try:
         node = loader.get_single_node()
@@ -92,6 +116,8 @@ def load_yaml(path) -> dict:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark else ""
         raise UserError(f"{path}: invalid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+    except TooLarge:
+        raise UserError(f"{path}: more than {MAX_NODES} values; a config is far smaller") from None
     except RecursionError:
         raise UserError(f"{path}: invalid YAML: nested too deeply") from None
     finally:
@@ -100,6 +126,25 @@ def load_yaml(path) -> dict:
         raise UserError(f"{path}: expected a mapping of keys at the top level, "
                         f"got {type(data).__name__}")
     return data
+
+
+def _prescan(text: str, path) -> None:
+    """Count the document's values with libyaml's parser (C: a megabyte in a fraction of a
+    second, where composing it in Python takes tens) and refuse one of more than ``MAX_NODES``
+    before it is composed; syntax errors are left to the strict loader, which names them."""
+    parser = getattr(yaml, "CSafeLoader", None)
+    if parser is None:
+        return
+    counted = 0
+    try:
+        for event in yaml.parse(text, Loader=parser):
+            if isinstance(event, (yaml.ScalarEvent, yaml.CollectionStartEvent, yaml.AliasEvent)):
+                counted += 1
+                if counted > MAX_NODES:
+                    raise UserError(f"{path}: more than {MAX_NODES} values; a config is far "
+                                    f"smaller")
+    except yaml.YAMLError:
+        return
 
 
 def _expanded_size(node, memo: dict) -> int:

@@ -35,7 +35,7 @@ import scipy.signal
 
 from clm_sim.effects import ForceOffset
 from clm_sim.errors import UserError
-from clm_sim.features import FeatureMap, edge_force
+from clm_sim.features import FeatureMap, check_realisable, edge_force
 from clm_sim.plant import THETA_NAMES
 from controllers.lip import LIPFeedforward
 
@@ -114,6 +114,7 @@ class IDIMProtocol:
         if cutoff >= nyquist:
             raise UserError(f"identify: {key} {cutoff:g} Hz is at or above the Nyquist "
                             f"frequency {nyquist:g} Hz of this record")
+        check_realisable(cutoff, nyquist, f"identify: {key}")
         sos = scipy.signal.butter(self.filter_order, cutoff, fs=1.0 / ts, output="sos")
         if self.zero_phase:
             return scipy.signal.sosfiltfilt(sos, x, axis=0)

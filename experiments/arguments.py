@@ -25,6 +25,25 @@ def seconds(text: str) -> float:
     return value
 
 
+LAST_EPOCH_S = 253_402_300_799  # 9999-12-31T23:59:59Z: the last time an ISO date writes
+
+
+def check_source_date_epoch(environ) -> None:
+    """Refuse a ``SOURCE_DATE_EPOCH`` (the reproducible-builds convention: whole seconds since
+    1970, the export's date) that is not a whole number of seconds from 0 to
+    :data:`LAST_EPOCH_S`, as one line (``UserError``), before any work."""
+    from clm_sim.errors import UserError
+
+    text = environ.get("SOURCE_DATE_EPOCH")
+    if text is None:
+        return
+    stripped = text.strip()
+    if not (stripped.isdecimal() and len(stripped) <= 12 and int(stripped) <= LAST_EPOCH_S):
+        shown = text if len(text) <= 30 else text[:30] + "..."
+        raise UserError(f"SOURCE_DATE_EPOCH: expected whole seconds since 1970 (0 to "
+                        f"{LAST_EPOCH_S}, the year 9999), got {shown!r}")
+
+
 def config(p: argparse.ArgumentParser, config: str, out: str = "") -> None:
     """The config file, ``--out`` (default ``results/<config name>``) and ``--quiet``."""
     p.add_argument("config", help=config)

@@ -67,6 +67,7 @@ def _cmd_export(args) -> int:
 def _cmd_export_ff(args) -> int:
     from experiments.export_ff import export
 
+    arguments.check_source_date_epoch(os.environ)  # the export's date, read in its trace
     files = export(args.model, args.to, args.out, ts=args.ts, filter_tail=args.filter_tail,
                    prefix=args.prefix, max_force=args.max_force, max_slew=args.max_slew,
                    max_velocity=args.max_velocity, max_acceleration=args.max_acceleration,

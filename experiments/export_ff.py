@@ -407,7 +407,7 @@ def export(model_path, to: str, out, *, ts: float | None = None,
     out = Path(out)
     try:
         # the model (and the .pt or .json beside it) would be deleted with an earlier export
-        with atomic_folder(out, marker="export.json", what="an exported feedforward",
+        with atomic_folder(out, what="an exported feedforward",
                            subdirs=(), inputs=(model_path,)) as tmp:
             if to == "c":
                 limits, where, envelope = resolve_limits(model_path, wf, given,

@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_write, write_error
+from clm_sim.outdir import atomic_folder
 from clm_sim.record import Run
 from controllers.idim import CrossTest, IDIMFit, IDIMProtocol, cross_test, fit
 from experiments.table import THETA_UNITS
+
+WHAT = "an identified model"  # the kind of result folder identify writes (clm_sim.outdir)
 
 UNITS = {**THETA_UNITS, "offset": "N"}
 
@@ -111,10 +113,9 @@ def write(result: Identified, out: Path) -> Path:
                               "relative_error": result.cross.relative_error,
                               "residual_rms_n": result.cross.residual_rms_n,
                               "samples": result.cross.samples}
-    try:
-        atomic_write(out / "lip.json", json.dumps(info, indent=1, allow_nan=False))
-    except OSError as exc:
-        raise write_error(out, exc) from None
+    text = json.dumps(info, indent=1, allow_nan=False)
+    with atomic_folder(out, what=WHAT, subdirs=()) as tmp:
+        (tmp / "lip.json").write_text(text)
     return out / "lip.json"
 
 
@@ -135,11 +136,12 @@ def protocol_from_options(args, *, source: str):
 
 def command(args, *, load) -> int:
     """``clm-sim identify`` on the parsed ``args``; ``load(path, args)`` reads a record."""
-    from clm_sim.outdir import check_writable
+    from clm_sim.outdir import check_output_folder
     from experiments.suspicions import warn
 
     out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
-    check_writable(out)  # before the work: a result that cannot be written is not computed
+    # before the work: a result that cannot be written is not computed
+    check_output_folder(out, what=WHAT, inputs=(args.data, args.validate))
     protocol = protocol_from_options(args, source=str(args.data))
     validation = load(args.validate, args) if args.validate else None
     result = identify(load(args.data, args), protocol, source=str(args.data),

@@ -99,7 +99,16 @@ def _legend_right(ax, **kwargs) -> None:
 
 
 def save(fig: Figure, path, dpi: int = 110) -> Path:
-    """Write ``fig`` to ``path`` (format from the suffix) atomically."""
+    """Write ``fig`` to ``path`` (format from the suffix) atomically. Every text is drawn as
+    written: names from files and configs are never TeX (``$x^$`` in a row's name would stop
+    the drawing) and a control character is shown as ``?`` (no font has a glyph for it)."""
+    from matplotlib.text import Text
+
+    for text in fig.findobj(Text):
+        text.set_parse_math(False)
+        shown = text.get_text()
+        if not shown.replace("\n", "").isprintable():
+            text.set_text("".join(c if c.isprintable() or c == "\n" else "?" for c in shown))
     return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi,
                                                       format=Path(path).suffix.lstrip(".")))
 

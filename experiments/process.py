@@ -5,9 +5,9 @@ line on stderr:
 
 - a user mistake (:class:`clm_sim.errors.UserError`) or a file the checks did not foresee
   (``OSError``): the line, exit 2;
-- Ctrl-C (exit 130) or SIGTERM (exit 143): every ``finally`` removes what it was writing, the
-  workers are stopped, ``clm-sim: interrupted`` / ``terminated``; a second signal ends the
-  process at once;
+- Ctrl-C (exit 130), SIGTERM (exit 143), SIGHUP (129) or SIGQUIT (131): every ``finally``
+  removes what it was writing, the workers are stopped, ``clm-sim: interrupted`` /
+  ``terminated`` / ``hung up`` / ``quit``; a second signal ends the process at once;
 - anything else is a bug of clm-sim: one line naming the command, its input and the internal
   error, with a hint to report it, exit 1 (the Python traceback only with ``--debug``).
 
@@ -38,14 +38,27 @@ from experiments import worker_life, workers
 
 EXIT_USER = 2  # a user mistake: bad input, a file that cannot be written
 EXIT_BUG = 1  # an internal error (also: sweep tasks that failed, compare mismatches)
+# The signals that end a command, each with its exit code (128 + the signal) and its line:
+# SIGHUP (a closed terminal, a dropped ssh session) and SIGQUIT (Ctrl-\\) end it as SIGTERM
+# does, every temporary file removed and the workers ended, never as the default action would
+# (at once, or with a core dump, leaving a ``.partial`` folder and the workers running).
 CODES = {signal.SIGINT: 130, signal.SIGTERM: 128 + signal.SIGTERM}
 WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+for _name, _word in (("SIGHUP", "hung up"), ("SIGQUIT", "quit")):
+    if hasattr(signal, _name):
+        CODES[getattr(signal, _name)] = 128 + getattr(signal, _name)
+        WORDS[getattr(signal, _name)] = _word
+assert set(CODES) == worker_life._STOP_SIGNALS
 ANSWER_S = 0.5  # s: how long the main thread may take to start unwinding after a signal
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so that every clean-up (temporary result folders, sweep
-    workers) runs the same way."""
+    """SIGTERM (or SIGHUP, SIGQUIT: ``signum``), raised like Ctrl-C so that every clean-up
+    (temporary result folders, sweep workers) runs the same way."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(signum)
+        self.signum = signum
 
 
 _said = False  # the line of an interruption is printed (a second signal prints no other)
@@ -106,7 +119,7 @@ def _signalled(signum, frame):
     second signal ends the process at once."""
     _unwinding.set()
     _catch(_end_now)
-    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+    raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
 
 
 def receive_signals() -> None:
@@ -186,7 +199,7 @@ def run(command: Callable[[], int], *, program: bool, name: str, source: str | N
         print(f"clm-sim: error: {one_line(str(exc))}", file=sys.stderr)
         return code
     except KeyboardInterrupt as exc:
-        sig = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
+        sig = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
         code = CODES[sig]
         workers.stop_fits()  # the PGNN fit pool (sweep workers end in workers.run_local)
         _say(sig, lambda line: print(line, file=sys.stderr, flush=True))
@@ -207,7 +220,7 @@ def run(command: Callable[[], int], *, program: bool, name: str, source: str | N
               + ("" if debug else "; --debug shows the traceback"), file=sys.stderr)
         return code
     finally:
-        if program and code in (130, 143):
+        if program and code in CODES.values():
             _exit_now(code)
         if program and main_thread:
             # Done: a late signal (results written, process ending) ends with its code.

@@ -10,7 +10,12 @@ that cannot carry it.
   that its acceleration is noisy enough to bias the mass low (errors in the regressor: measured
   on a smooth copy of the record quantized alike), a mass that moves when the regression band
   is halved (noise of another origin: sampling jitter behind uniform time stamps), a mass no
-  linear motor has or that the record leaves undetermined.
+  linear motor has or that the record leaves undetermined, a model whose force on the record's
+  reference is far beyond the record's force;
+- :func:`simulated_fit_checks`: the same guards on a LIP fitted to a simulated closed-loop run
+  (``run`` without ``data:``, the studies, the sweeps), where ``u`` is the loop's force on ``y``
+  by construction: a fit that is not physical there (a mass not above zero, a force far beyond
+  the run's, non-finite numbers, too few samples) is refused, the rest warned.
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ MIN_CUTOFF_HZ = 1.0  # Hz: servo forces change faster; below, the filter leaves 
 QUANTIZATION_BIAS = 0.05  # an estimated quantization bias of the mass above this is said
 BAND_CHANGE = 0.05  # a mass that moves by more than this when the band is halved is said
 UNDETERMINED = 0.5  # a mass whose standard error exceeds this fraction of it is not identified
+FORCE_RATIO = 10.0  # a model force on the reference this many times the record's peak is absurd
+FORCE_QUANTILE = 99.0  # % of the model's force on r compared (a step in r is one spike, not a fit)
 
 
 def refuse_unidentifiable(run, source) -> None:
@@ -56,11 +63,81 @@ def refuse_other_rate(validation, run, source) -> None:
                         f"a validation record needs the same rate")
 
 
-def refuse_small_window(count: int, total: int, source: str) -> None:
+def refuse_small_window(count: int, total: int, source: str,
+                        fix: str = "widen data.window") -> None:
     """Raise ``UserError`` where a training window keeps fewer than ``MIN_FIT_SAMPLES``."""
     if count < MIN_FIT_SAMPLES:
         raise UserError(f"{source}: the training window keeps {count} of {total} samples; a "
-                        f"fit needs at least {MIN_FIT_SAMPLES} (widen data.window)")
+                        f"fit needs at least {MIN_FIT_SAMPLES} ({fix})")
+
+
+def reference_force(theta: dict, run) -> tuple[float, float] | None:
+    """``(model, record)``: the rigid-body force of ``theta`` on the record's reference ``r``
+    (its ``FORCE_QUANTILE`` percentile of ``|force|``, N) and the record's peak ``|u|`` (N);
+    ``None`` where ``r`` does not move or ``u`` is zero (nothing to compare)."""
+    from clm_sim.features import motion
+    from clm_sim.rigid_body import rigid_body
+
+    r, u = np.asarray(run.r, dtype=np.float64), np.asarray(run.u, dtype=np.float64)
+    data = float(np.max(np.abs(u))) if len(u) else 0.0
+    if len(r) < 3 or not np.ptp(r) > 0 or not data > 0:
+        return None
+    y, v, a = motion(r, run.ts)
+    with np.errstate(over="ignore", invalid="ignore"):
+        force = np.abs(rigid_body(theta, a, v, np.sign(v), y))
+    model = float(np.percentile(force, FORCE_QUANTILE)) if np.all(np.isfinite(force)) \
+        else float("inf")
+    return model, data
+
+
+def force_line(theta: dict, run) -> str | None:
+    """The line that says a model's force on the record's reference is far beyond the record's
+    own force (``FORCE_RATIO``), else ``None``."""
+    forces = reference_force(theta, run)
+    if forces is None or forces[0] <= FORCE_RATIO * forces[1]:
+        return None
+    shown = ", ".join(f"{k} {v:.4g}" for k, v in theta.items())
+    return (f"the identified model asks {forces[0]:.3g} N to follow the record's reference r, "
+            f"{forces[0] / forces[1]:.3g} times the record's peak force {forces[1]:.3g} N: the "
+            f"parameters are not the machine's ({shown})")
+
+
+def simulated_fit_checks(run, features, theta: dict, std: dict, *, machine_mass: float,
+                         samples: int) -> list[str]:
+    """The guards of a LIP ``theta`` (standard errors ``std``) fitted through ``features`` on
+    ``samples`` samples of the simulated closed-loop run ``run`` of a machine of mass
+    ``machine_mass`` kg. Refuses (``UserError``, naming the config key) a fit with too few
+    samples, non-finite numbers, a mass not above zero or a force far beyond the run's: the
+    loop's ``u`` is the force on ``y``, so such a fit says the data do not carry the parameters
+    (a filter that leaves no signal). Returns the warnings (cut-off, a mass far from the
+    machine's, undetermined)."""
+    from experiments.suspicions import MASS_RATIO
+
+    key = "features.regression_lowpass_hz"
+    cutoff = features.regression_lowpass_hz
+    refuse_small_window(samples, len(run), "training run",
+                        "a longer training reference or fewer features.edge_samples")
+    values = [*theta.values(), *std.values()]
+    band = f" at {key} {cutoff:g} Hz" if cutoff else ""
+    if not all(np.isfinite(values)):
+        raise UserError(f"training run: the LIP fit gives non-finite parameters{band}; the run "
+                        f"does not carry them (a filter that leaves no signal?)")
+    mass = theta["mass"]
+    if not mass > 0:
+        raise UserError(f"training run: the LIP fit gives a mass of {mass:.4g} kg{band} (the "
+                        f"machine's is {machine_mass:g} kg): the filtered run carries no "
+                        f"inertia; " + (cutoff_warnings(cutoff, run.ts, len(run), key) or
+                                        [f"check {key} and the training reference"])[0])
+    line = force_line(theta, run)
+    if line is not None:
+        raise UserError(f"training run: {line}{band}; " + (
+            cutoff_warnings(cutoff, run.ts, len(run), key) or [f"check {key}"])[0])
+    out = fit_warnings(run, features, theta, std, option=key)
+    if not 1 / MASS_RATIO <= mass / machine_mass <= MASS_RATIO:
+        out.append(f"the identified mass {mass:.4g} kg is far from the simulated machine's "
+                   f"{machine_mass:g} kg: the fit{band} does not recover the plant (is {key} "
+                   f"right?)")
+    return out
 
 
 def quantization_step(y: np.ndarray) -> float:
@@ -150,4 +227,8 @@ def fit_warnings(run, features, theta: dict, std: dict | None, option: str,
     if std is not None and mass > 0 and std.get("mass", 0.0) > UNDETERMINED * mass:
         out.append(f"the mass {mass:.4g} kg has a standard error of {std['mass']:.2g} kg: "
                    f"the record does not determine it (more excitation, a longer record)")
+    if all(k in theta for k in ("mass", "viscous", "coulomb", "stiffness")):
+        line = force_line(theta, run)
+        if line is not None:
+            out.append(line)
     return out

@@ -63,7 +63,7 @@ def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
     if config.data is not None:  # a run on records saves only its PGNN models
         subdirs = ("params",) if any(s.kind == "pgnn" for s in config.feedforwards) else ()
     records = (config.data.training, config.data.validation) if config.data else ()
-    with atomic_folder(out, marker="config.resolved.yaml", what="clm-sim results",
+    with atomic_folder(out, what="clm-sim results",
                        subdirs=subdirs, inputs=(config_path, *records)) as tmp:
         try:
             rows = _run(config, tmp, progress, config_path)
@@ -161,10 +161,15 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     if out is not None:
         (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
 
+    if tb.warnings and out is not None:  # (a sweep's task keeps them in its rows)
+        from experiments.suspicions import warn
+        warn(config_path or "config", tb.warnings)
     rows, shown = [], {}
     for spec in config.feedforwards:
         result = tb.evaluate(spec, train, lip)
         rows.append(TableRow.from_result(result).to_json())
+        if tb.warnings:  # every row rests on the LIP (a PGNN starts from it): said with each
+            rows[-1]["warnings"] = list(tb.warnings)
         if out is not None:
             shown[spec.label()] = result.first_replays
             for name, run in result.first_replays.items():

@@ -157,7 +157,7 @@ def write_twin(twin: Twin, out: Path) -> None:
     """``out/twin.csv`` and ``.npz`` (named columns), ``scores.json``, ``figures/twin.png``."""
     from experiments import plots
 
-    with atomic_folder(out, marker="scores.json", what="a simulation") as tmp:
+    with atomic_folder(out, what="a simulation") as tmp:
         cols = twin.columns()
         np.savetxt(tmp / "twin.csv", np.column_stack(list(cols.values())), delimiter=",",
                    header=",".join(cols), comments="", fmt="%.17g")
@@ -210,7 +210,7 @@ def write(sim: Simulation, out: Path) -> None:
     ``figures/simulation.png``; the folder appears whole or not at all."""
     from experiments import plots
 
-    with atomic_folder(out, marker="scores.json", what="a simulation") as tmp:
+    with atomic_folder(out, what="a simulation") as tmp:
         cols = sim.columns()
         np.savetxt(tmp / "simulation.csv", np.column_stack([cols[k] for k in COLUMNS]),
                    delimiter=",", header=",".join(COLUMNS), comments="", fmt="%.17g")
@@ -226,7 +226,7 @@ def command(args, *, load) -> int:
     from clm_sim.outdir import check_output_folder
 
     out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
-    check_output_folder(out, marker="scores.json", what="a simulation",  # before the work
+    check_output_folder(out, what="a simulation",  # before the work
                         inputs=(args.model, args.data))
     try:
         run = load(args.data, args)

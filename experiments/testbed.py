@@ -111,6 +111,7 @@ class Testbed:
         # (run seed, network seed) -> the optimizations fits of that draw ran
         # (a controllers.pgnn.starts.StartCache: PGNNFeedforward.fit_data's ``reuse``)
         self._starts: dict[tuple[int, int], StartCache] = {}
+        self.warnings: list[str] = []  # suspect fits, one line each (fit_lip)
 
     def __repr__(self) -> str:
         c = self.config
@@ -183,9 +184,24 @@ class Testbed:
                         meta=self.meta(run="training", seed=seed))
 
     def fit_lip(self, run: Run) -> LIPFeedforward:
-        """The LIP feedforward identified from a logged run (the config's feature map)."""
-        lip = LIPFeedforward(features=self.config.features).fit(y=run.y, u=run.u, ts=run.ts)
+        """The LIP feedforward identified from a logged run (the config's feature map), behind
+        the guards of every fit (:func:`experiments.record_guards.simulated_fit_checks`): a fit
+        the run cannot carry is refused; a suspect one is said through ``progress`` and kept in
+        :attr:`warnings` (the runner writes them with the results)."""
+        from experiments.record_guards import simulated_fit_checks
+
+        features = self.config.features
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            lip = LIPFeedforward(features=features).fit(y=run.y, u=run.u, ts=run.ts)
+        keep = features.fit_slice(len(run))
+        lines = simulated_fit_checks(run, features, lip.theta_, lip.std_,
+                                     machine_mass=self.machine.mass,
+                                     samples=len(range(len(run))[keep]))
         self.progress("LIP: " + ", ".join(f"{k} {v:.4g}" for k, v in lip.theta_.items()))
+        for line in lines:
+            if line not in self.warnings:
+                self.warnings.append(line)
+                self.progress(f"warning: {line}")
         return lip
 
     def fit_pgnn(self, run: Run, *, hidden: int = 16, lam: float = 0.0,

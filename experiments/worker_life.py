@@ -45,7 +45,11 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
-_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+# The signals that stop a command (experiments.process.CODES): Ctrl-C, SIGTERM, and where the
+# platform has them SIGHUP (a closed terminal, a dropped ssh session) and SIGQUIT (Ctrl-\\).
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM,
+                 *(getattr(signal, name) for name in ("SIGHUP", "SIGQUIT")
+                   if hasattr(signal, name))}
 # Held while workers are being started (their signals set to "ignore"): a signal that comes
 # meanwhile is handed to the main thread once it is released (experiments.process).
 SPAWNING = threading.Lock()

@@ -589,6 +589,76 @@ def test_an_input_inside_the_out_it_would_replace_is_refused(case, tmp_path, cap
     assert sorted(p.name for p in out.iterdir()) == before  # nothing deleted
 
 
+# A folder that merely holds the file name of a result (an earlier "marker"), beside a user's
+# file: clm-sim did not write it (no manifest of its files), so it is not replaced and nothing
+# in it is deleted. (command, the result's file name, argv from (out, record, config, model)).
+NOT_CLM_SIMS = {
+    "run": ("config.resolved.yaml", lambda out, rec, cfg, model: ["run", cfg, "--out", out,
+                                                                  "--quiet"]),
+    "simulate": ("scores.json", lambda out, rec, cfg, model: ["simulate", model, rec, "--out",
+                                                              out]),
+    "identify": ("lip.json", lambda out, rec, cfg, model: ["identify", rec, "--out", out]),
+    "diagnose": ("diagnosis.json", lambda out, rec, cfg, model: ["diagnose", rec, "--model",
+                                                                 model, "--out", out]),
+    "export-ff": ("export.json", lambda out, rec, cfg, model: ["export-ff", model, "--to", "c",
+                                                               "--out", out]),
+    "study": ("mechanism.json", lambda out, rec, cfg, model: ["study", cfg.replace(
+        "small", "mech"), "--out", out, "--quiet"]),
+}
+
+
+@pytest.mark.parametrize("case", list(NOT_CLM_SIMS))
+@pytest.mark.parametrize("extra", ["precious.txt", "figures/mine.png", ".hidden"])
+def test_a_folder_clm_sim_did_not_write_is_never_replaced(case, extra, tmp_path, capsys,
+                                                          monkeypatch, valid_record):
+    from small_config import SMALL_CONFIG, tiny_mechanism
+
+    monkeypatch.chdir(tmp_path)
+    marker, make = NOT_CLM_SIMS[case]
+    (tmp_path / "small.yaml").write_text(SMALL_CONFIG)
+    (tmp_path / "mech.yaml").write_text(tiny_mechanism())
+    (tmp_path / "lip.json").write_text("{" + _LIP + ', "ts": 0.0001}')
+    out = tmp_path / "out"
+    (out / "figures").mkdir(parents=True)
+    (out / marker).write_text("{}")
+    (out / extra).write_text("mine")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    _check_refused(make(str(out), str(valid_record), str(tmp_path / "small.yaml"),
+                        str(tmp_path / "lip.json")), tmp_path, capsys,
+                   "not written by clm-sim", str(out))
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.parametrize("to", ["csv", "mat"])
+@pytest.mark.parametrize("target", ["input", "other file", "sidecar"])
+def test_export_writes_over_no_file(to, target, tmp_path, capsys, monkeypatch, valid_record):
+    """``export x.csv`` with the default --out would write over its own input (and lose its
+    columns beyond the signals); no existing file is ever written over."""
+    monkeypatch.chdir(tmp_path)
+    source = tmp_path / f"rec.{'mat' if to == 'csv' else 'csv'}"
+    mine = tmp_path / f"mine.{to}"
+    mine.write_text("mine")
+    if target == "input":
+        source = tmp_path / f"rec.{to}"
+        assert main(["export", str(valid_record), "--to", to, "--out", str(source)]) == 0
+        capsys.readouterr()
+        argv = ["export", str(source), "--to", to]
+        sidecar = source.with_name(source.name + ".meta.json")
+        sidecar.unlink(missing_ok=True)
+    else:
+        assert main(["export", str(valid_record), "--to", "mat" if to == "csv" else "csv",
+                     "--out", str(source)]) == 0
+        capsys.readouterr()
+        if target == "sidecar" and to == "csv":
+            (tmp_path / "new.csv.meta.json").write_text("mine")
+            argv = ["export", str(source), "--to", to, "--out", str(tmp_path / "new.csv")]
+        else:
+            argv = ["export", str(source), "--to", to, "--out", str(mine)]
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    _check_refused(argv, tmp_path, capsys, "clm-sim export", "")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
 @pytest.mark.parametrize("command", ["run", "simulate", "export-ff", "diagnose", "identify"])
 def test_an_out_that_is_a_loop_of_links_is_refused(command, tmp_path, capsys, monkeypatch,
                                                    valid_record):

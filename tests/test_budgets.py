@@ -61,3 +61,66 @@ def test_a_link_to_a_device_is_not_read(tmp_path, capsys, command):
     os.symlink("/dev/zero", tmp_path / name)
     code, err = _cli([command, tmp_path / name, "--out", tmp_path / "o"], capsys)
     assert code == 2 and len(err) == 1 and "not a regular file" in err[0], err
+
+
+def test_a_network_whose_fit_needs_more_memory_than_is_free_is_refused_before(
+        tmp_path, capsys, monkeypatch):
+    """The memory of a fit (its Jacobian, the normal matrix) is checked against what the
+    machine has free before anything is allocated: a network under the parameter limit can
+    still need more than that (a 19,470-parameter network: several 3 GB square matrices)."""
+    from controllers.pgnn import model
+
+    asked = []
+    monkeypatch.setattr(model, "available_memory_bytes",
+                        lambda: asked.append(1) or 50 * 2 ** 20)  # 50 MB free
+    ffs = [{"kind": "pgnn", "training": "sequential", "hidden": [64, 64]}]
+    code, err = _cli(["run", _config(tmp_path, feedforwards=ffs), "--out", tmp_path / "o",
+                      "--quiet"], capsys)
+    assert asked and code == 2 and len(err) == 1, err
+    assert "GB" in err[0] and "more than the 0.0488 GB this machine has free" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("parameters, samples, optimizer, gb", [
+    (19_470, 6250, "varpro", 6 * 19_470 ** 2 * 8 / 2 ** 30),  # the square matrices dominate
+    (19_470, 6250, "adam", 8 * 6250 * 19_470 * 8 / 2 ** 30),  # no square matrix
+])
+def test_the_memory_estimate_grows_with_the_square_of_the_parameters(parameters, samples,
+                                                                    optimizer, gb):
+    from controllers.pgnn.model import fit_memory_bytes
+
+    need = fit_memory_bytes(parameters, samples, optimizer) / 2 ** 30
+    assert need >= gb and (optimizer == "adam" or need > 16)
+
+
+def test_a_pgnn_fit_on_too_few_samples_is_refused(tmp_path, capsys):
+    """A decimation that leaves one sample: a network 'converged' on it said nothing."""
+    ffs = [{"kind": "pgnn", "training": "sequential", "hidden": 4,
+            "pgnn": {"decimation": 100_000}}]
+    code, err = _cli(["run", _config(tmp_path, feedforwards=ffs), "--out", tmp_path / "o",
+                      "--quiet"], capsys)
+    assert code == 2 and len(err) == 1 and "the fit keeps 1 samples" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("size", [2 ** 20 + 1, 10 * 2 ** 20])
+def test_a_config_over_the_size_limit_is_refused_before_it_is_parsed(size, tmp_path, capsys,
+                                                                     monkeypatch):
+    from clm_sim import schema
+
+    path = tmp_path / "big.yaml"
+    path.write_text(SMALL_CONFIG + "# " + "x" * size + "\n")
+    monkeypatch.setattr(schema, "_StrictLoader", None)  # any parse would fail loudly
+    code, err = _cli(["run", path, "--out", tmp_path / "o"], capsys)
+    assert code == 2 and len(err) == 1 and "a config has at most 1048576" in err[0], err
+
+
+def test_a_config_of_too_many_values_is_refused_before_it_is_composed(tmp_path, capsys,
+                                                                      monkeypatch):
+    from clm_sim import schema
+
+    path = tmp_path / "many.yaml"
+    path.write_text(SMALL_CONFIG + "notes: [" + ",".join(["1"] * 60_000) + "]\n")
+    monkeypatch.setattr(schema, "_StrictLoader", None)  # refused by the libyaml count
+    code, err = _cli(["run", path, "--out", tmp_path / "o"], capsys)
+    assert code == 2 and len(err) == 1 and "more than 50000 values" in err[0], err

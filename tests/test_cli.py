@@ -440,11 +440,14 @@ def _finish(proc) -> tuple[str, str]:
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"),
-                                             (signal.SIGINT, 130, "interrupted")])
+                                             (signal.SIGINT, 130, "interrupted"),
+                                             (signal.SIGHUP, 129, "hung up"),
+                                             (signal.SIGQUIT, 131, "quit")])
 def test_signal_during_run_cleans_up(sig, code, word, tmp_path):
     """A real process: SIGTERM, or Ctrl-C (SIGINT to the whole process group, as a terminal
-    sends it), once the temporary result folder exists: the exit code, one stderr line, no
-    traceback, no temporary folder or lock, no process of the command left."""
+    sends it), a closed terminal (SIGHUP) or Ctrl-\\ (SIGQUIT), once the temporary result
+    folder exists: the exit code, one stderr line, no traceback, no temporary folder or lock,
+    no process of the command left."""
     cfg = tmp_path / "small.yaml"
     cfg.write_text(SMALL)
     proc = _clm(["run", cfg, "--out", tmp_path / "out", "--quiet"], tmp_path)
@@ -562,7 +565,8 @@ PGNN_ROWS = ("  - {kind: pgnn, training: sequential, hidden: 4, seeds: 2, "
 
 
 def _interrupted_cleanly(proc, err: str, sig, folder: Path, keep: list[str]) -> None:
-    code, word = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}[sig]
+    code, word = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated"),
+                  signal.SIGHUP: (129, "hung up"), signal.SIGQUIT: (131, "quit")}[sig]
     assert proc.returncode == code, err
     assert err.strip().splitlines() == [f"clm-sim: {word}"], err
     assert sorted(p.name for p in folder.iterdir()) == keep
@@ -572,7 +576,7 @@ def _interrupted_cleanly(proc, err: str, sig, folder: Path, keep: list[str]) -> 
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 @pytest.mark.parametrize("moment", ["pool starting", "fits running"])
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_during_pgnn_fits_ends_workers_without_tracebacks(sig, moment, tmp_path):
     """Ctrl-C (to the whole process group, workers included) or SIGTERM while the PGNN fit pool
     starts or fits: one line, the exit code, no worker traceback, no worker left, nothing

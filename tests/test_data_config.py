@@ -107,7 +107,8 @@ def test_a_lip_data_run_writes_what_it_computed_and_no_empty_folder(tmp_path, ca
     config = _config(tmp_path, validation=_record(tmp_path / "val.npz"))
     out = tmp_path / "out"
     assert main(["run", config, "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
-    assert sorted(p.name for p in out.iterdir()) == ["config.resolved.yaml", "table.json",
+    assert sorted(p.name for p in out.iterdir()) == [".clm-sim-manifest.json",
+                                                     "config.resolved.yaml", "table.json",
                                                      "table.md"]
     resolved = yaml.safe_load((out / "config.resolved.yaml").read_text())
     assert "ts" not in resolved and "plant" not in resolved  # no claim the records contradict

@@ -28,6 +28,7 @@ from clm_sim.effects import (
     Stribeck,
 )
 from clm_sim.errors import UserError
+from clm_sim.outdir import MANIFEST
 from clm_sim.loop import simulate
 from clm_sim.reference import PointToPoint
 from controllers.export import c_source
@@ -466,7 +467,7 @@ def test_cli_exports_the_run_lip(run_folder, tmp_path):
     wf = load_feedforward(lip_file)
     assert wf.ts == TS and wf.kind == "lip"
     assert main(["export-ff", str(lip_file), "--to", "c", "--out", str(tmp_path / "c")]) == 0
-    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == [
+    assert sorted(p.name for p in (tmp_path / "c").iterdir() if p.name != MANIFEST) == [
         "clm_ff.c", "clm_ff.h", "clm_ff_kat.csv", "clm_ff_selftest.c", "export.json"]
     info = json.loads((tmp_path / "c" / "export.json").read_text())
     assert info["limits_from"].startswith("training.npz")  # the run's data, found beside it
@@ -857,7 +858,8 @@ def test_two_prefixed_exports_link_and_run_in_one_program(fitted, tmp_path):
         assert main(["export-ff", str(tmp_path / model), "--to", "c", "--out",
                      str(tmp_path / prefix), "--ts", str(TS), "--prefix", prefix,
                      "--no-limits"]) == 0
-        assert sorted(p.name for p in (tmp_path / prefix).iterdir()) == [
+        assert sorted(p.name for p in (tmp_path / prefix).iterdir()
+                      if p.name != MANIFEST) == [
             f"{prefix}.c", f"{prefix}.h", f"{prefix}_kat.csv", f"{prefix}_selftest.c",
             "export.json"]
         text = (tmp_path / prefix / f"{prefix}.c").read_text()

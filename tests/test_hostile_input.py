@@ -189,6 +189,7 @@ VALUES = st.one_of(
                      [{"kind": "lip", "seeds": 100000}]]),
     st.floats(allow_nan=True, allow_infinity=True),
     st.integers(min_value=-(2 ** 70), max_value=2 ** 70),
+    st.sampled_from([10 ** 400, -(10 ** 400), 5e-324, 1e-300, 1e300]),
     st.text(max_size=20),
 )
 

@@ -170,3 +170,22 @@ def test_many_series_over_few_values_are_a_dot_plot_not_crossing_lines(tmp_path)
     assert len(names) == 7 and any("LIP" in n for n in names)
     assert len(fig.legends) == 1 and len(fig.legends[0].get_texts()) == 2  # one per n_l
     plots.save(fig, tmp_path / "dots.png")
+
+
+@pytest.mark.parametrize("name", ["$x^$", "$$", "$\\frac$", "a\x1fb", "r\tname"])
+def test_a_name_from_a_file_is_drawn_as_written(name, tmp_path):
+    """Row names and file names are text, never TeX: ``$x^$`` would stop matplotlib's drawing
+    (an internal error) and a control character has no glyph (a library warning)."""
+    import warnings
+
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    ax.set_title(name)
+    ax.plot([0, 1], [0, 1], label=name)
+    ax.legend()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plots.save(fig, tmp_path / "f.png")
+    plt.close(fig)
+    assert (tmp_path / "f.png").stat().st_size > 0

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from clm_sim.errors import UserError
 from clm_sim.record import SIGNALS, Run, load_record, save_csv, save_mat, save_npz
 
 META = {"run": "training", "seed": 11, "config": {"plant": {"mass": 18.8}}, "versions": {"x": "1"}}
@@ -91,3 +92,35 @@ def test_slice_keeps_meta_and_lengths(short_run):
 def test_run_refuses_ragged_signals():
     with pytest.raises(ValueError, match="length"):
         Run(t=np.arange(10.0), r=np.zeros(10), y=np.zeros(10), u=np.zeros(9))
+
+
+def _csv(tmp_path, header: str, n: int = 600):
+    t = np.arange(n) * 1e-3
+    cols = {"t": t, "r": np.sin(t), "y": np.sin(t) + 1e-6, "u": np.cos(t), "qm": np.sin(2 * t)}
+    names = [h.strip() for h in header.split(",")]
+    data = np.column_stack([cols.get(nm, 0.5 * t) for nm in names])
+    path = tmp_path / "rec.csv"
+    np.savetxt(path, data, delimiter=",", header=header, comments="")
+    return path
+
+
+@pytest.mark.parametrize("header", ["t,r,y,u,u", "t,r,y,u,y", "t,t,r,y,u", "t,r, y,y,u",
+                                    "t,r,y,u,qm,qm"])
+def test_a_column_name_twice_is_refused(header, tmp_path):
+    """A dict of columns keeps the last of two namesakes: a mass twice the true one, said
+    nowhere. The header's duplicate is refused by name."""
+    with pytest.raises(UserError, match="twice"):
+        load_record(_csv(tmp_path, header))
+
+
+@pytest.mark.parametrize("columns", [{"r": "qm", "y": "qm"}, {"r": "y"}, {"u": "t"},
+                                     {"y": "r"}, {"e": "y"}, {"u_ff": "u"}])
+def test_two_signals_on_one_column_are_refused(columns, tmp_path):
+    """y read as r too makes the tracking error zero; the mapping is refused."""
+    with pytest.raises(UserError, match="both be read from column"):
+        load_record(_csv(tmp_path, "t,r,y,u,qm"), columns=columns)
+
+
+def test_a_column_mapped_away_frees_its_name(tmp_path):
+    run = load_record(_csv(tmp_path, "t,r,y,u,qm"), columns={"y": "qm"})
+    assert np.allclose(run.y, np.sin(2 * run.t))

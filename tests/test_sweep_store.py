@@ -10,7 +10,8 @@ import os
 import pytest
 
 from clm_sim.errors import UserError
-from experiments.sweeps.run import _lock, check_output
+from clm_sim.outdir import write_manifest
+from experiments.sweeps.run import WHAT, _lock, check_output
 from experiments.sweeps.store import ResultStore, task_key
 
 VERSION = "0+test"
@@ -72,6 +73,7 @@ def test_a_link_inside_the_output_folder_is_refused(tmp_path, name):
     out = tmp_path / "sweep"
     out.mkdir()
     (out / "sweep.resolved.yaml").write_text("base: {}\n")
+    write_manifest(out, WHAT)
     victim = tmp_path / "victim"
     victim.mkdir() if name in ("figures", "tasks") else victim.write_text("keep me")
     os.symlink(victim, out / name)
@@ -88,3 +90,51 @@ def test_the_lock_does_not_truncate_a_linked_file(tmp_path):
     with pytest.raises(OSError):
         _lock(out)
     assert victim.read_text() == "keep me"
+
+
+# Task files that are not the result of their task: each is said, removed and recomputed.
+ROWS = {
+    "no rows": [],
+    "rows not a list": {"label": "LIP", "mae": 1e-6},
+    "negative mae": [{"label": "LIP", "mae": -1e-6}],
+    "negative mean": [{"label": "LIP", "mae": {"r1": {"mean": -1.0, "std": 0.0}}}],
+    "mae a string": [{"label": "LIP", "mae": "1e-6"}],
+    "mae a bool": [{"label": "LIP", "mae": True}],
+    "no metric": [{"label": "LIP"}],
+    "row not an object": ["LIP"],
+    "too many rows": [{"label": "LIP", "mae": 1e-6}] * 2,
+    "negative force rms": [{"label": "LIP", "force_rms": {"a": {"inside": {"mean": -2}}}}],
+}
+
+
+@pytest.mark.parametrize("case", sorted(ROWS))
+def test_rows_that_are_not_the_tasks_are_refused(store, case):
+    config = {"seed": 1, "feedforwards": [{"kind": "lip"}]}
+    key, result = _result(config)
+    store.put(key, {**result, "rows": ROWS[case]})
+    assert store.get(key) is None
+    assert len(store.said) == 1 and not store.path(key).exists()
+
+
+def test_rows_of_the_task_are_read(store):
+    config = {"seed": 1, "feedforwards": [{"kind": "lip"}, {"kind": "none"}]}
+    key, result = _result(config)
+    rows = [{"label": "LIP", "mae": {"r1": {"mean": 1e-6, "std": 0.0}}},
+            {"label": "none", "mae": {"r1": {"mean": 0.0, "std": None}}}]
+    store.put(key, {**result, "rows": rows})
+    assert store.get(key)["rows"] == rows and not store.said
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs")
+@pytest.mark.parametrize("kind", ["fifo", "folder"])
+def test_a_task_file_that_is_not_a_regular_file_is_not_read(store, kind):
+    """A FIFO in a task file's place would block the read forever: it is refused at once."""
+    key, _ = _result({"seed": 3})
+    path = store.path(key)
+    os.mkfifo(path) if kind == "fifo" else path.mkdir()
+    if kind == "fifo":
+        assert store.get(key) is None
+        assert "not a regular file" in store.said[0][1]
+    else:  # a folder cannot be removed as a file: one line, left to the user
+        with pytest.raises(UserError, match="Is a directory.*remove it to resume"):
+            store.get(key)

@@ -70,7 +70,7 @@ def diagnose_files(data, *, out, read, model_path=None, validate=None,
                    warn=lambda lines: None) -> Diagnosis:
     """``clm-sim diagnose``: the record file ``data`` (and ``validate``) read by ``read``,
     diagnosed (:func:`diagnose_record`) and written into ``out`` (checked before the work)."""
-    check_output_folder(out, marker="diagnosis.json", what="a diagnosis",
+    check_output_folder(out, what="a diagnosis",
                         inputs=(data, model_path, validate))
     record = read(data)
     validation = read(validate) if validate else None

@@ -113,7 +113,7 @@ def markdown(d: Diagnosis, figures: list[tuple[str, str]]) -> str:
 def write(d: Diagnosis, out: Path) -> None:
     """Write ``diagnosis.json``, ``report.md`` and ``figures/`` into ``out`` (replaced as a
     whole; an interrupted write leaves nothing behind)."""
-    with atomic_folder(out, marker="diagnosis.json", what="a diagnosis") as tmp:
+    with atomic_folder(out, what="a diagnosis") as tmp:
         shown = _figures(d, tmp / "figures")
         (tmp / "diagnosis.json").write_text(json.dumps(d.to_json(), indent=1))
         (tmp / "report.md").write_text(markdown(d, shown))

@@ -558,7 +558,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
     # Before the work (minutes of fits on EMPS): what the result folder will refuse, the
     # benchmark's inputs among it.
     inputs = (config_path, settings.training, settings.test, settings.published_model)
-    check_output_folder(out, marker="benchmark.json", what="a benchmark", inputs=inputs)
+    check_output_folder(out, what="a benchmark", inputs=inputs)
     progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
     try:
         rows, drift = run_benchmark(settings, progress)
@@ -568,7 +568,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
                         f"{config_path}: {text}") from None
     command = f"clm-sim study {config_path}"
     table = to_markdown(name, rows, settings, command, drift)
-    with atomic_folder(out, marker="benchmark.json", what="a benchmark", inputs=inputs) as tmp:
+    with atomic_folder(out, what="a benchmark", inputs=inputs) as tmp:
         (tmp / "benchmark.json").write_text(json.dumps(
             {"name": name, "command": command, "rows": [r.to_json() for r in rows],
              "baselines": [dataclasses.asdict(b) for b in settings.baselines],

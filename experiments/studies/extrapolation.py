@@ -113,7 +113,7 @@ def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,
     """Run the study and write it into ``out`` (replaced atomically). Returns its result."""
     progress = Progress(quiet)
     out = Path(out)
-    with atomic_folder(out, marker="study.json", what="a clm-sim study") as tmp:
+    with atomic_folder(out, what="a clm-sim study") as tmp:
         summary = _study(config, study, tmp, progress)
     progress(f"report in {out}/report.md")
     return summary

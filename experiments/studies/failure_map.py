@@ -336,7 +336,7 @@ def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out,
     progress = Progress(quiet)
     out = Path(out)
     workers = workers or cores()
-    with atomic_folder(out, marker="failure_map.json", what="a clm-sim failure map") as tmp:
+    with atomic_folder(out, what="a clm-sim failure map") as tmp:
         (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
             {**resolved(config), "failure_map": to_plain(settings)}, sort_keys=False))
         start = time.perf_counter()

@@ -617,7 +617,7 @@ def run_mechanism(config: ExperimentConfig, settings: MechanismSettings, out, *,
     progress = Progress(quiet)
     out = Path(out)
     workers = workers or cores()
-    with atomic_folder(out, marker="mechanism.json", what="a clm-sim mechanism study") as tmp:
+    with atomic_folder(out, what="a clm-sim mechanism study") as tmp:
         (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
             {**resolved(config), "mechanism": to_plain(settings)}, sort_keys=False))
         start = time.perf_counter()

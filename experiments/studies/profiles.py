@@ -402,8 +402,7 @@ def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
     progress = Progress(quiet)
     out = Path(out)
     workers = workers or cores()
-    with atomic_folder(out, marker="identifiability.json",
-                       what="a clm-sim identifiability study") as tmp:
+    with atomic_folder(out, what="a clm-sim identifiability study") as tmp:
         (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
             {**resolved(config), "identifiability": to_plain(settings)}, sort_keys=False))
         start = time.perf_counter()

@@ -13,6 +13,7 @@ each row extended with the swept keys and its task key, plus a ``failures`` list
 from __future__ import annotations
 
 import json
+import re
 import os
 import time
 from dataclasses import dataclass, field
@@ -21,7 +22,8 @@ from pathlib import Path
 import yaml
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_write, check_writable, output_lock
+from clm_sim.outdir import (MANIFEST, atomic_write, check_writable, entries, manifest,
+                            output_lock, write_manifest)
 from clm_sim.schema import build
 from experiments import table
 from experiments.config import ExperimentConfig
@@ -92,17 +94,30 @@ def execute(config_plain: dict) -> dict:
 
 # ----------------------------------------------------------------------------- running
 
+WHAT = "clm-sim sweep results"  # the kind named in a sweep folder's manifest (clm_sim.outdir)
+# What a sweep writes in its folder (the manifest aside): a sweep resumes into a folder that
+# holds only these, under a manifest of its kind; anything else is the user's and is refused.
+_OWN = re.compile(r"(\.lock|sweep\.resolved\.yaml|table\.(json|md|csv)|tasks|figures"
+                  r"|tasks/[0-9a-f]{24}\.json|figures/mae_vs_[A-Za-z0-9_.-]+\.png"
+                  r"|(tasks/|figures/)?\.[^/]+\.tmp\d+)")
+
+
 def check_output(out: Path) -> None:
-    """Refuse an output folder that exists and is not a sweep's (before anything is written)."""
+    """Refuse an output folder that exists and is not a sweep's (before anything is written):
+    a folder that is not empty must carry a sweep's manifest and hold only what a sweep
+    writes, so a resumed sweep writes over nothing of the user's."""
     check_writable(out)
     out = Path(out)
-    # A sweep killed right after it started may have left only its lock and task folder.
-    mine = {"sweep.resolved.yaml", "tasks"}
-    if out.exists() and (not out.is_dir() or not (
-            (out / "sweep.resolved.yaml").exists()
-            or all(p.name.startswith(".") or p.name in mine for p in out.iterdir()))):
-        raise UserError(f"{out}: output folder exists and does not hold clm-sim sweep results; "
-                        f"choose another --out")
+    if out.is_dir() and any(out.iterdir()):
+        listing = manifest(out)
+        if listing is None or listing["what"] != WHAT:
+            raise UserError(f"{out}: output folder exists and does not hold clm-sim sweep "
+                            f"results (no sweep manifest {MANIFEST}); choose another --out")
+        folders, files = entries(out)
+        for rel in (*folders, *files):
+            if not _OWN.fullmatch(rel):
+                raise UserError(f"{out}: holds {rel}, which a sweep does not write; move it or "
+                                f"choose another --out")
     for name in (".lock", "tasks", "figures", "sweep.resolved.yaml", "table.json", "table.md",
                  "table.csv"):
         if (out / name).is_symlink():  # a sweep writes nothing through a link in its folder
@@ -154,6 +169,7 @@ def _run_sweep(sweep: Sweep, out: Path, say, *, backend, workers, scheduler,
     out.mkdir(parents=True, exist_ok=True)
     lock = _lock(out)
     try:
+        write_manifest(out, WHAT)  # the folder is a sweep's from its first file on
         store = ResultStore(out / "tasks").open()
         store.on_invalid = lambda path, why: say(f"{path}: {why}; the task is recomputed")
         atomic_write(out / "sweep.resolved.yaml", yaml.safe_dump(
@@ -194,6 +210,7 @@ def _run_sweep(sweep: Sweep, out: Path, say, *, backend, workers, scheduler,
         except Exception as exc:  # the backend broke (worker killed, scheduler lost)
             outcome.stopped = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
         _aggregate(sweep, store, out, outcome)
+        write_manifest(out, WHAT)
     finally:
         if lock is not None:
             lock.close()

@@ -11,9 +11,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
+import os
+import stat
 from pathlib import Path
 
 from clm_sim import __version__
+from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write
 
 # The repository root (this file is experiments/sweeps/store.py).
@@ -81,9 +85,7 @@ class ResultStore:
         a link): such a file is said once (``on_invalid``), removed, and the task recomputed."""
         path = self.path(key)
         try:
-            if path.is_symlink():
-                raise ValueError("a symbolic link, not a task result")
-            result = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
+            result = json.loads(_read_regular(path), parse_constant=_no_constant)
             why = _invalid(result, key)
         except FileNotFoundError:
             return None
@@ -93,11 +95,40 @@ class ResultStore:
             return result
         if self.on_invalid is not None:
             self.on_invalid(path, why)
-        path.unlink(missing_ok=True)
+        try:
+            path.unlink(missing_ok=True)
+        except OSError:  # a folder in its place, say: the user's to remove
+            raise UserError(f"{path}: {why}; remove it to resume the sweep") from None
         return None
 
     def put(self, key: str, result: dict) -> None:
         atomic_write(self.path(key), json.dumps(result, indent=1, allow_nan=False))
+
+
+# A task result is a few kB per row; a file far beyond any table is not one (and is not read).
+MAX_TASK_BYTES = 64 * 2 ** 20
+
+
+def _read_regular(path: Path) -> str:
+    """The text of ``path`` if it is a regular file of at most :data:`MAX_TASK_BYTES`, opened
+    without following a link and without blocking (a FIFO or a device put in its place would
+    hang the read); ``FileNotFoundError`` if absent, ``ValueError`` for anything else."""
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        if path.is_symlink():
+            raise ValueError("a symbolic link, not a task result") from None
+        raise
+    with os.fdopen(fd, "rb") as fh:
+        info = os.fstat(fh.fileno())
+        if not stat.S_ISREG(info.st_mode):
+            raise ValueError("not a regular file")
+        if info.st_size > MAX_TASK_BYTES:
+            raise ValueError(f"{info.st_size} bytes, above the {MAX_TASK_BYTES} of a task result")
+        return fh.read(MAX_TASK_BYTES + 1).decode("utf-8")
 
 
 def _no_constant(name: str):
@@ -116,7 +147,49 @@ def _invalid(result, key: str) -> str | None:
     except (TypeError, ValueError):
         return "its config is not plain data"
     if result.get("status") == "ok":
-        return None if isinstance(result.get("rows"), list) else "no rows"
+        return _invalid_rows(result.get("rows"), result.get("config"))
     if result.get("status") == "failed":
         return None if isinstance(result.get("error"), str) else "a failure without its error"
     return f"status {str(result.get('status'))[:30]!r} is neither ok nor failed"
+
+
+# The metrics of a row (errors and their spreads): non-negative finite numbers wherever given.
+_METRICS = ("mae", "rms", "max", "mae_per_seed", "force_rms", "force_rms_per_seed")
+
+
+def _invalid_rows(rows, config) -> str | None:
+    """Why ``rows`` are not the table rows of a task with ``config`` (None: they are): one row
+    (an object with a label and at least one error metric) per feedforward of the config, every
+    error a non-negative finite number."""
+    if not isinstance(rows, list) or not rows:
+        return "no rows"
+    wanted = config.get("feedforwards") if isinstance(config, dict) else None
+    if isinstance(wanted, list) and len(rows) != len(wanted):
+        return f"{len(rows)} rows for the task's {len(wanted)} feedforwards"
+    for i, row in enumerate(rows):
+        if not isinstance(row, dict) or not isinstance(row.get("label"), str):
+            return f"row {i} is not a table row"
+        if not any(key in row for key in ("mae", "force_rms")):
+            return f"row {i} has no error metric"
+        for key in _METRICS:
+            bad = _bad_metric(row.get(key))
+            if bad is not None:
+                return f"row {i} {key}: {bad!r} is not a non-negative finite number"
+    return None
+
+
+def _bad_metric(value):
+    """The first value under ``value`` (nested objects and lists) that is not a non-negative
+    finite number (``None`` stands for a statistic with no data), else ``None``."""
+    if value is None:
+        return None
+    if isinstance(value, (dict, list)):
+        for item in value.values() if isinstance(value, dict) else value:
+            bad = _bad_metric(item)
+            if bad is not None:
+                return bad
+        return None
+    if isinstance(value, (int, float)) and not isinstance(value, bool) \
+            and math.isfinite(value) and value >= 0:
+        return None
+    return value
