@@ -61,7 +61,7 @@ _NONNEGATIVE = ("viscous", "coulomb", "presliding")
 GTOL = 1e-8  # first-order optimality at which a fit has converged (scipy's scaled test)
 FTOL = 1e-10  # relative decrease of the cost per step below which a fit has converged
 AGREE_RTOL = 0.01  # starts whose training RMSEs lie within 1 % of the lowest agree
-MAX_NFEV = 2000
+MAX_NFEV = 500  # evaluations of one start, its restarts included
 DIFF_STEP = 1e-4
 JAC = '2-point'
 RESTARTS = 3  # at most; until a restart lowers the cost by < RESTART_GAIN
@@ -168,7 +168,8 @@ class Stop:
 
     def line(self) -> str:
         why = {1: "gradient test", 2: "cost-decrease test", 4: "gradient and cost tests",
-               3: "step-size stop, not converged", 0: "evaluation cap, not converged"}
+               3: "step-size stop, not converged", 0: "evaluation cap, not converged",
+               5: "a restart still lowered the cost, not converged"}
         return (f"{self.label}: {'converged' if self.converged else 'stopped'} after "
                 f"{self.nfev} evaluations ({why.get(self.status, self.message)}, optimality "
                 f"{self.optimality:.2g}); training RMSE {self.rmse_start_m * 1e3:.4g} -> "
@@ -318,16 +319,23 @@ def fit(structure: Plant, run: Run, starts: list[tuple[str, dict]], *,
             residual, x0, bounds=(lower, np.inf), x_scale=scale, diff_step=DIFF_STEP,
             method="trf", ftol=FTOL, gtol=GTOL, xtol=1e-15, max_nfev=max_nfev, jac=JAC)
         nfev, status, message = sol.nfev, sol.status, sol.message
+        settled = False
         for _ in range(RESTARTS):  # a fresh trust region from the end: the convergence test
+            if nfev >= max_nfev:
+                break
             again = scipy.optimize.least_squares(
                 residual, sol.x, bounds=(lower, np.inf), x_scale=scale, diff_step=DIFF_STEP,
-                method="trf", ftol=FTOL, gtol=GTOL, xtol=1e-15, max_nfev=max_nfev, jac=JAC)
+                method="trf", ftol=FTOL, gtol=GTOL, xtol=1e-15, max_nfev=max_nfev - nfev,
+                jac=JAC)
             nfev += again.nfev
             gain = 1 - again.cost / sol.cost
             sol = again if again.cost < sol.cost else sol
             status, message = again.status, again.message
             if gain < RESTART_GAIN:
+                settled = True
                 break
+        if not settled and status != 0:  # the restarts still lowered the cost: no end yet
+            status, message = 5, "a restart still lowered the cost"
         stops.append(Stop(label, dict(zip(free, map(float, x0))), dict(zip(free, map(float,
                                                                                   sol.x))),
                           float(np.sqrt(np.mean(r0 ** 2))),
