@@ -108,9 +108,10 @@ def test_a_simulation_option_without_the_criterion_is_one_line(csv, tmp_path, ca
 @pytest.mark.skipif(not EMPS.is_dir(), reason="EMPS records not in ../shared")
 def test_emps_training_record_by_simulation_error(tmp_path, capsys):
     """The published procedure's options, then simulation error from the force fit, the
-    published model and two perturbed starts: the lowest end converges, several starts reach it
-    within 1 %, and it simulates the training record to well below the published model's
-    5.29 mm (about 2.87 mm at M near 90.6 kg)."""
+    published model and two perturbed starts: at least two starts converge within 1 % of the
+    lowest end (which may itself be a step-size stop: the valley is flat and rough, the
+    page), and it simulates the training record to well below the published model's 5.29 mm
+    (about 2.87 mm at M near 90.6 kg)."""
     out = tmp_path / "o"
     code = main(["identify", str(EMPS / "DATA_EMPS.mat"), "--columns", "y=qm,r=qg,u=vir",
                  "--scale", "u=gtau", "--position-lowpass-hz", "100", "--differentiation",
@@ -120,6 +121,8 @@ def test_emps_training_record_by_simulation_error(tmp_path, capsys):
                                 / "emps_model.yaml"), "--out", str(out)])
     assert code == 0, capsys.readouterr().err
     fit = json.loads((out / "simulation_fit.json").read_text())
-    assert fit["measured"], fit
-    assert fit["rmse_m"] < 3.0e-3
+    low = fit["rmse_m"]
+    near = [s for s in fit["stops"] if s["converged"] and s["rmse_m"] <= 1.01 * low]
+    assert len(near) >= 2, fit
+    assert low < 3.0e-3
     assert 85.0 < load_model(out / "model.json").plant.mass < 95.0
