@@ -50,6 +50,7 @@ from experiments.studies.emps_cycles import cycle_edges, left_out
 from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
 from experiments.studies.emps_plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
+from experiments.workers import map_in_order
 
 STRUCTURES = ("equation_error", "diagnosis")
 ADDABLE = ("friction_asymmetry",)
@@ -369,7 +370,14 @@ def choose(rows: list[Row], selection: str = "minimum_mean") -> list[Row]:
 
 # ----------------------------------------------------------------------------- the study
 
-def run_benchmark(settings: BenchmarkSettings, progress=print) -> dict:
+def _make_task(payload) -> Made:
+    """:func:`make_candidate` on a worker: ``(candidate, record, settings, like, seed
+    sequence, published or None)``."""
+    c, record, settings, like, seed, published = payload
+    return make_candidate(c, record, settings, like, np.random.default_rng(seed), published)
+
+
+def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1) -> dict:
     """Every row made from the training record and scored on both records; every candidate
     made again without each cycle and scored on it; the choice by the config's rule; the
     leak, the sensitivities, the initial-state effect and the drift analysis."""
@@ -407,21 +415,28 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> dict:
                 on_train(procedure), on_test(procedure)),
             Row("diagnosis-extended (force residual)", "training record (force residual)",
                 extended, on_train(extended), on_test(extended), note=ext_note)]
-    made = []
-    for c, st in zip(settings.candidates, streams):
-        m = make_candidate(c, train, settings, published, np.random.default_rng(st[0]),
-                           published)
-        made.append(m)
-        progress(f"{c.name}: {m.fit.verdict()}")
+    # Every (data set, candidate) fit is a task of its own, in ``workers`` processes: each
+    # draws from its own stream, so the result does not depend on the number of workers.
+    sets = [train] + [left_out(train, edges, k)[0] for k in range(settings.cycles)]
+    tasks = [(j, i) for i in reversed(range(len(settings.candidates)))  # the longest first
+             for j in range(len(sets))]
+    payloads = [(settings.candidates[i], sets[j], settings, published, streams[i][j],
+                 published if j == 0 else None) for j, i in tasks]
+    progress(f"{len(tasks)} fits: every candidate on the whole record and without each of its "
+             f"{settings.cycles} cycles ({workers} worker{'s' if workers > 1 else ''})")
+    where = lambda j: "whole record" if j == 0 else f"without cycle {j}"  # noqa: E731
+    done = {}
+    for (j, i), m in zip(tasks, map_in_order(
+            _make_task, payloads, workers,
+            done=lambda n, k, m: progress(f"{n}/{len(tasks)} {m.name}, {where(tasks[k][0])}: "
+                                          f"{m.fit.verdict()}"))):
+        done[j, i] = m
+    made = [done[0, i] for i in range(len(settings.candidates))]
     folds = []
     for k in range(settings.cycles):
         rest, cycle = left_out(train, edges, k)
-        progress(f"without cycle {k + 1} of {settings.cycles} ({len(rest)} samples), for that "
-                 f"cycle ({len(cycle)})")
         fold = {"procedure": equation_error(rest, settings.published_procedure, published)}
-        for c, st in zip(settings.candidates, streams):
-            fold[c.name] = make_candidate(c, rest, settings, published,
-                                          np.random.default_rng(st[k + 1]))
+        fold.update({c.name: done[k + 1, i] for i, c in enumerate(settings.candidates)})
         folds.append((cycle, fold))
     for c, m in zip(settings.candidates, made):
         scores = tuple(rmse_on(cy, n0)(f[c.name].fit.plant) for cy, f in folds)
@@ -616,8 +631,9 @@ def plot_errors(traces, ax=None):
     return ax
 
 
-def main(config_path, out=None, *, quiet: bool = False) -> int:
-    """``clm-sim study CONFIG`` for a config with a ``benchmark:`` section."""
+def main(config_path, out=None, *, quiet: bool = False, workers: int | None = None) -> int:
+    """``clm-sim study CONFIG [--workers N]`` for a config with a ``benchmark:`` section (the
+    fits in ``workers`` processes, default 1; the result does not depend on it)."""
     from experiments import plots
 
     name, settings = load_benchmark(config_path)
@@ -626,7 +642,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
     check_output_folder(out, marker="benchmark.json", what="a benchmark", inputs=inputs)
     progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
     try:
-        result = run_benchmark(settings, progress)
+        result = run_benchmark(settings, progress, workers or 1)
     except UserError as exc:
         text = str(exc)
         raise UserError(text if text.startswith(str(config_path)) else
