@@ -126,3 +126,32 @@ def test_emps_training_record_by_simulation_error(tmp_path, capsys):
     assert len(near) >= 2, fit
     assert low < 3.0e-3
     assert 85.0 < load_model(out / "model.json").plant.mass < 95.0
+
+
+@pytest.mark.skipif(not EMPS.is_dir(), reason="EMPS records not in ../shared")
+def test_the_benchmark_page_rows_reproduce_from_their_model_files():
+    """Every row of the EMPS page's table has its model file beside the page
+    (docs/results/emps_models/<row>.json); simulated on PULSES from it, each gives the page's
+    test RMSE to its printed two decimals (half a unit of the last digit, 0.005 mm)."""
+    from clm_sim.record import load_record
+    from experiments.studies.emps_benchmark import slug
+
+    docs = Path(__file__).resolve().parents[1] / "docs" / "results"
+    test = load_record(EMPS / "DATA_EMPS_PULSES.mat", columns={"y": "qm", "r": "qg", "u": "vir"},
+                       scale={"u": "gtau"})
+    lines = (docs / "emps_benchmark.md").read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("| model |"))
+    rows = []
+    for line in lines[first + 2:]:  # the page's table, after its header and separator
+        if not line.startswith("|"):
+            break
+        rows.append(line.split("|"))
+    checked = 0
+    for cells in rows:
+        name, printed = cells[1].strip(), cells[3].strip()
+        path = docs / "emps_models" / f"{slug(name)}.json"
+        assert path.exists(), name
+        plant = load_model(path).plant
+        assert training_rmse(plant, test) * 1e3 == pytest.approx(float(printed), abs=0.0051)
+        checked += 1
+    assert checked >= 5
