@@ -95,6 +95,21 @@ def protocol(p: argparse.ArgumentParser) -> None:
     g.add_argument("--validate", metavar="FILE",
                    help="record for the cross-test: its force error under the fitted model, "
                    "processed the same way")
+    s = p.add_argument_group("simulation-error options (--criterion simulation)")
+    s.add_argument("--criterion", choices=("equation", "simulation"), default="equation",
+                   help="equation: the force (IDIM-LS) fit alone (default); simulation: then "
+                   "fit the parameters to the open-loop simulation error of the position, "
+                   "from several starts (writes model.json)")
+    s.add_argument("--model", metavar="FILE", help="the structure to fit (a model file, "
+                   "lip.json or diagnosis.json) and one start (default: the force fit's)")
+    s.add_argument("--hold", metavar="NAMES", help="parameters kept at the force fit's value "
+                   "(the model file's where the force fit has none), e.g. mass")
+    s.add_argument("--starts", type=int, metavar="N", help="perturbed starts beside the force "
+                   "fit and the model file (default 2)")
+    s.add_argument("--seed", type=int, metavar="S", help="seed of the perturbed starts "
+                   "(default 0)")
+    s.add_argument("--init-samples", type=int, metavar="N", help="output samples the initial "
+                   "state is taken from (default 20: a parabola through them)")
 
 
 def simulation(p: argparse.ArgumentParser) -> None:

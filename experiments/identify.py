@@ -134,20 +134,117 @@ def protocol_from_options(args, *, source: str):
         raise UserError(f"{source}: {exc}") from None
 
 
+SIMULATION_OPTIONS = ("model", "hold", "starts", "seed", "init_samples")
+
+
+def simulation_fit(result: Identified, *, model=None, model_source: str | None = None,
+                   hold: tuple[str, ...] = (), starts: int = 2, seed: int = 0,
+                   init_samples: int = 20):
+    """The force fit of ``result`` refined on the open-loop simulation error of its record
+    (:func:`experiments.output_error.fit`): the structure is ``model``'s plant (a
+    :class:`~clm_sim.plant.Plant`) or else the force fit's; the starts are the force fit, the
+    model, and ``starts`` perturbations of the force fit (seeded by ``seed``); ``hold`` names
+    parameters kept at the force fit's value (the model's where the force fit has none)."""
+    from clm_sim.effects import ForceOffset
+    from clm_sim.plant import Plant
+    from experiments import output_error as oe
+
+    source = result.source
+    lip = result.fit.model
+    if not 3 <= init_samples <= len(result.run) - 100:
+        raise UserError(f"--init-samples: expected 3 to {len(result.run) - 100} (the record "
+                        f"has {len(result.run)} samples, 100 at least are scored), got "
+                        f"{init_samples}")
+    if starts < 0:
+        raise UserError(f"--starts: expected a number of perturbed starts >= 0, got {starts}")
+    equation = Plant(**lip.theta_, effects=lip.effects_)
+    structure = oe.merge_offsets(model if model is not None else equation)
+    if model is not None and result.fit.protocol.offset and not any(
+            isinstance(e, ForceOffset) for e in structure.effects):
+        structure = replace(structure, effects=(*structure.effects, ForceOffset(0.0)))
+    try:
+        names = oe.structure_parameters(structure)
+        theirs = set(oe.structure_parameters(oe.merge_offsets(equation)))
+    except UserError as exc:
+        raise UserError(f"{model_source or source}: {exc}") from None
+    own = {k: oe.value(oe.merge_offsets(equation), k) for k in names if k in theirs}
+    unknown = [k for k in hold if k not in names]
+    if unknown:
+        raise UserError(f"--hold: {', '.join(unknown)} is not a parameter of the structure "
+                        f"(its parameters: {', '.join(names)})")
+    held = {k: own.get(k, oe.value(structure, k)) for k in hold}
+    if len(held) == len(names):
+        raise UserError(f"--hold: every parameter of the structure held ({', '.join(names)}); "
+                        f"nothing to fit")
+    free = [k for k in names if k not in held]
+    first = {k: v for k, v in own.items() if k in free}
+    begin = [("force fit", first)]
+    if model is not None:
+        begin.append((f"model {model_source}", {k: oe.value(structure, k) for k in free}))
+    rng = np.random.default_rng(seed)
+    full = {k: first.get(k, oe.value(structure, k)) for k in free}
+    begin += [(f"perturbed {i + 1}", oe.perturbed(full, rng)) for i in range(starts)]
+    try:
+        return oe.fit(structure, result.run, begin, hold=held, init_samples=init_samples)
+    except UserError as exc:
+        raise UserError(f"{source}: {exc}") from None
+
+
+def write_simulation(fit, result: Identified, out: Path) -> Path:
+    """Write ``out/model.json`` (a model file of the simulation-error fit, its stops under
+    ``identification``); returns its path."""
+    from experiments import output_error as oe
+
+    info = oe.model_file(fit.plant, result.run.ts, name=f"{Path(result.source).stem} "
+                         f"(simulation error)", description=fit.verdict())
+    record = {"source": result.source, **fit.to_json()}
+    try:
+        atomic_write(out / "model.json", json.dumps(info, indent=1, allow_nan=False))
+        atomic_write(out / "simulation_fit.json", json.dumps(record, indent=1,
+                                                             allow_nan=False))
+    except OSError as exc:
+        raise write_error(out, exc) from None
+    return out / "model.json"
+
+
 def command(args, *, load) -> int:
     """``clm-sim identify`` on the parsed ``args``; ``load(path, args)`` reads a record."""
     from clm_sim.outdir import check_output_folder
     from experiments.suspicions import warn
 
+    simulation = args.criterion == "simulation"
+    given = [k for k in SIMULATION_OPTIONS if getattr(args, k) is not None]
+    if given and not simulation:
+        raise UserError(f"--{given[0].replace('_', '-')}: an option of --criterion simulation "
+                        f"(the default criterion is the force fit alone)")
     out = Path(args.out) if args.out else Path("results") / "identify" / Path(args.data).stem
     # before the work: a result that cannot be written is not computed
     check_output_folder(out, what=WHAT, inputs=(args.data, args.validate))
     protocol = protocol_from_options(args, source=str(args.data))
+    model = None
+    if args.model:
+        from experiments.diagnosis.model import load_model
+        model = load_model(args.model).plant
+    hold = tuple(k.strip() for k in (args.hold or "").split(",") if k.strip())
     validation = load(args.validate, args) if args.validate else None
     result = identify(load(args.data, args), protocol, source=str(args.data),
                       validation=validation, validation_source=args.validate)
     warn(args.data, list(result.warnings))
     print(result.summary())
+    if simulation:
+        fit = simulation_fit(result, model=model, model_source=args.model, hold=hold,
+                             starts=2 if args.starts is None else args.starts,
+                             seed=args.seed or 0,
+                             init_samples=20 if args.init_samples is None else
+                             args.init_samples)
+        print(f"simulation error (open loop from the input, initial state from a parabola "
+              f"through the first {fit.init_samples} positions):")
+        print(fit.summary())
+        write(result, out)
+        print(f"wrote {write_simulation(fit, result, out)} (a model for clm-sim simulate and "
+              f"clm-sim diagnose --model), {out / 'lip.json'} (the force fit) and "
+              f"{out / 'simulation_fit.json'} (every start's stop)")
+        return 0
     print(f"wrote {write(result, out)} (a model for clm-sim diagnose --model and "
           f"clm-sim simulate)")
     return 0

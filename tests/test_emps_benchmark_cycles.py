@@ -1,21 +1,18 @@
-"""Rule C of the EMPS benchmark (leave one cycle out, one-standard-error rule) and the training
-record's plateau friction, on records of the independent reference simulator
+"""The EMPS benchmark's folds (one cycle left out), its choice among candidates, and the
+training record's plateau friction, on records of the independent reference simulator
 (tests/reference_sim.py)."""
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 import pytest
 
 import reference_sim as ref
-from clm_sim.effects import Cogging, ForceOffset, FrictionAsymmetry, Presliding, Stribeck
+from clm_sim.effects import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 from clm_sim.record import Run
-from experiments.studies.emps_cycles import (CycleScores, cycle_edges, fitted_parameters,
-                                             left_out, one_se_choice)
+from experiments.studies.emps_cycles import cycle_edges, left_out
 
 TS = 1e-3
 MOVES = [(0.05, 0.05), (0.1, 0.1), (0.05, 0.08), (0.0, 0.04)]  # one cycle: two speeds up, two down
@@ -67,41 +64,59 @@ def test_leaving_a_cycle_out_keeps_it_out_of_the_estimation_part(record):
     assert abs(rest.r[edges[1]] - rest.r[edges[1] - 1]) < 1e-5
 
 
-def _scores(means, ses, params):
-    """CycleScores of four cycles with the given means and standard errors: the values m ± d
-    twice each have a standard deviation d·√(4/3), so a standard error d/√3."""
-    out = {}
-    for name, m, s, p in zip("abcd", means, ses, params):
-        d = s * np.sqrt(3.0)
-        out[name] = CycleScores((m - d, m - d, m + d, m + d), p)
-    return out
+def _fit(statuses, rmses):
+    from experiments import output_error as oe
+
+    stops = tuple(oe.Stop(f"s{i}", {"mass": 1.0}, {"mass": 1.0}, 1.0, r, st, "", 10, 0.0, 0.0)
+                  for i, (st, r) in enumerate(zip(statuses, rmses)))
+    return oe.SimulationFit(Plant(effects=()), ("mass",), {}, stops)
 
 
-def test_the_one_se_rule_names_the_simplest_within_one_standard_error():
-    scores = _scores([4.0, 4.8, 6.0, 4.9], [1.0, 0.5, 0.2, 0.1], [13, 5, 4, 5])
-    assert scores["a"].mean == pytest.approx(4.0) and scores["a"].se == pytest.approx(1.0)
-    # b (5 parameters, 4.8) and d (5, 4.9) are within 4.0 + 1.0; c (4 parameters) is not.
-    assert one_se_choice(scores) == "b"
+def _row(name, cycles, fit=None, candidate=True):
+    from experiments.studies.emps_benchmark import Row
+
+    plant = Plant(mass=18.8, viscous=172.0, coulomb=7.21, effects=(ForceOffset(1.0),))
+    return Row(name, "record", plant, 1e-3, 2e-3, candidate, fit, cycles, (2e-3,))
 
 
-def test_the_one_se_rule_keeps_the_best_where_it_is_clearly_better():
-    scores = _scores([4.0, 4.8, 6.0], [0.3, 0.5, 0.2], [13, 5, 4])
-    assert one_se_choice(scores) == "a"
+def test_the_rule_picks_the_lowest_mean_among_measured_fits():
+    """The lowest mean over the left-out cycles wins, but only among candidates whose fit is a
+    measurement: 'lowest' ends at a step-size stop (status 3) that no second start reached,
+    so 'next' is chosen; the reference row (not a candidate) is never chosen."""
+    from experiments.studies.emps_benchmark import choose
+
+    measured = _fit([2, 1, 3], [1.0, 1.005, 1.3])
+    assert measured.measured and measured.agree
+    lone = _fit([3, 2], [0.9, 1.2])
+    assert not lone.measured
+    rows = [_row("reference", (1e-3, 1e-3), candidate=False),
+            _row("lowest", (2e-3, 2e-3), lone), _row("next", (3e-3, 2e-3), measured),
+            _row("worse", (4e-3, 4e-3), measured)]
+    picked = [r.name for r in choose(rows) if r.chosen]
+    assert picked == ["next"]
+    # Without any measured candidate the rule chooses none.
+    assert not any(r.chosen for r in choose([rows[0], rows[1]]))
 
 
-def test_the_parameters_counted_are_those_taken_from_data():
-    lip = Plant(mass=95.0, viscous=200.0, coulomb=20.0, stiffness=3.0,
-                effects=(ForceOffset(force_n=-3.0),))
-    assert fitted_parameters(lip) == 5
-    assert fitted_parameters(dataclasses.replace(lip, stiffness=0.0)) == 4
-    extended = dataclasses.replace(lip, effects=(
-        ForceOffset(force_n=-3.0), ForceOffset(force_n=2.6),
-        Stribeck(peak=-6.4, velocity=0.013, exponent=2.0),
-        Cogging(amplitude=1.0, period=0.0025, phase=-0.2),
-        FrictionAsymmetry(viscous_pos=-38.0, viscous_neg=38.0),
-        Presliding(sliding=1.8, stiffness=4050.0)))
-    # M, Fv, Fc, k, one offset, Stribeck 2, cogging 3, asymmetry 1, pre-sliding 2.
-    assert fitted_parameters(extended) == 13
+def test_the_report_names_the_choice_and_the_band(tmp_path):
+    """The table marks the chosen row, the verdict compares it with the published model (the
+    first row) and gives the band over every end point; benchmark.json's row says chosen."""
+    import json
+
+    from experiments.studies.emps_benchmark import BenchmarkSettings, choose, table, verdict
+
+    measured = _fit([2, 1], [1.0, 1.001])
+    rows = choose([_row("published", (3e-3, 3e-3), candidate=False),
+                   _row("a", (2e-3, 2e-3), measured), _row("b", (2.5e-3, 2e-3), measured)])
+    settings = BenchmarkSettings(training="a", test="b", cycles=2)
+    lines = table(rows, settings)
+    assert lines[3].startswith("| a |") and lines[3].endswith("| **yes** |")
+    assert lines[2].startswith("| published |") and "(reference)" in lines[2]
+    text = "\n".join(verdict({"rows": rows, "pick": rows[1]}, settings))
+    assert "**a**, 2.00 ± 0.00 mm over the cycles" in text and "(+0.0 %)" in text
+    assert "(whole training record, 2 end points): 2.00 to 2.00 mm" in text
+    saved = json.loads(json.dumps(rows[1].to_json()))
+    assert saved["chosen"] is True and saved["model_file"] == "models/a.json"
 
 
 def test_a_cycles_setting_of_one_is_one_line(tmp_path):
@@ -111,42 +126,6 @@ def test_a_cycles_setting_of_one_is_one_line(tmp_path):
     path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, cycles: 1}\n")
     with pytest.raises(UserError, match="benchmark.cycles"):
         load_benchmark(path)
-
-
-def test_the_page_prints_rule_c_and_its_choice(record):
-    """Rule C's choice is the simple row within one standard error of the richer one (which has
-    the lowest mean), printed with its table beside rules A and B."""
-    from experiments.diagnosis.model import SimulationModel
-    from experiments.simulation import simulate_record
-    from experiments.studies.emps_benchmark import BenchmarkSettings, Row, to_markdown
-
-    truth = Plant(mass=18.8, viscous=172.0, coulomb=7.21, effects=(), encoder_resolution=1e-7)
-    held = record.slice(2 * len(record) // 3)
-
-    def row(name, mass, cycles, plant=truth):
-        sim = lambda m, run: simulate_record(  # noqa: E731
-            SimulationModel(dataclasses.replace(truth, mass=18.8 * m), None, name, TS), run)
-        return Row(name, "record", plant, 0.0, sim(mass, record), sim(mass, record), 0.0, 0.0,
-                   held_out=sim(mass, held), held_out_back=sim(mass, held), cycles=cycles)
-
-    rich = dataclasses.replace(truth, stiffness=2.0, effects=(
-        ForceOffset(force_n=1.0), Cogging(amplitude=1.0, period=0.0025, phase=0.0)))
-    rows = [row("published", 1.3, CycleScores((9e-3, 9e-3, 9e-3), 4)),
-            row("rich", 1.02, CycleScores((3e-3, 5e-3, 7e-3), fitted_parameters(rich)), rich),
-            row("simple", 1.05, CycleScores((5e-3, 5.5e-3, 6e-3), fitted_parameters(truth),
-                                            ("M 18.1", "M 18.2", "M 18.3")))]
-    page = to_markdown("b", rows, BenchmarkSettings(training="a", test="b", cycles=3), "cmd")
-    assert "(lowest mean: rich, 5.00 ± 1.15 mm)" in page
-    assert "Left one cycle out (rule C" in page and "the choice is **simple**" in page
-    assert "| simple | 3 | 5.00 | 5.50 | 6.00 | 5.50 ± 0.29 | yes |" in page
-    assert "| published | 4 | 9.00 | 9.00 | 9.00 | 9.00 ± 0.00 | (not a candidate) |" in page
-    assert "- simple, without cycle 3: M 18.3" in page
-    # benchmark.json carries each row's cycle scores and its parameter count.
-    import json
-
-    saved = json.loads(json.dumps(rows[2].to_json()))
-    assert saved["left_one_cycle_out_rmse_m"] == [5e-3, 5.5e-3, 6e-3]
-    assert saved["fitted_parameters"] == 3
 
 
 def test_the_plateau_friction_follows_a_drift_within_the_record():
@@ -205,19 +184,21 @@ def _benchmark_without_work(record, tmp_path, monkeypatch, stub: str, setting: s
                                          f"coulomb: 7.21}}\n")
     cfg = tmp_path / "b.yaml"
     cfg.write_text("name: b\nkind: emps_benchmark\nbenchmark:\n  training: rec.npz\n"
-                   f"  test: rec.npz\n  published_model: model.yaml\n  {setting}\n")
+                   f"  test: rec.npz\n  published_model: model.yaml\n"
+                   f"  candidates: [{{name: a}}]\n  {setting}\n")
     return cfg
 
 
 @pytest.mark.parametrize("setting, key", [("cycles: 100", "benchmark.cycles"),
-                                          ("init_samples: 30000", "benchmark.init_samples")])
+                                          ("cycles: 3\n  init_samples: 30000",
+                                           "benchmark.init_samples")])
 def test_a_benchmark_setting_the_record_cannot_meet_is_refused_before_the_work(
         record, tmp_path, capsys, monkeypatch, setting, key):
     """Checked against the records before any model is made (was: after minutes of fits), in
     one line naming the config file and the key that is wrong."""
     from experiments.cli import main
 
-    cfg = _benchmark_without_work(record, tmp_path, monkeypatch, "make_models", setting)
+    cfg = _benchmark_without_work(record, tmp_path, monkeypatch, "make_candidate", setting)
     code = main(["study", str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
@@ -239,24 +220,3 @@ def test_a_benchmark_out_that_is_no_benchmark_is_refused_before_the_work(
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and str(mine) in err[0], err
     assert (mine / "notes.txt").read_text() == "mine"
-
-
-def test_a_split_leaves_each_part_a_window_to_score():
-    """An estimation fraction that leaves a part its initialization but fewer than the
-    scored samples a simulation needs is refused naming the fraction (the review found it
-    refused only after the fits, naming an option the study does not have)."""
-    from clm_sim.errors import UserError
-    from clm_sim.open_loop import MIN_SCORED_SAMPLES
-    from clm_sim.record import Run
-    from experiments.studies.emps_benchmark import split
-
-    n, init = 1000, 20
-    t = np.arange(n) * TS
-    run = Run(t=t, r=t, y=t, u=t)
-    est, held = split(run, 0.5, init)
-    assert len(est) + len(held) == n
-    tight = (n - init - MIN_SCORED_SAMPLES + 1) / n  # the held-out part one sample short
-    with pytest.raises(UserError, match="benchmark.estimation_fraction"):
-        split(run, tight, init)
-    with pytest.raises(UserError, match="benchmark.init_samples"):
-        split(run, 0.5, n // 2)

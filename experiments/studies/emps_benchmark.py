@@ -1,63 +1,60 @@
-"""The EMPS benchmark on the field's protocol: the product's physical models beside the published.
+"""The EMPS benchmark on the field's protocol: physical models fitted by simulation error, one
+chosen by the training record's own cycles.
 
 Protocol (nonlinearbenchmark.org, the ``nonlinear_benchmarks`` EMPS loader): train on
 ``DATA_EMPS.mat``, test on ``DATA_EMPS_PULSES.mat``; input ``u = gtau*vir`` (N), output ``qm``
-(m); a model may use the test input and the first 20 test output samples (its initial state),
-nothing else of the test record; score: RMSE (mm) of the open-loop simulated position over the
-remaining samples. Every row is simulated by the same code (``clm_sim.open_loop``).
+(m); a model may use the test input and the first 20 test output samples (its initial state: a
+parabola through them), nothing else of the test record; score: RMSE (mm) of the open-loop
+simulated position over the remaining samples (``clm_sim.open_loop``).
 
-Rows, each made from the training record only (or from nothing: the published model):
+Reference rows (not candidates): the published model, the published procedure (IDIM-LS) rerun,
+the diagnosis-extended model fitted by force residual. Candidates (``benchmark.candidates``):
+structures fitted by simulation error from several starts (:mod:`experiments.output_error`).
 
-* ``published``: Janot et al.'s IDIM-LS model as published (``benchmark.published_model``);
-* ``published procedure``: the same procedure rerun by ``clm-sim identify`` with its options;
-* ``product LIP`` and ``product LIP + offset``: ``clm-sim identify`` with its defaults, and with
-  an offset column (one setting apart);
-* ``diagnosis-extended``: the published model diagnosed on the whole training record (its
-  reported gain on the record's final quarter is in-sample and not used), extended with what
-  was named;
-* ``published, output-error`` and ``extended, output-error``: those two models' parameters
-  refined on the training record's simulation error (``experiments.output_error``; the two
-  rows differ in the structure only).
-
-Selection without test data: the training record is cut in time (``estimation_fraction``);
-every candidate that is a measurement is made again, by the same procedure, from the first part
-alone and ranked by its open-loop RMSE on the rest (initial state from that part's first
-``init_samples``); the chosen row's test score is that of its fit on the whole training record.
-Rule B reads the split from both ends (also made on the last part, scored on the first) and
-ranks by the mean of the two held-out RMSEs. Rule C leaves one cycle of the training record's
-repeated program out at a time and names the simplest candidate within one standard error of
-the best mean (:mod:`experiments.studies.emps_cycles`).
-
-Beside them: each row's closed-loop twin on both records (the published controller on the
-reference, with ``known_input`` as a known external input), and why the diagnosis-extended model
-drifts on the test record (:mod:`experiments.studies.emps_drift`).
+Selection (``benchmark.selection``, written in the config before its first result): every
+candidate made again by its whole procedure on all cycles of the training record's program but
+one and simulated open loop on the left-out one; the candidate with the lowest mean left-out
+RMSE among those whose whole-record fit is a measurement. No fit on a fold starts from or keeps
+a number identified on the whole record; the leak of a rule that does is sized
+(:func:`leak`). Beside it: the band of test scores over every end point, each candidate's
+sensitivity of the test score to its parameters (:func:`sensitivity`), the initial-state
+method's effect, and why the force-residual extension drifts
+(:mod:`experiments.studies.emps_drift`).
 
 ``clm-sim study experiments/configs/emps_benchmark.yaml`` writes ``benchmark.json``,
-``report.md`` (the page ``docs/results/emps_benchmark.md``) and ``figures/``.
+``report.md``, ``models/`` (one model file per row) and ``figures/``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from clm_sim.errors import UserError
-from clm_sim.open_loop import MIN_SCORED_SAMPLES
+from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, simulate_input
 from clm_sim.outdir import atomic_folder, check_output_folder
-from clm_sim.plant import THETA_NAMES, Plant
+from clm_sim.plant import Plant
 from clm_sim.record import Run, load_record
 from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
+from experiments import output_error as oe
 from experiments.diagnosis.model import SimulationModel, load_model
-from experiments.simulation import Simulation, Twin, simulate_record, twin_record
-from experiments.studies.emps_cycles import (CycleScores, cycle_edges, fitted_parameters,
-                                             left_out, one_se_choice)
+from experiments.simulation import Simulation, simulate_record
+from experiments.studies.emps_cycles import cycle_edges, left_out
 from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
 from experiments.studies.emps_plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
+from experiments.workers import map_in_order
+
+STRUCTURES = ("equation_error", "diagnosis")
+ADDABLE = ("friction_asymmetry",)
+SELECTIONS = ("minimum_mean",)
 
 
 @dataclass(frozen=True)
@@ -70,10 +67,21 @@ class Baseline:
 
 
 @dataclass(frozen=True)
+class Candidate:
+    """A structure fitted by simulation error: from the equation-error fit on the data at hand
+    (``offset``: with its constant force) with effects ``add``-ed at 0, or the structure the
+    diagnosis names there; ``hold``: parameters kept at the equation-error fit's values."""
+
+    name: str
+    structure: str = "equation_error"
+    offset: bool = True
+    add: tuple[str, ...] = ()
+    hold: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class BenchmarkSettings:
-    """The ``benchmark:`` section: the records (paths relative to the current folder), how their
-    columns map (``columns``, ``scale`` as ``clm-sim --columns/--scale``), the initialization
-    window, the published model file and procedure, and the published baselines."""
+    """The ``benchmark:`` section (the config file says what each key means)."""
 
     training: str
     test: str
@@ -82,64 +90,13 @@ class BenchmarkSettings:
     init_samples: int = 20
     published_model: str = "experiments/configs/emps_model.yaml"
     published_procedure: IDIMProtocol = field(default_factory=IDIMProtocol)
+    candidates: tuple[Candidate, ...] = ()
+    perturbed_starts: int = 3
+    seed: int = 0
+    selection: str = "minimum_mean"
+    cycles: int = 4
     baselines: tuple[Baseline, ...] = ()
-    max_nfev: int = 400
-    estimation_fraction: float = 2 / 3  # of the training record; the rest is held out
-    # The test record's column of a known external input (in the input's unit, scaled like
-    # ``u``), given to the closed-loop twin; "" for none.
-    known_input: str = ""
-    # Rule C: the training record's repetitions of its program, each left out once (0: no rule C).
-    cycles: int = 0
-
-
-@dataclass(frozen=True)
-class Row:
-    """One model: how it was made, from which data, its plant, and its scores."""
-
-    name: str
-    made_from: str
-    plant: Plant
-    cpu_s: float
-    train: Simulation
-    test: Simulation
-    force_rms_test_n: float
-    force_mean_test_n: float
-    note: str = ""
-    measured: bool = True  # False: an optimizer's end point that a second start does not repeat
-    held_out: Simulation | None = None  # remade on the estimation part, on the held-out part
-    held_out_plant: Plant | None = None  # the plant remade on the estimation part
-    held_out_note: str = ""  # the note of the fit on the estimation part
-    held_out_back: Simulation | None = None  # remade on the last part, on the first third
-    twin_train: Twin | None = None  # the published controller around the row's plant
-    twin_test: Twin | None = None
-    cycles: CycleScores | None = None  # rule C: made without each cycle, simulated on it
-
-    def to_json(self) -> dict:
-        return {"name": self.name, "made_from": self.made_from, "note": self.note,
-                "measured": self.measured,
-                "cpu_s": self.cpu_s, "test_rmse_m": self.test.score.rmse,
-                "train_rmse_m": self.train.score.rmse,
-                "held_out_rmse_m": None if self.held_out is None else self.held_out.score.rmse,
-                "held_out_parameters": None if self.held_out_plant is None else {
-                    **self.held_out_plant.theta(), "offset_n": _offset(self.held_out_plant),
-                    "effects": [e.as_config() for e in self.held_out_plant.effects]},
-                "held_out_note": self.held_out_note,
-                "held_out_backward_rmse_m": None if self.held_out_back is None else
-                self.held_out_back.score.rmse,
-                "left_one_cycle_out_rmse_m": None if self.cycles is None else
-                list(self.cycles.rmse_m),
-                "fitted_parameters": fitted_parameters(self.plant),
-                **{f"twin_{k}": None if t is None else t.to_json() for k, t in
-                   (("train", self.twin_train), ("test", self.twin_test))},
-                "test_fit_percent":
-                self.test.score.fit_percent, "force_residual_rms_test_n": self.force_rms_test_n,
-                "force_residual_mean_test_n": self.force_mean_test_n,
-                "parameters": {**self.plant.theta(), "offset_n": _offset(self.plant),
-                               "effects": [e.as_config() for e in self.plant.effects]}}
-
-
-def _offset(plant: Plant) -> float:
-    return float(sum(e.force_n for e in plant.effects if e.type == "force_offset"))
+    max_nfev: int = oe.MAX_NFEV
 
 
 def load_benchmark(path) -> tuple[str, BenchmarkSettings]:
@@ -149,149 +106,281 @@ def load_benchmark(path) -> tuple[str, BenchmarkSettings]:
         raise UserError(f"{path}: a benchmark config has 'name' and 'benchmark:' only"
                         + (f" (unknown: {', '.join(sorted(unknown))})" if unknown else ""))
     try:
-        settings = build(BenchmarkSettings, data["benchmark"], "benchmark")
+        s = build(BenchmarkSettings, data["benchmark"], "benchmark")
     except UserError as exc:
         raise UserError(f"{path}: {exc}") from None
-    if not 0 < settings.estimation_fraction < 1:
-        raise UserError(f"{path}: benchmark.estimation_fraction: expected a number between 0 "
-                        f"and 1 (the first part of the training record), got "
-                        f"{settings.estimation_fraction}")
-    if settings.cycles == 1 or settings.cycles < 0:
-        raise UserError(f"{path}: benchmark.cycles: expected 0 (no rule C) or at least 2 "
-                        f"repetitions of the training record's program, got {settings.cycles}")
-    return str(data.get("name", Path(path).stem)), settings
+    if s.cycles < 2:
+        raise UserError(f"{path}: benchmark.cycles: expected at least 2 repetitions of the "
+                        f"training record's program, got {s.cycles}")
+    if s.selection not in SELECTIONS:
+        raise UserError(f"{path}: benchmark.selection: expected one of {', '.join(SELECTIONS)}, "
+                        f"got {s.selection!r}")
+    if not s.candidates:
+        raise UserError(f"{path}: benchmark.candidates: expected at least one candidate")
+    if s.perturbed_starts < 0:
+        raise UserError(f"{path}: benchmark.perturbed_starts: expected >= 0, got "
+                        f"{s.perturbed_starts}")
+    for i, c in enumerate(s.candidates):
+        where = f"{path}: benchmark.candidates[{i}]"
+        if c.structure not in STRUCTURES:
+            raise UserError(f"{where}.structure: expected one of {', '.join(STRUCTURES)}, got "
+                            f"{c.structure!r}")
+        bad = [a for a in c.add if a not in ADDABLE]
+        if bad:
+            raise UserError(f"{where}.add: expected among {', '.join(ADDABLE)}, got {bad[0]!r}")
+        bad = [h for h in c.hold if h not in oe.UNITS]
+        if bad:
+            raise UserError(f"{where}.hold: expected among {', '.join(oe.UNITS)}, got "
+                            f"{bad[0]!r}")
+    names = [c.name for c in s.candidates]
+    if len(set(names)) != len(names):
+        raise UserError(f"{path}: benchmark.candidates: two candidates named alike")
+    return str(data.get("name", Path(path).stem)), s
 
 
-def _force_residual(plant: Plant, run: Run) -> tuple[float, float]:
-    """RMS and mean (N) of the diagnosis's force residual (measured force minus the model's
-    inverse dynamics, low-passed) of ``plant`` on ``run``: the mean is the constant force the
-    model misses, which an open-loop simulation integrates twice."""
-    from experiments.diagnosis.residual import DiagnosisSettings, Residual
+def split(run: Run, fraction: float, init_samples: int) -> tuple[Run, Run]:
+    """``run`` cut in time: the first ``fraction`` of its samples and the rest (simulated from
+    its own first ``init_samples`` outputs like a test record)."""
+    cut = int(round(fraction * len(run)))
+    need = init_samples + MIN_SCORED_SAMPLES
+    if not (need <= cut <= len(run) - need):
+        raise UserError(f"split: {fraction} leaves {cut} and {len(run) - cut} samples; each "
+                        f"part needs the {init_samples} initialization samples and "
+                        f"{MIN_SCORED_SAMPLES} more to score")
+    return run.slice(0, cut), run.slice(cut)
 
-    res = Residual(run, plant, DiagnosisSettings())
-    return float(res.rms()), float(res.z.mean())
+
+# ----------------------------------------------------------------------------- making models
+
+def equation_error(record: Run, protocol: IDIMProtocol, like: Plant) -> Plant:
+    """The IDIM-LS fit of ``protocol`` on ``record`` as a plant (``like``'s encoder and
+    sub-steps)."""
+    from controllers.idim import fit as idim_fit
+
+    f = idim_fit(y=record.y, u=record.u, ts=record.ts, protocol=protocol)
+    return dataclasses.replace(like, **f.model.theta_, effects=f.model.effects_)
+
+
+def diagnosed(record: Run, base: Plant) -> tuple[Plant, str]:
+    """The diagnosis of ``base`` on ``record`` (causes selected and fitted on the whole of it):
+    the extended plant and the causes it names."""
+    from experiments.diagnosis import DiagnosisSettings, diagnose
+
+    cut = int(round(0.75 * len(record)))  # its own gain report only; not used here
+    d = diagnose(record, SimulationModel(base, None, "model", record.ts),
+                 validation=record.slice(cut), settings=DiagnosisSettings())
+    return d.extended, "; ".join(f.effect for f in d.findings)
 
 
 @dataclass(frozen=True)
 class Made:
-    """A candidate model made from one record: its plant, the CPU seconds it took, the note of
-    its fit, and whether it is a measurement (``False``: an optimizer's stop that a second start
-    does not repeat)."""
+    """A candidate made on one record: its structure's equation-error start, the names the
+    diagnosis gave (if any) and the simulation-error fit."""
+
+    name: str
+    fit: oe.SimulationFit
+    start: Plant
+    note: str = ""
+
+
+def make_candidate(c: Candidate, record: Run, settings: BenchmarkSettings, like: Plant,
+                   rng: np.random.Generator, published: Plant | None = None) -> Made:
+    """``c`` made on ``record`` alone: the equation-error fit there, the structure, the starts
+    (that fit, ``settings.perturbed_starts`` draws of ``rng`` around it, and ``published``'s
+    values where given) and the simulation-error fit."""
+    from clm_sim.effects import FrictionAsymmetry
+
+    protocol = dataclasses.replace(settings.published_procedure, offset=c.offset)
+    eq = equation_error(record, protocol, like)
+    note = ""
+    if c.structure == "diagnosis":
+        structure, note = diagnosed(record, eq)
+    else:
+        added = tuple(FrictionAsymmetry() for a in c.add if a == "friction_asymmetry")
+        structure = dataclasses.replace(eq, effects=(*eq.effects, *added))
+    structure = oe.merge_offsets(structure)
+    names = oe.structure_parameters(structure)
+    hold = {k: oe.value(structure, k) for k in c.hold}
+    free = [k for k in names if k not in hold]
+    first = {k: oe.value(structure, k) for k in free}
+    starts = [("equation-error fit", first)]
+    starts += [(f"perturbed {i + 1}", oe.perturbed(first, rng))
+               for i in range(settings.perturbed_starts)]
+    if published is not None:
+        theirs = oe.structure_parameters(oe.merge_offsets(published))
+        starts.append(("published model", {k: oe.value(oe.merge_offsets(published), k)
+                                           for k in free if k in theirs}))
+    fit = oe.fit(structure, record, starts, hold=hold, init_samples=settings.init_samples,
+                 max_nfev=settings.max_nfev)
+    return Made(c.name, fit, structure, note)
+
+
+# ----------------------------------------------------------------------------- results
+
+@dataclass(frozen=True)
+class Row:
+    """One model on the benchmark: how it was made, its plant, its scores (m), and for a
+    candidate its fit, its left-out-cycle RMSEs and the test RMSE of every start's end."""
 
     name: str
     made_from: str
     plant: Plant
-    cpu_s: float
+    train_rmse_m: float
+    test_rmse_m: float
+    candidate: bool = False
+    fit: oe.SimulationFit | None = None
+    cycles_m: tuple[float, ...] = ()
+    end_tests_m: tuple[float, ...] = ()
     note: str = ""
-    measured: bool = True
-    second: Plant | None = None  # an output-error fit's second start's end
+    chosen: bool = False
+
+    @property
+    def mean_m(self) -> float:
+        return float(np.mean(self.cycles_m)) if self.cycles_m else float("nan")
+
+    @property
+    def se_m(self) -> float:
+        c = np.asarray(self.cycles_m)
+        return float(c.std(ddof=1) / np.sqrt(len(c))) if len(c) > 1 else float("nan")
+
+    @property
+    def measured(self) -> bool:
+        return self.fit is None or self.fit.measured
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "made_from": self.made_from, "candidate": self.candidate,
+                "chosen": self.chosen, "measured": self.measured,
+                "train_rmse_m": self.train_rmse_m, "test_rmse_m": self.test_rmse_m,
+                "left_one_cycle_out_rmse_m": list(self.cycles_m),
+                "left_one_cycle_out_mean_m": self.mean_m if self.cycles_m else None,
+                "end_points_test_rmse_m": list(self.end_tests_m), "note": self.note,
+                "fit": None if self.fit is None else self.fit.to_json(),
+                "model_file": f"models/{slug(self.name)}.json",
+                "parameters": {k: oe.value(self.plant, k) for k in
+                               oe.structure_parameters(self.plant)}}
 
 
-def split(run: Run, fraction: float, init_samples: int) -> tuple[Run, Run]:
-    """``run`` cut in time: the first ``fraction`` of its samples (estimation) and the rest
-    (held out, simulated from its own first ``init_samples`` outputs like a test record)."""
-    cut = int(round(fraction * len(run)))
-    need = init_samples + MIN_SCORED_SAMPLES  # each part: its initialization, then a scored window
-    if 2 * need > len(run):  # no fraction can give both parts their window
-        raise UserError(f"benchmark.init_samples: {init_samples} initialization samples leave "
-                        f"no split of the {len(run)}-sample training record in which each "
-                        f"part has {MIN_SCORED_SAMPLES} more to score; at most "
-                        f"{len(run) // 2 - MIN_SCORED_SAMPLES}")
-    if not (need <= cut <= len(run) - need):
-        raise UserError(f"benchmark.estimation_fraction: {fraction} leaves {cut} and "
-                        f"{len(run) - cut} samples; each part needs the {init_samples} "
-                        f"initialization samples and {MIN_SCORED_SAMPLES} more to score")
-    return run.slice(0, cut), run.slice(cut)
+def slug(name: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
 
 
-def twin_record_of(settings: BenchmarkSettings, path) -> Run:
-    """The record at ``path`` as the closed-loop twin reads it: ``settings.known_input`` (a
-    column in the input's unit, e.g. the pulses in V) as ``u_ff``, scaled like ``u``; the twin
-    takes its reference and this input, never the measured output."""
-    if not settings.known_input:
-        return load_record(path, columns=settings.columns, scale=settings.scale)
-    return load_record(path, columns={**settings.columns, "u_ff": settings.known_input},
-                       scale={**settings.scale, "u_ff": settings.scale.get("u", 1.0)})
+@dataclass(frozen=True)
+class Sensitivity:
+    """For one model: per parameter its value, ``d(test RMSE)/d(theta)`` (m per unit), the
+    range it takes over the training blocks and the test RMSE (m) at each end of that range
+    (the others kept)."""
+
+    model: str
+    blocks: str
+    rows: tuple[tuple[str, float, float, float, float, float, float], ...]
+
+    def to_json(self) -> dict:
+        return {"model": self.model, "blocks": self.blocks, "parameters": [
+            dict(zip(("name", "value", "d_test_rmse_m_per_unit", "block_low", "block_high",
+                      "test_rmse_at_low_m", "test_rmse_at_high_m"), r)) for r in self.rows]}
 
 
-def make_models(record: Run, published, settings: BenchmarkSettings, *, second_start=True,
-                skip=(), progress=print) -> list[Made]:
-    """Every candidate of the table made from ``record`` alone (the published model: from
-    nothing), in the table's order. ``second_start``: repeat each output-error fit from the
-    LIP + offset's parameters to tell a measurement from an optimizer's stop; names in ``skip``
-    are not made (``None`` in their place)."""
-    from controllers.idim import fit as idim_fit
-    from experiments.diagnosis import DiagnosisSettings, diagnose
-    from experiments.output_error import refine
-
-    n0 = settings.init_samples
-    made: list[Made | None] = []
-
-    def add(m: Made) -> Made:
-        made.append(m)
-        return m
-
-    add(Made("published model", "nothing (the published parameters)", published.plant, 0.0))
-
-    def lip_row(name, protocol, made_from):
-        cpu = time.process_time()
-        f = idim_fit(y=record.y, u=record.u, ts=record.ts, protocol=protocol)
-        plant = dataclasses.replace(published.plant, **f.model.theta_, effects=f.model.effects_)
-        return add(Made(name, made_from, plant, time.process_time() - cpu))
-
-    lip_row("published procedure (identify options)",
-            settings.published_procedure, "training record (IDIM-LS)")
-    lip_row("product LIP (identify)", IDIMProtocol(), "training record (LIP)")
-    lip = lip_row("product LIP + offset (identify --offset)", IDIMProtocol(offset=True),
-                  "training record (LIP)")
-
-    def refined(name, plant):
-        """Output-error fit from ``plant``, and (``second_start``) again from the LIP + offset's
-        parameters in the same structure: the note says whether the two ends agree."""
-        if name in skip:
-            return made.append(None)
-        cpu = time.process_time()
-        fit = refine(plant, record, init_samples=n0, max_nfev=settings.max_nfev)
-        cpu = time.process_time() - cpu
-        if not second_start:
-            return add(Made(name, "training record (simulation error)", fit.plant, cpu,
-                            _stop(fit)))
-        other = refine(_restart(plant, lip.plant), record, init_samples=n0,
-                       max_nfev=settings.max_nfev)
-        spread = max(abs(other.values[k] - v) / max(abs(v), 1e-9) for k, v in fit.values.items())
-        # A measurement only where both starts converge to one point: training RMSE within 1 %
-        # and every parameter within AGREE (decided on the training record alone).
-        agree = (fit.converged and other.converged and spread <= AGREE
-                 and abs(other.rmse_m / fit.rmse_m - 1) <= 0.01)
-        note = (f"{_stop(fit)}. Second start (the LIP + offset's parameters): {_stop(other)}; "
-                f"the two ends differ by up to {100 * spread:.2g} % in a parameter: "
-                + ("one end point, a measurement" if agree else
-                   "two end points, so the row is the first start's stop, not a measurement"))
-        m = add(Made(name, "training record (simulation error)", fit.plant, cpu, note, agree,
-                     other.plant))
-        progress(f"{name}: second start ends at {other.rmse_m * 1e3:.3f} mm training RMSE")
-        return m
-
-    refined("published, output-error", published.plant)
-
-    cpu = time.process_time()
-    # Causes selected and fitted on the whole record given; the gain the diagnosis reports is
-    # then measured on its own final quarter (not out of sample; the table does not use it).
-    cut = int(round(0.75 * len(record)))
-    diag = diagnose(record, published, validation=record.slice(cut),
-                    settings=DiagnosisSettings())
-    add(Made("diagnosis-extended", "training record (force residual)", diag.extended,
-             time.process_time() - cpu, "; ".join(f.effect for f in diag.findings)))
-    refined("diagnosis-extended, output-error", diag.extended)
-    return made
+def rmse_on(test: Run, n0: int):
+    def f(plant: Plant) -> float:
+        try:
+            return oe.training_rmse(plant, test, n0)
+        except UserError:
+            return float("nan")
+    return f
 
 
-def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row], Drift]:
-    """Every row made from the whole training record and simulated on both records (open loop,
-    and as the closed-loop twin under the published model's controller), and made again from the
-    training record's estimation part and simulated on its held-out part (paths relative to the
-    current folder); rows that are not measurements are not remade. With them, why the
-    diagnosis-extended model drifts (:func:`experiments.studies.emps_drift.explain_drift`)."""
+def sensitivity(name: str, plant: Plant, blocks: dict[str, tuple[float, ...]], rmse, *,
+                what: str) -> Sensitivity:
+    """:class:`Sensitivity` of ``plant`` by central differences (a step of 1e-3 of each
+    parameter's size) and at the ends of its ``blocks`` values."""
+    out = []
+    for k in oe.structure_parameters(plant):
+        v = oe.value(plant, k)
+        h = 1e-3 * max(abs(v), oe._FLOOR[k])
+        grad = (rmse(oe.with_values(plant, {k: v + h})) -
+                rmse(oe.with_values(plant, {k: v - h}))) / (2 * h)
+        b = blocks.get(k)
+        if b:
+            lo, hi = min(b), max(b)
+            at = [rmse(_safe(plant, k, x)) for x in (lo, hi)]
+        else:
+            lo = hi = float("nan")
+            at = [float("nan")] * 2
+        out.append((k, v, grad, lo, hi, *at))
+    return Sensitivity(name, what, tuple(out))
+
+
+def _safe(plant: Plant, k: str, x: float) -> Plant:
+    try:
+        return oe.with_values(plant, {k: x})
+    except UserError:
+        return plant
+
+
+_DRIFT_NAMES = {"force_offset: offset": "offset", "stribeck: stribeck": "stribeck",
+                "presliding: presliding": "presliding",
+                "friction_asymmetry: asym_viscous": "asym_viscous",
+                "parameter_mismatch: mass": "mass", "parameter_mismatch: viscous": "viscous",
+                "parameter_mismatch: coulomb": "coulomb",
+                "parameter_mismatch: stiffness": "stiffness"}
+
+
+def drift_blocks(plant: Plant, drift: Drift) -> dict[str, tuple[float, ...]]:
+    """The force-residual extension's parameters per contiguous training block: its value
+    moved by each block's coefficient minus the whole record's (the drift analysis's joint
+    fit); the cogging amplitude from each block's sine and cosine coefficients."""
+    by = {c.name: c for c in drift.coefficients}
+    out = {}
+    for key, k in _DRIFT_NAMES.items():
+        if key in by and k in oe.structure_parameters(oe.merge_offsets(plant)):
+            c = by[key]
+            out[k] = tuple(oe.value(oe.merge_offsets(plant), k) + b - c.value for b in c.blocks)
+    if "cogging: cogging_sin" in by and "cogging: cogging_cos" in by:
+        s, co = by["cogging: cogging_sin"], by["cogging: cogging_cos"]
+        out["cogging"] = tuple(float(np.hypot(a, b)) for a, b in zip(s.blocks, co.blocks))
+    return out
+
+
+def initial_state_effect(plant: Plant, test: Run, n0: int) -> dict[str, float]:
+    """The test RMSE (m) of ``plant`` with its initial velocity from the parabola through the
+    first ``n0`` positions (the protocol here), from a backward difference over the last 5 of
+    them, and over the last 2."""
+    y, ts = test.y, test.ts
+    out = {"parabola through the first samples": oe.training_rmse(plant, test, n0)}
+    base = initial_state(y, ts, plant, n0)
+    for k in (5, 2):
+        v = (y[n0 - 1] - y[n0 - k]) / ((k - 1) * ts)
+        state = InitialState(n0 - 1, float(y[n0 - 1]), float(v), base.bristles)
+        x, _ = simulate_input(plant, test.u, ts, state)
+        out[f"backward difference over the last {k} samples"] = float(
+            np.sqrt(np.mean((x - y)[n0:] ** 2)))
+    return out
+
+
+def choose(rows: list[Row], selection: str = "minimum_mean") -> list[Row]:
+    """``rows`` with ``chosen`` set on the one the rule ``selection`` picks: the candidate with
+    the lowest mean left-out-cycle RMSE among those whose whole-record fit is a measurement
+    (none where no candidate's fit is one)."""
+    if selection != "minimum_mean":
+        raise UserError(f"benchmark.selection: expected minimum_mean, got {selection!r}")
+    eligible = [r for r in rows if r.candidate and r.measured and r.cycles_m]
+    pick = min(eligible, key=lambda r: r.mean_m) if eligible else None
+    return [dataclasses.replace(r, chosen=r is pick) for r in rows]
+
+
+# ----------------------------------------------------------------------------- the study
+
+def _make_task(payload) -> Made:
+    """:func:`make_candidate` on a worker: ``(candidate, record, settings, like, seed
+    sequence, published or None)``."""
+    c, record, settings, like, seed, published = payload
+    return make_candidate(c, record, settings, like, np.random.default_rng(seed), published)
+
+
+def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1) -> dict:
+    """Every row made from the training record and scored on both records; every candidate
+    made again without each cycle and scored on it; the choice by the config's rule; the
+    leak, the sensitivities, the initial-state effect and the drift analysis."""
 
     def path(key):
         p = Path(getattr(settings, key))
@@ -302,284 +391,297 @@ def run_benchmark(settings: BenchmarkSettings, progress=print) -> tuple[list[Row
 
     train, test = (load_record(path(k), columns=settings.columns, scale=settings.scale)
                    for k in ("training", "test"))
-    published = load_model(path("published_model"))
-    twin_test = twin_record_of(settings, path("test"))
+    published = load_model(path("published_model")).plant
     n0 = settings.init_samples
-    estimation, held_out = split(train, settings.estimation_fraction, n0)
-    # Backward: the same split read from the other end (estimation on the last part).
-    held_back, estimation_back = split(train, 1 - settings.estimation_fraction, n0)
-    # Rule C's cycles are found in the record before any model is made (minutes of fits).
-    edges = cycle_edges(train.r, settings.cycles) if settings.cycles else ()
+    edges = cycle_edges(train.r, settings.cycles)  # before minutes of fits
+    shortest = int(min(np.diff(edges)))
+    if n0 + MIN_SCORED_SAMPLES > min(shortest, len(test)):
+        raise UserError(f"benchmark.init_samples: {n0} initialization samples leave the "
+                        f"shortest cycle ({shortest} samples) or the test record fewer than "
+                        f"{MIN_SCORED_SAMPLES} to score")
+    on_test = rmse_on(test, n0)
+    on_train = rmse_on(train, n0)
+    # One child stream per candidate and data set (whole record, then each fold), fixed order.
+    seeds = np.random.SeedSequence(settings.seed).spawn(len(settings.candidates))
+    streams = [s.spawn(settings.cycles + 1) for s in seeds]
 
-    def sim(plant, run, source=None):
-        return simulate_record(SimulationModel(plant, None, "model", train.ts), run,
-                               init_samples=n0, source=source)
-
-    def twin(plant, run, source):
-        if published.controller is None:
-            return None
-        return twin_record(SimulationModel(plant, published.controller, "model", train.ts),
-                           run, source=source)
-
-    progress(f"whole training record ({len(train)} samples):")
-    full = make_models(train, published, settings, progress=progress)
-    progress(f"estimation part (the first {len(estimation)} samples), for the held-out part "
-             f"(the last {len(held_out)}):")
-    part = make_models(estimation, published, settings, second_start=False,
-                       skip={m.name for m in full if not m.measured}, progress=progress)
-    progress(f"estimation part read backward (the last {len(estimation_back)} samples), for "
-             f"the first {len(held_back)}:")
-    back = make_models(estimation_back, published, settings, second_start=False,
-                       skip={m.name for m in full if not m.measured}, progress=progress)
-    folds = []  # rule C: (the left-out cycle, the candidates made without it)
+    progress(f"whole training record ({len(train)} samples): reference rows")
+    cpu = time.process_time()
+    procedure = equation_error(train, settings.published_procedure, published)
+    extended, ext_note = diagnosed(train, published)
+    rows = [Row("published model", "nothing (the published parameters)", published,
+                on_train(published), on_test(published)),
+            Row("published procedure (IDIM-LS)", "training record (equation error)", procedure,
+                on_train(procedure), on_test(procedure)),
+            Row("diagnosis-extended (force residual)", "training record (force residual)",
+                extended, on_train(extended), on_test(extended), note=ext_note)]
+    # Every (data set, candidate) fit is a task of its own, in ``workers`` processes: each
+    # draws from its own stream, so the result does not depend on the number of workers.
+    sets = [train] + [left_out(train, edges, k)[0] for k in range(settings.cycles)]
+    tasks = [(j, i) for i in reversed(range(len(settings.candidates)))  # the longest first
+             for j in range(len(sets))]
+    payloads = [(settings.candidates[i], sets[j], settings, published, streams[i][j],
+                 published if j == 0 else None) for j, i in tasks]
+    progress(f"{len(tasks)} fits: every candidate on the whole record and without each of its "
+             f"{settings.cycles} cycles ({workers} worker{'s' if workers > 1 else ''})")
+    where = lambda j: "whole record" if j == 0 else f"without cycle {j}"  # noqa: E731
+    done = {}
+    for (j, i), m in zip(tasks, map_in_order(
+            _make_task, payloads, workers,
+            done=lambda n, k, m: progress(f"{n}/{len(tasks)} {m.name}, {where(tasks[k][0])}: "
+                                          f"{m.fit.verdict()}"))):
+        done[j, i] = m
+    made = [done[0, i] for i in range(len(settings.candidates))]
+    folds = []
     for k in range(settings.cycles):
         rest, cycle = left_out(train, edges, k)
-        progress(f"every cycle but cycle {k + 1} of {settings.cycles} ({len(rest)} samples), "
-                 f"for that cycle ({len(cycle)}):")
-        folds.append((cycle, make_models(rest, published, settings, second_start=False,
-                                         skip={m.name for m in full if not m.measured},
-                                         progress=progress)))
-    rows = []
-    for i, (m, e, b) in enumerate(zip(full, part, back)):
-        cyc = None if not folds or any(f[i] is None for _, f in folds) else CycleScores(
-            tuple(sim(f[i].plant, cycle, f"cycle {k + 1}").score.rmse
-                  for k, (cycle, f) in enumerate(folds)), fitted_parameters(m.plant),
-            tuple(_params(f[i].plant) + (f" ({f[i].note})" if f[i].note else "")
-                  for _, f in folds))
-        note = m.note if m.second is None else (
-            f"{m.note}; the second start's test RMSE "
-            f"{sim(m.second, test).score.rmse * 1e3:.3f} mm")
-        r = Row(m.name, m.made_from, m.plant, m.cpu_s, sim(m.plant, train, settings.training),
-                sim(m.plant, test, settings.test), *_force_residual(m.plant, test), note,
-                m.measured, None if e is None else sim(e.plant, held_out, "held-out part"),
-                None if e is None else e.plant, "" if e is None else e.note,
-                None if b is None else sim(b.plant, held_back, "first part"),
-                twin(m.plant, train, settings.training), twin(m.plant, twin_test, settings.test),
-                cyc)
-        progress(f"{m.name}: test RMSE {r.test.score.rmse * 1e3:.3f} mm, training "
-                 f"{r.train.score.rmse * 1e3:.3f} mm, held-out "
-                 + ("not refitted" if e is None else f"{r.held_out.score.rmse * 1e3:.3f} mm")
-                 + f" ({m.cpu_s:.1f} s CPU)")
-        rows.append(r)
-    progress("why the extended model drifts: its terms taken apart")
-    drift = explain_drift(train, test, published.plant, sim, estimation=estimation,
-                          held_out=held_out)
-    steady = cycle_friction(plateaus(train, edges or (0, len(train))))
-    return rows, dataclasses.replace(drift, steady=tuple(steady))
+        fold = {"procedure": equation_error(rest, settings.published_procedure, published)}
+        fold.update({c.name: done[k + 1, i] for i, c in enumerate(settings.candidates)})
+        folds.append((cycle, fold))
+    for c, m in zip(settings.candidates, made):
+        scores = tuple(rmse_on(cy, n0)(f[c.name].fit.plant) for cy, f in folds)
+        ends = tuple(on_test(oe.with_values(m.fit.plant, s.end)) for s in m.fit.stops)
+        rows.append(Row(c.name, "training record (simulation error)", m.fit.plant,
+                        m.fit.rmse_m, on_test(m.fit.plant), True, m.fit, scores, ends,
+                        m.note))
+        progress(f"{c.name}: left-out cycles "
+                 + ", ".join(f"{x * 1e3:.2f}" for x in scores) + f" mm; test "
+                 f"{rows[-1].test_rmse_m * 1e3:.2f} mm")
+    pub_cycles = tuple(rmse_on(cy, n0)(published) for cy, _ in folds)
+    proc_cycles = tuple(rmse_on(cy, n0)(f["procedure"]) for cy, f in folds)
+    rows[0] = dataclasses.replace(rows[0], cycles_m=pub_cycles)
+    rows[1] = dataclasses.replace(rows[1], cycles_m=proc_cycles)
 
+    rows = choose(rows, settings.selection)
+    pick = next((r for r in rows if r.chosen), None)
 
-def _restart(plant: Plant, start: Plant) -> Plant:
-    """``plant``'s structure (offsets merged) with ``start``'s theta and constant force."""
-    from experiments.output_error import merge_offsets
+    progress("the leak of parameters identified on the whole record")
+    estimation, held_out = split(train, 2 / 3, n0)
+    part_proc = equation_error(estimation, settings.published_procedure, published)
+    part_ext_old, _ = diagnosed(estimation, published)
+    part_ext_new, _ = diagnosed(estimation, part_proc)
+    on_held = rmse_on(held_out, n0)
+    leak = {"held_out_samples": len(held_out),
+            "published_model_on_held_out_m": on_held(published),
+            "procedure_remade_on_held_out_m": on_held(part_proc),
+            "published_model_cycles_mean_m": float(np.mean(pub_cycles)),
+            "procedure_remade_cycles_mean_m": float(np.mean(proc_cycles)),
+            "extension_from_published_on_held_out_m": on_held(part_ext_old),
+            "extension_from_part_on_held_out_m": on_held(part_ext_new),
+            "extension_from_published_theta": part_ext_old.theta(),
+            "extension_from_part_theta": part_ext_new.theta()}
 
-    p = merge_offsets(plant)
-    effects = tuple(dataclasses.replace(e, force_n=_offset(start)) if e.type == "force_offset"
-                    else e for e in p.effects)
-    return dataclasses.replace(p, **start.theta(), effects=effects)
-
-
-AGREE = 0.05  # largest relative parameter difference between two starts' ends of one optimum
-
-
-def _stop(fit) -> str:
-    return (f"{'converged' if fit.converged else 'stopped'} after {fit.nfev} evaluations "
-            f"({fit.message.rstrip('.')}); training RMSE {fit.rmse_start_m * 1e3:.3f} -> "
-            f"{fit.rmse_m * 1e3:.3f} mm")
-
-
-def _params(p: Plant) -> str:
-    extra = [e.type for e in p.effects if e.type != "force_offset"]
-    return (f"M {p.mass:.2f}, Fv {p.viscous:.1f}, Fc {p.coulomb:.2f}, k {p.stiffness:.3g}, "
-            f"OF {_offset(p):+.2f}" + (f"; {', '.join(extra)}" if extra else ""))
-
-
-def _span(y, u, t) -> str:
-    """The stroke, the peak speed (from sample differences) and the peak force of a measured
-    position (m) and input (N)."""
-    import numpy as np
-
-    v = np.abs(np.diff(y)) / (t[1] - t[0])
-    return (f"positions {y.min():.3f} to {y.max():.3f} m, peak speed {v.max():.3f} m/s, peak "
-            f"force {np.abs(u).max():.0f} N")
-
-
-def _rule_c(pub: Row, candidates: list[Row], settings: BenchmarkSettings) -> list[str]:
-    """Rule C's verdict and its table: each candidate made without one cycle of the training
-    record, simulated on that cycle; the simplest within one standard error of the best mean."""
-    scored = {r.name: r.cycles for r in candidates if r.cycles is not None}
-    if not scored:
-        return []
-    by_name = {r.name: r for r in candidates}
-    pick = by_name[one_se_choice(scored)]
-    best = min(scored, key=lambda k: scored[k].mean)
-    bar = scored[best].mean + scored[best].se
-    mm, p_mm = pick.test.score.rmse * 1e3, pub.test.score.rmse * 1e3
-    k = len(pick.cycles.rmse_m)
-    head = "| model | fitted parameters | " + " | ".join(
-        f"cycle {j + 1} (mm)" for j in range(k)) + " | mean ± se (mm) | within one se |"
-    table = [head, "|---" * (k + 4) + "|"]
-    for r in [pub, *candidates]:
-        c = r.cycles
-        if c is None:
-            continue
-        table.append(f"| {r.name} | {c.parameters} | "
-                     + " | ".join(f"{x * 1e3:.2f}" for x in c.rmse_m)
-                     + f" | {c.mean * 1e3:.2f} ± {c.se * 1e3:.2f} | "
-                     + ("(not a candidate)" if r is pub else
-                        "yes" if c.mean <= bar else "no") + " |")
-    return [
-        f"Left one cycle out (rule C, written down before its first result: the training "
-        f"record's program repeats {k} times, cut at the reference's reversals at the low end; "
-        f"every candidate made on the other cycles joined and simulated on the left-out one; "
-        f"the candidate with the fewest fitted parameters whose mean RMSE is within one "
-        f"standard error of the lowest mean), the choice is **{pick.name}**: "
-        f"{pick.cycles.mean * 1e3:.2f} ± {pick.cycles.se * 1e3:.2f} mm over the cycles "
-        f"(lowest mean: {best}, {scored[best].mean * 1e3:.2f} ± {scored[best].se * 1e3:.2f} "
-        f"mm), {pick.cycles.parameters} fitted parameters; {mm:.2f} mm on test, "
-        f"{'better' if mm < p_mm else 'worse'} than the published model by "
-        f"{abs(100 * (mm / p_mm - 1)):.1f} % ({mm - p_mm:+.3f} mm).", "", *table, "",
-        *([] if not any(r.cycles.remade for r in candidates if r.cycles) else [
-            "Made without each cycle (rule C's folds):", "",
-            *(f"- {r.name}, without cycle {j + 1}: {d}" for r in candidates if r.cycles
-              for j, d in enumerate(r.cycles.remade)), ""])]
-
-
-def _twin_table(rows: list[Row]) -> list[str]:
-    """The closed-loop twin of each row on both records: position (µm) and input (N) RMSE."""
-    cell = lambda t, w: "–" if t is None else (  # noqa: E731
-        f"{t.position.rmse * 1e6:.1f}" if w == "y" else f"{t.input.rmse:.2f}")
-    return ["| model | twin position RMSE, training (µm) | twin input RMSE, training (N) | "
-            "twin position RMSE, test (µm) | twin input RMSE, test (N) |",
-            "|---|---|---|---|---|"] + [
-        f"| {r.name} | {cell(r.twin_train, 'y')} | {cell(r.twin_train, 'u')} | "
-        f"{cell(r.twin_test, 'y')} | {cell(r.twin_test, 'u')} |" for r in rows]
-
-
-def to_markdown(name: str, rows: list[Row], settings: BenchmarkSettings, command: str,
-                drift: Drift | None = None) -> str:
-    pub = rows[0]
-    product = rows[1:]
-    candidates = [r for r in product if r.measured and r.held_out is not None]
-    by_held = min(candidates, key=lambda r: r.held_out.score.rmse)
-    both = lambda r: (r.held_out.score.rmse + r.held_out_back.score.rmse) / 2  # noqa: E731
-    by_both = min((r for r in candidates if r.held_out_back is not None), key=both,
-                  default=None)
-    hb = lambda r: "–" if r.held_out_back is None else (  # noqa: E731
-        f"{r.held_out_back.score.rmse * 1e3:.2f}")
-    by_train = min((r for r in product if r.measured), key=lambda r: r.train.score.rmse)
-    by_test = min(product, key=lambda r: r.test.score.rmse)
-    mm = lambda r: r.test.score.rmse * 1e3  # noqa: E731
-    ho = lambda r: "–" if r.held_out is None else f"{r.held_out.score.rmse * 1e3:.2f}"  # noqa
-    lines = ["| model | made from | test RMSE (mm) | training RMSE (mm) | held-out RMSE (mm) | "
-             "held-out backward (mm) | "
-             "test fit (%) | force residual on test, RMS (N) | its mean (N) | "
-             "parameters (kg, N·s/m, N, N/m, N) | CPU (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
-
-    def fit(r) -> str:  # undefined (None) where the test record does not move
-        return "–" if r.test.score.fit_percent is None else f"{r.test.score.fit_percent:.1f}"
-
+    progress("why the force-residual extension drifts; sensitivities")
+    sim = lambda plant, run, source=None: simulate_record(  # noqa: E731
+        SimulationModel(plant, None, "model", train.ts), run, init_samples=n0, source=source)
+    drift = explain_drift(train, test, published, sim, estimation=estimation, held_out=held_out)
+    drift = dataclasses.replace(drift, steady=tuple(cycle_friction(plateaus(train, edges))))
+    sens = []
     for r in rows:
-        lines.append(f"| {r.name}{'' if r.measured else ' †'} | {r.made_from} | {mm(r):.2f} | "
-                     f"{r.train.score.rmse * 1e3:.2f} | {ho(r)} | {hb(r)} | {fit(r)} | "
-                     f"{r.force_rms_test_n:.3f} | {r.force_mean_test_n:+.3f} | "
-                     f"{_params(r.plant)} | {r.cpu_s:.1f} |")
+        if r.candidate and (r.chosen or r is rows[-1]):
+            i = [c.name for c in settings.candidates].index(r.name)
+            blocks = {}
+            for _, f in folds:
+                p = f[r.name].fit.plant
+                for k in oe.structure_parameters(p):
+                    blocks.setdefault(k, []).append(oe.value(p, k))
+            sens.append(sensitivity(r.name, r.plant, {k: tuple(v) for k, v in blocks.items()
+                                                      if len(v) == len(folds)}, on_test,
+                                    what=f"its {len(folds)} fits without one cycle "
+                                    f"(candidate {i + 1})"))
+    sens.append(sensitivity(rows[2].name, oe.merge_offsets(extended),
+                            drift_blocks(extended, drift), on_test,
+                            what="the force-residual fit on 5 contiguous blocks"))
+    init = initial_state_effect(published, test, n0)
+    return {"rows": rows, "pick": pick, "leak": leak, "drift": drift, "sensitivity": sens,
+            "initial_state": init, "cpu_s": time.process_time() - cpu,
+            "folds": [{k: (v.fit.to_json() if isinstance(v, Made) else v.theta())
+                       for k, v in f.items()} for _, f in folds]}
+
+
+# ----------------------------------------------------------------------------- the report
+
+def _mm(x: float) -> str:
+    return "–" if x is None or not np.isfinite(x) else f"{x * 1e3:.2f}"
+
+
+def _params(plant: Plant) -> str:
+    p = oe.merge_offsets(plant)
+    out = [f"{k} {oe.value(p, k):.6g}" for k in oe.structure_parameters(p)]
+    return ", ".join(out)
+
+
+def table(rows: list[Row], settings: BenchmarkSettings) -> list[str]:
+    k = settings.cycles
+    lines = ["| model | made from | test RMSE (mm) | training RMSE (mm) | "
+             + " | ".join(f"without cycle {j + 1} (mm)" for j in range(k))
+             + " | left-out mean ± se (mm) | fit | chosen |",
+             "|---" * (k + 7) + "|"]
+    for r in rows:
+        cyc = " | ".join(_mm(x) for x in r.cycles_m) if r.cycles_m else " | ".join("–" * k)
+        mean = (f"{r.mean_m * 1e3:.2f} ± {r.se_m * 1e3:.2f}" if r.cycles_m else "–")
+        fit = ("–" if r.fit is None else
+               ("measured" if r.fit.measured else "not a measurement")
+               + f", {len(r.fit.reached())}/{len(r.fit.stops)} starts")
+        lines.append(f"| {r.name} | {r.made_from} | {_mm(r.test_rmse_m)} | "
+                     f"{_mm(r.train_rmse_m)} | {cyc} | {mean} | {fit} | "
+                     f"{'**yes**' if r.chosen else ('no' if r.candidate else '(reference)')} |")
     for b in settings.baselines:
-        lines.append(f"| {b.name} (black box, published) | {b.source} | {b.test_rmse_mm:.1f} | "
-                     f"– | – | – | – | – | – | – | – |")
-    rel = lambda r: 100 * (mm(r) / mm(pub) - 1)  # noqa: E731
-    n_train = len(pub.train.t)
-    n_held = len(pub.held_out.t)
-    n_est = n_train - n_held
-    ranking = lambda key, rs: ", ".join(  # noqa: E731
-        f"{r.name} {key(r) * 1e3:.2f}" for r in sorted(rs, key=key))
-    verdict = [
-        "† an optimizer's stop that a second start does not repeat: not a measurement, not "
-        "a candidate below, and not remade on the estimation part (held-out: –).", "",
-        f"The published model simulates the test record to {mm(pub):.2f} mm. **Chosen by the "
-        f"training record alone** (every candidate remade on its first {n_train - n_held} "
-        f"samples, the same procedure, and ranked by the open-loop RMSE on its last {n_held} "
-        f"samples, initial state from their first {settings.init_samples}), the product's best "
-        f"physical model is **{by_held.name}**: held-out {ho(by_held)} mm; fitted on the whole "
-        f"training record, {mm(by_held):.2f} mm on test, "
-        f"{'better' if rel(by_held) < 0 else 'worse'} than the published model by "
-        f"{abs(rel(by_held)):.1f} % ({mm(by_held) - mm(pub):+.3f} mm).",
-        f"Held-out ranking (mm): {ranking(lambda r: r.held_out.score.rmse, candidates)}; the "
-        f"published model {ho(pub)}. The two parts: estimation "
-        f"{_span(pub.train.y_measured[:n_est], pub.train.u[:n_est], pub.train.t)}, held out "
-        f"{_span(pub.held_out.y_measured, pub.held_out.u, pub.train.t)}; the test record "
-        f"{_span(pub.test.y_measured, pub.test.u, pub.test.t)}.",
-        *([] if by_both is None else [
-            f"Read in both directions (rule B, written down before its first result: every "
-            f"candidate also remade on the last {n_train - n_held} samples and simulated on the "
-            f"first {n_held}; ranked by the mean of the two held-out "
-            f"RMSEs), the choice is **{by_both.name}**: {both(by_both) * 1e3:.2f} mm mean "
-            f"held-out, {mm(by_both):.2f} mm on test, "
-            f"{'better' if rel(by_both) < 0 else 'worse'} than the published model by "
-            f"{abs(rel(by_both)):.1f} % ({mm(by_both) - mm(pub):+.3f} mm). Ranking (mm): "
-            f"{ranking(both, [r for r in candidates if r.held_out_back is not None])}; the "
-            f"published model {both(pub) * 1e3 if pub.held_out_back else float('nan'):.2f}."]),
-        *_rule_c(pub, candidates, settings),
-        f"For contrast, the in-sample rule (lowest training RMSE of the fit on the whole "
-        f"training record) would pick **{by_train.name}**: {mm(by_train):.2f} mm on test. "
-        f"In-sample ranking (mm): "
-        f"{ranking(lambda r: r.train.score.rmse, [r for r in product if r.measured])}.",
-        f"The product row with the lowest test RMSE is **{by_test.name}**: {mm(by_test):.2f} mm, "
-        f"{abs(rel(by_test)):.0f} % {'below' if rel(by_test) < 0 else 'above'} the published "
-        f"model; " + ("it is also the held-out choice." if by_test is by_held else
-                      "the held-out rule would not have chosen it, so this is a measurement "
-                      "on the test record, not a model selected without it.")]
-    notes = [f"- {r.name}: {r.note}" for r in rows if r.note]
-    remade = [f"- {r.name}: {_params(r.held_out_plant)}"
-              + (f" ({r.held_out_note})" if r.held_out_note else "")
-              for r in rows[1:] if r.held_out_plant is not None]
-    return "\n".join([f"<!-- generated by: {command} -->", "", *lines, "", *verdict, "",
-                      "Fits and findings:", "", *notes, "",
-                      f"Remade on the estimation part (the first {n_train - n_held} samples of "
-                      f"the training record) for the held-out column:", "", *remade, "",
-                      "Closed-loop twin (the published controller around each row's plant, "
-                      "on the record's reference qg"
-                      + (f" and the known input {settings.known_input}"
-                         if settings.known_input else "") + "; from rest, nothing taken from "
-                      "the measured output; scored over all samples):", "", *_twin_table(rows),
-                      "", *([] if drift is None else [
-                          "Why the diagnosis-extended model drifts (its terms taken apart; "
-                          "test columns after the fact):", "",
-                          *drift.to_markdown(pub.test.score.rmse), ""])])
+        lines.append(f"| {b.name} (black box; {b.source}) | – | {b.test_rmse_mm:.1f} | – | "
+                     + " | ".join("–" * k) + " | – | – | – |")
+    return lines
 
 
-def main(config_path, out=None, *, quiet: bool = False) -> int:
-    """``clm-sim study CONFIG`` for a config with a ``benchmark:`` section."""
+def verdict(result: dict, settings: BenchmarkSettings) -> list[str]:
+    """The choice by the config's rule against the published model, and the band of test
+    scores over every end point."""
+    rows, pick = result["rows"], result["pick"]
+    pub = rows[0]
+    ends = [x for r in rows if r.candidate for x in r.end_tests_m if np.isfinite(x)]
+    if pick is None:
+        head = "No candidate's whole-record fit is a measurement: the rule chooses none."
+    else:
+        rel = 100 * (pick.test_rmse_m / pub.test_rmse_m - 1)
+        head = (f"Chosen by the rule in the config ({settings.selection}: the lowest mean "
+                f"left-out-cycle RMSE among the candidates whose whole-record fit is a "
+                f"measurement): **{pick.name}**, {pick.mean_m * 1e3:.2f} ± "
+                f"{pick.se_m * 1e3:.2f} mm over the cycles; test RMSE "
+                f"{pick.test_rmse_m * 1e3:.2f} mm against the published model's "
+                f"{pub.test_rmse_m * 1e3:.2f} mm ({rel:+.1f} %).")
+    return [head, "", f"Test RMSE over every end point of every candidate's starts (whole "
+            f"training record, {len(ends)} end points): {min(ends) * 1e3:.2f} to "
+            f"{max(ends) * 1e3:.2f} mm."]
+
+
+def to_markdown(result: dict, settings: BenchmarkSettings, command: str) -> str:
+    rows, leak = result["rows"], result["leak"]
+    pub = rows[0]
+    cands = [r for r in rows if r.candidate]
+    out = [f"<!-- generated by: {command} -->", "", "# EMPS benchmark: the study's report", "",
+           *table(rows, settings), ""]
+    out += [*verdict(result, settings), ""]
+    out += ["## Every start's stop (whole training record)", ""]
+    for r in cands:
+        out += [f"**{r.name}** ({r.fit.verdict()}; structure: {_params(r.plant)}"
+                + (f"; diagnosis named {r.note}" if r.note else "") + ")", ""]
+        out += [f"- {s.line()}; test RMSE {t * 1e3:.2f} mm; "
+                + ", ".join(f"{k} {v:.6g}" for k, v in s.end.items())
+                for s, t in zip(r.fit.stops, r.end_tests_m)]
+        if r.fit.held:
+            out.append("- held: " + ", ".join(f"{k} {v:.6g}" for k, v in r.fit.held.items()))
+        out.append("")
+    out += ["## Each fold's fits (made without one cycle; no start from the whole record)", ""]
+    for j, f in enumerate(result["folds"]):
+        for name, v in f.items():
+            if name == "procedure":
+                out.append(f"- without cycle {j + 1}, published procedure: "
+                           + ", ".join(f"{k} {x:.6g}" for k, x in v.items()))
+                continue
+            best = min(v["stops"], key=lambda s: s["rmse_m"])
+            out.append(f"- without cycle {j + 1}, {name}: "
+                       f"{'measured' if v['measured'] else 'not a measurement'}, "
+                       f"{sum(s['converged'] for s in v['stops'])}/{len(v['stops'])} converged, "
+                       f"training {v['rmse_m'] * 1e3:.3f} mm; "
+                       + ", ".join(f"{k} {x:.6g}" for k, x in best["end"].items()))
+    out += ["", "## The leak of parameters identified on the whole record", "",
+            f"- the last third of the training record ({leak['held_out_samples']} samples): "
+            f"the published parameters (identified on the whole record) simulate it to "
+            f"{_mm(leak['published_model_on_held_out_m'])} mm; the same procedure made on the "
+            f"first two thirds alone to {_mm(leak['procedure_remade_on_held_out_m'])} mm",
+            f"- the left-out cycles: published parameters "
+            f"{_mm(leak['published_model_cycles_mean_m'])} mm mean; the procedure remade "
+            f"without each cycle {_mm(leak['procedure_remade_cycles_mean_m'])} mm",
+            f"- the diagnosis on the first two thirds, started from the published model (keeps "
+            f"M {leak['extension_from_published_theta']['mass']:.2f}, Fv "
+            f"{leak['extension_from_published_theta']['viscous']:.1f}): "
+            f"{_mm(leak['extension_from_published_on_held_out_m'])} mm on the last third; "
+            f"started from the procedure's fit on that part (M "
+            f"{leak['extension_from_part_theta']['mass']:.2f}, Fv "
+            f"{leak['extension_from_part_theta']['viscous']:.1f}): "
+            f"{_mm(leak['extension_from_part_on_held_out_m'])} mm", ""]
+    out += ["## Sensitivity of the test score", ""]
+    for s in result["sensitivity"]:
+        out += [f"**{s.model}** (blocks: {s.blocks})", "",
+                "| parameter | value | d(test RMSE)/dθ (mm per unit) | block range | "
+                "test RMSE at its low end (mm) | at its high end (mm) |", "|---|---|---|---|---|---|"]
+        for k, v, g, lo, hi, a, b in s.rows:
+            rng = "–" if not np.isfinite(lo) else f"{lo:.4g} to {hi:.4g}"
+            out.append(f"| {k} ({oe.UNITS[k]}) | {v:.6g} | {g * 1e3:.4g} | {rng} | {_mm(a)} | "
+                       f"{_mm(b)} |")
+        out.append("")
+    out += ["## The initial state (the published model on the test record)", ""]
+    out += [f"- {k}: {v * 1e3:.3f} mm" for k, v in result["initial_state"].items()]
+    out += ["", "## Why the force-residual extension drifts (test columns after the fact)", "",
+            *result["drift"].to_markdown(pub.test_rmse_m), ""]
+    return "\n".join(out) + "\n"
+
+
+def plot_errors(traces, ax=None):
+    """Measured minus simulated position (mm against s) of each ``(label, Simulation)``."""
     from experiments import plots
-    from experiments.simulation import plot_simulation
+
+    if ax is None:
+        ax = plots._figure(10.0, 4.0).subplots()
+    for i, (label, s) in enumerate(traces):
+        ax.plot(s.t, (s.y_measured - s.y_simulated) * 1e3, color=plots.PALETTE[i], lw=1.0,
+                label=f"{label}: RMSE {s.score.rmse * 1e3:.3g} mm")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("measured − simulated (mm)")
+    plots._legend_right(ax)
+    return ax
+
+
+def main(config_path, out=None, *, quiet: bool = False, workers: int | None = None) -> int:
+    """``clm-sim study CONFIG [--workers N]`` for a config with a ``benchmark:`` section (the
+    fits in ``workers`` processes, default 1; the result does not depend on it)."""
+    from experiments import plots
 
     name, settings = load_benchmark(config_path)
     out = Path(out) if out else Path("results") / Path(config_path).stem
-    # Before the work (minutes of fits on EMPS): what the result folder will refuse, the
-    # benchmark's inputs among it.
     inputs = (config_path, settings.training, settings.test, settings.published_model)
     check_output_folder(out, what="a benchmark", inputs=inputs)
     progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
     try:
-        rows, drift = run_benchmark(settings, progress)
-    except UserError as exc:  # a setting the records cannot meet: name the config too
+        result = run_benchmark(settings, progress, workers or 1)
+    except UserError as exc:
         text = str(exc)
         raise UserError(text if text.startswith(str(config_path)) else
                         f"{config_path}: {text}") from None
     command = f"clm-sim study {config_path}"
-    table = to_markdown(name, rows, settings, command, drift)
+    report = to_markdown(result, settings, command)
+    rows, pick = result["rows"], result["pick"]
+    test = load_record(settings.test, columns=settings.columns, scale=settings.scale)
+    ts = test.ts
+
+    def sim(plant):
+        return simulate_record(SimulationModel(plant, None, "model", ts), test,
+                               init_samples=settings.init_samples)
+
     with atomic_folder(out, what="a benchmark", inputs=inputs) as tmp:
         (tmp / "benchmark.json").write_text(json.dumps(
-            {"name": name, "command": command, "rows": [r.to_json() for r in rows],
+            {"name": name, "command": command, "selection": settings.selection,
+             "rule": "the lowest mean left-out-cycle RMSE among the candidates whose "
+                     "whole-record fit is a measurement (benchmark.selection in the config, "
+                     "with its reason)",
+             "chosen": None if pick is None else pick.name,
+             "rows": [r.to_json() for r in rows],
              "baselines": [dataclasses.asdict(b) for b in settings.baselines],
-             "init_samples": settings.init_samples,
-             "estimation_fraction": settings.estimation_fraction, "cycles": settings.cycles,
-             "drift": drift.to_json()}, indent=1))
-        (tmp / "table.md").write_text(table)
-        for i, r in enumerate(rows):
-            axes = plot_simulation(r.test)
-            plots.save(axes[0].figure, tmp / "figures" / f"test_{i}.png")
-        if drift.traces:
-            plots.save(plot_drift(drift).figure, tmp / "figures" / "drift.png")
-    print(table, end="")
+             "init_samples": settings.init_samples, "cycles": settings.cycles,
+             "leak": result["leak"], "initial_state_test_rmse_m": result["initial_state"],
+             "sensitivity": [s.to_json() for s in result["sensitivity"]],
+             "cpu_s": result["cpu_s"], "drift": result["drift"].to_json()}, indent=1))
+        (tmp / "report.md").write_text(report)
+        for r in rows:
+            info = oe.model_file(r.plant, ts, name=r.name, description=f"EMPS: {r.made_from}")
+            path = tmp / "models" / f"{slug(r.name)}.json"
+            path.parent.mkdir(exist_ok=True)
+            path.write_text(json.dumps(info, indent=1))
+        traces = [("published model", sim(rows[0].plant))]
+        if pick is not None:
+            traces.append((f"chosen: {pick.name}", sim(pick.plant)))
+        traces.append((rows[2].name, sim(rows[2].plant)))
+        plots.save(plot_errors(traces).figure, tmp / "figures" / "test_errors.png")
+        if result["drift"].traces:
+            plots.save(plot_drift(result["drift"]).figure, tmp / "figures" / "drift.png")
+    print("\n".join([*table(rows, settings), "", *verdict(result, settings)]))
     return 0

@@ -23,7 +23,7 @@ KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its 
 MODULES = {"extrapolation": "extrapolation", "failure_map": "failure_map",  # kind -> its module
            "emps_benchmark": "emps_benchmark", "mechanism": "mechanism",  # (experiments.studies)
            "identifiability": "profiles"}
-POOLED = {"failure_map", "mechanism", "identifiability"}  # kinds whose main() takes workers=
+POOLED = {"failure_map", "mechanism", "identifiability", "emps_benchmark"}  # kinds whose main() takes workers=
 
 
 def kind_of(data: dict, path) -> str:
