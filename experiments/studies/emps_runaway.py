@@ -143,6 +143,32 @@ def report(s: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def draw(s: dict, path) -> None:
+    """Left: per seed of the first row, its largest output weight against its force rms beyond
+    the window (red: runs away; dashed: the flag's level); right: every unit's largest |z| inside
+    the window against its |output weight|."""
+    import matplotlib.pyplot as plt
+
+    row, lip = s["rows"][0], s["lip"]["training"]["outside"]
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.6))
+    for v in row["seeds"]:
+        c = "C3" if v["runaway"] else "C0"
+        x, y = v["w_out_max"], v["force_rms"]["training"]["outside"]
+        ax[0].loglog(x, y, "o", color=c)
+        ax[0].annotate(str(v["seed"]), (x, y), fontsize=7)
+        ax[1].semilogy(v["units_z_inside"], np.abs(v["units_w_out"]), ".", color=c, alpha=0.6)
+    ax[0].axhline(s["runaway_factor"] * lip, ls="--", color="k", lw=0.8)
+    ax[0].set_xlabel("largest |w_out|")
+    ax[0].set_ylabel("force rms beyond the window, training [N]")
+    ax[0].set_title(f"{row['label']} (red: runs away)", fontsize=7, loc="left")
+    ax[1].set_xlabel("unit's largest |z| inside the window")
+    ax[1].set_ylabel("|w_out| of the unit")
+    ax[1].set_title("every unit of every seed", fontsize=8, loc="left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     from experiments.config import load_config
 
@@ -164,6 +190,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "runaway.json").write_text(json.dumps(s, indent=1))
     (out / "report.md").write_text(report(s))
+    draw(s, out / "runaway.png")
     print(report(s))
     return 0
 
