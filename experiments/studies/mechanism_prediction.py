@@ -103,9 +103,9 @@ def main(argv=None) -> int:
         p = predict(config, effects, inside=settings.inside, outside=settings.outside,
                     grid_points=settings.grid_points)
         rows = p["rows"]
+        line, cub = (rows[k]["mae_outside_m"] * 1e6 for k in ("continued line", "continued cubic"))
         print(f"{case}: MAE {settings.outside}, continued line - continued cubic: "
-              f"{p['mae_diff_m'] * 1e6:+.3f} um (line {rows['continued line']['mae_outside_m'] * 1e6:.3f}, "
-              f"cubic {rows['continued cubic']['mae_outside_m'] * 1e6:.3f}, exact "
+              f"{p['mae_diff_m'] * 1e6:+.3f} um (line {line:.3f}, cubic {cub:.3f}, exact "
               f"{p['exact_mae_m'] * 1e6:.3f}); static force error beyond the range, rms: cubic "
               f"{rows['continued cubic']['error_beyond_rms_n']:.3f} N, line "
               f"{rows['continued line']['error_beyond_rms_n']:.3f} N (true force there "
