@@ -14,7 +14,7 @@ Each effect is a small frozen dataclass with named SI parameters. It knows three
 * ``lower(terms)``: how it appears in the compiled simulator, as primitive terms of
   :class:`KernelTerms` (position harmonics, motor-force ripple and the track end's motor-force
   factor, a position polynomial, Stribeck friction, direction-dependent friction, a constant
-  force, Dahl pre-sliding friction). The
+  force, Dahl pre-sliding friction, a taut cable carrier's saturating pull). The
   simulator keeps this lowering of its own: it integrates the *forward* plant, where friction at
   rest is stiction up to the breakaway level (not the law's value at ``v = 0``) and the ripple
   multiplies the motor force, in a numba kernel compiled once for these fixed term arrays (a law
@@ -52,6 +52,7 @@ class KernelTerms:
     ``offset``: a constant force (N).
     ``track_*``: motor-force factors ``g(y)`` of :class:`TrackEnd` (start, coil length, fringe,
     m); the motor force is ``u*(1 + ripple)*prod g``.
+    ``taut_*``: additive ``force*tanh(((y - center)/reach)**3)`` of :class:`CableTaut` (N, m, m).
     """
 
     harmonic_amp: list = field(default_factory=list)
@@ -72,6 +73,9 @@ class KernelTerms:
     track_start: list = field(default_factory=list)
     track_length: list = field(default_factory=list)
     track_fringe: list = field(default_factory=list)
+    taut_force: list = field(default_factory=list)
+    taut_reach: list = field(default_factory=list)
+    taut_center: list = field(default_factory=list)
 
     def arrays(self) -> tuple:
         """The terms as contiguous float64 arrays, in the order the kernel takes them."""
@@ -85,6 +89,8 @@ class KernelTerms:
             f(self.asym),
             np.ascontiguousarray(np.column_stack([self.track_start, self.track_length,
                                                   self.track_fringe]).reshape(-1, 3)),
+            np.ascontiguousarray(np.column_stack([self.taut_force, self.taut_reach,
+                                                  self.taut_center]).reshape(-1, 3)),
             f(self.dahl_sliding), f(self.dahl_length),
             np.zeros(len(self.dahl_sliding)),  # the bristle states (relaxed at the start)
         )
@@ -328,6 +334,44 @@ class CableSlab(Effect):
 
 
 @dataclass(frozen=True)
+class CableTaut(Effect):
+    """A cable carrier whose pull hardens as it is drawn out and stops growing once it is taut:
+    ``pull*tanh(((y - center)/reach)**3)``.
+
+    The chain's bending loop resists more the further the slide draws it (the force grows as the
+    cube of the travel near ``center``, as :class:`CableSlab`'s cubic term), until the chain lies
+    straight against its guide channel, whose end clamp then carries the tension: beyond about
+    ``reach`` (m) the stage feels ``pull`` (N) and no more. The force is steepest at
+    ``|y - center| = 0.849*reach`` (where ``x**3*tanh(x**3) = 1/3``): it hardens inside that and
+    flattens beyond it. Near ``center`` it is ``(pull/reach**3)*(y - center)**3``.
+    """
+
+    pull: float = 3.27
+    reach: float = 0.1178
+    center: float = 0.0
+    type: ClassVar[str] = "cable_taut"
+    nonlinear: ClassVar[tuple[str, ...]] = ("reach",)
+
+    def __post_init__(self):
+        _check_finite("cable_taut", pull=self.pull, center=self.center)
+        _check_positive("cable_taut", reach=self.reach)
+
+    def law(self, y, v, u, xp):
+        return self.pull * xp.tanh(((y - self.center) / self.reach) ** 3)
+
+    def regressors(self, y, v, u):
+        return {"cable_taut": np.tanh(((np.asarray(y) - self.center) / self.reach) ** 3)}
+
+    def from_coefficients(self, coef):
+        return CableTaut(pull=float(coef["cable_taut"]), reach=self.reach, center=self.center)
+
+    def lower(self, terms):
+        terms.taut_force.append(self.pull)
+        terms.taut_reach.append(self.reach)
+        terms.taut_center.append(self.center)
+
+
+@dataclass(frozen=True)
 class Stribeck(Effect):
     """Low-speed friction curve: ``sign(v)*peak*exp(-(|v|/velocity)**exponent)`` on top of Coulomb.
 
@@ -502,8 +546,8 @@ class ForceOffset(Effect):
 
 
 EFFECTS: dict[str, type[Effect]] = {
-    cls.type: cls for cls in (Cogging, ForceRipple, CableSlab, Stribeck, FrictionAsymmetry,
-                              ForceOffset, Presliding, TrackEnd)
+    cls.type: cls for cls in (Cogging, ForceRipple, CableSlab, CableTaut, Stribeck,
+                              FrictionAsymmetry, ForceOffset, Presliding, TrackEnd)
 }
 """The effect classes by their config ``type:`` (the one place names are resolved).
 

@@ -62,9 +62,10 @@ def track_factor(x, track):
 
 @nb.njit(**_INLINE)
 def applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                  track):
+                  track, taut):
     """Motor force (with ripple and the track ends' factor) minus the position-dependent
-    parasitic forces, N."""
+    parasitic forces, N. ``taut`` rows: a taut cable carrier's force, reach and centre (N, m, m;
+    ``force*tanh(((x - centre)/reach)**3)``, see ``clm_sim.effects.CableTaut``)."""
     rho = 0.0
     for i in range(rp_amp.shape[0]):
         rho += rp_amp[i] * math.sin(rp_k[i] * x + rp_ph[i])
@@ -72,6 +73,9 @@ def applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, 
     if track.shape[0] > 0:
         f *= track_factor(x, track)
     f -= offset
+    for i in range(taut.shape[0]):
+        d = (x - taut[i, 2]) / taut[i, 1]
+        f -= taut[i, 0] * math.tanh(d * d * d)
     for i in range(hk_amp.shape[0]):
         f -= hk_amp[i] * math.sin(hk_k[i] * x + hk_ph[i])
     d = x - poly_c
@@ -190,7 +194,7 @@ def dahl_substep(x, v, g, ad, bd, d_f, d_l, d_z):
 @nb.njit(**_INLINE)
 def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
             hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-            st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z, levels):
+            st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z, levels):
     """:func:`plant_step` with the friction levels of :func:`friction_levels` given, as the tuple
     ``levels``. (Calls stay within 30 arguments: CPython compiles a longer call as a ``*args``
     call, which numba cannot inline.)"""
@@ -198,7 +202,7 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
     dahl = d_f.shape[0] > 0
     for _ in range(nsub):
         fa = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                           track)
+                           track, taut)
         if v == 0.0:
             fn = fa - fk * x
             if dahl:
@@ -236,7 +240,7 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
         v = 0.0
         rest = h - t0
         fn = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c,
-                           offset, track) - fk * x
+                           offset, track, taut) - fk * x
         if dahl:
             fn -= dahl_force(d_f, d_z)
         if rest <= 0.0 or (fn <= break_pos and fn >= -break_neg):
@@ -255,18 +259,19 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
 @nb.njit(**_JIT)
 def plant_step(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-               st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z):
+               st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z):
     """Advance the motor over one held-input sample of ``nsub`` sub-steps of ``h`` seconds.
 
     ``ad`` (2x2) and ``bd`` (2,) propagate ``[x, v]`` over one sub-step for a constant force
     ``G``: ``[x, v] <- ad @ [x, v] + bd * G``. ``track`` (n, 3; m): the track ends' start,
-    coil length and fringe (:func:`track_factor`). ``d_f, d_l`` (N, m): Dahl elements' sliding
+    coil length and fringe (:func:`track_factor`); ``taut`` (n, 3; N, m, m): taut cable
+    carriers (:func:`applied_force`). ``d_f, d_l`` (N, m): Dahl elements' sliding
     force and length; ``d_z``: their states, advanced in place. Returns the new ``(x, v)``.
     """
     break_pos, break_neg, v_flat = friction_levels(fc, st_amp, st_v, st_exp, asym)
     return advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                    hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                   st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
+                   st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
                    (break_pos, break_neg, v_flat))
 
 
@@ -274,7 +279,7 @@ def plant_step(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
 def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
                 h, nsub, ad, bd, mass, fv, fc, fk,
                 hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
+                st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
                 y_out, x_out, u_out, ufb_out, z):
     """Run the sampled loop over ``len(r)`` samples, writing into the four output arrays.
 
@@ -305,7 +310,7 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
         ufb_out[k] = ufb
         x, v = advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
                        hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                       st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
+                       st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
                        (break_pos, break_neg, v_flat))
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1
@@ -315,7 +320,7 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
 @nb.njit(_nrt=False, **_JIT)
 def open_loop(u, x0, v0, h, nsub, ad, bd, mass, fv, fc, fk,
               hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-              st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z, x_out, v_out):
+              st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z, x_out, v_out):
     """The motor driven by the held inputs ``u`` (N), no controller: ``x_out[k], v_out[k]`` is
     the state (m, m/s) at sample k, from ``(x0, v0)`` at sample 0, ``u[k]`` held over
     ``[t_k, t_k+1)`` and the motor advanced by :func:`plant_step` (Dahl states ``d_z`` advanced
@@ -331,7 +336,7 @@ def open_loop(u, x0, v0, h, nsub, ad, bd, mass, fv, fc, fk,
             break
         x, v = advance(x, v, u[k], h, nsub, ad, bd, mass, fv, fc, fk,
                        hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                       st_amp, st_v, st_exp, asym, track, d_f, d_l, d_z,
+                       st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
                        (break_pos, break_neg, v_flat))
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1

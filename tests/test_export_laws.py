@@ -20,6 +20,7 @@ import pytest
 
 from clm_sim.effects import (
     CableSlab,
+    CableTaut,
     Cogging,
     Effect,
     ForceOffset,
@@ -47,6 +48,7 @@ EFFECTS = {
     "cogging": Cogging(amplitude=1.5, period=0.016, phase=0.3),
     "force_ripple": ForceRipple(amplitude=0.02, period=0.032, phase=-0.4),
     "cable_slab": CableSlab(coefficients=(0.5, 10.0, -30.0, 2000.0), center=0.01),
+    "cable_taut": CableTaut(pull=3.0, reach=0.02, center=0.005),
     "stribeck": Stribeck(peak=2.0, velocity=0.002),
     "friction_asymmetry": FrictionAsymmetry(coulomb_pos=0.4, coulomb_neg=0.7, viscous_pos=1.0,
                                             viscous_neg=2.0),
@@ -126,7 +128,7 @@ def _kernel_force(effect, y, v, u):
     v_flat = friction_levels(0.0, a[9], a[10], a[11], a[12])[2]
     out = np.empty(len(y))
     for i in range(len(y)):
-        out[i] = (u[i] - applied_force(y[i], u[i], *a[:9], a[13])
+        out[i] = (u[i] - applied_force(y[i], u[i], *a[:9], a[13], a[14])
                   + friction_extra(v[i], 1.0 if v[i] > 0 else -1.0, a[9], a[10], a[11], a[12],
                                    v_flat))
     return out

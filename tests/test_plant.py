@@ -19,7 +19,7 @@ import pytest
 import scipy.integrate
 import scipy.signal
 
-from clm_sim.effects import (EFFECTS, CableSlab, Cogging, ForceOffset, ForceRipple,
+from clm_sim.effects import (EFFECTS, CableSlab, CableTaut, Cogging, ForceOffset, ForceRipple,
                              FrictionAsymmetry, Presliding, Stribeck, TrackEnd, dahl_path,
                              total_force)
 from clm_sim.errors import UserError
@@ -276,6 +276,8 @@ EFFECT_CASES = {
     "cogging": Cogging(amplitude=3.0, period=0.01, phase=0.4),
     "force_ripple": ForceRipple(amplitude=0.05, period=0.01, phase=-1.0),
     "cable_slab": CableSlab(coefficients=(1.0, 50.0, 300.0, 2.0e4), center=-0.01),
+    # taut within 15 mm: the motion crosses its hardening and its flat part
+    "cable_taut": CableTaut(pull=4.0, reach=0.012, center=0.002),
     "stribeck": Stribeck(peak=2.0, velocity=0.02, exponent=2.0),
     "stribeck dip": Stribeck(peak=-3.0, velocity=0.02, exponent=2.0),
     "friction_asymmetry": FrictionAsymmetry(coulomb_pos=1.0, coulomb_neg=0.5, viscous_pos=20.0,

@@ -78,7 +78,13 @@ class MechanismSettings:
     level of the intervals; grid_points: positions of the static force curve; zero_lam_diag
     (``lambda0_diag:`` in a config): per-parameter pulls toward theta_LIP given to the lambda = 0
     row only, e.g. ``{stiffness: 0.01}``: that row then holds those parameters and leaves the rest
-    free, a control that acts on one parameter's drift and keeps the plant (None: none).
+    free, a control that acts on one parameter's drift and keeps the plant (None: none);
+    near_linear: the unit-by-unit view and its intervention (:mod:`experiments.studies.units`):
+    a hidden unit whose pre-activation stays within +-near_linear on the training samples is
+    near-linear (None: no view); prediction: per case, the numbers written before the run
+    (:mod:`experiments.studies.mechanism_prediction`: ``mae_diff_um``, ``error_beyond_lambda0_n``,
+    ``error_beyond_lambda_n``, and ``factor``, how far the measured amount may lie from the
+    predicted one), which the report sets beside the outcome.
     """
 
     cases: dict[str, tuple[Effect, ...]] = field(default_factory=_default_cases)
@@ -94,6 +100,8 @@ class MechanismSettings:
     confidence: float = 0.95
     grid_points: int = 69
     zero_lam_diag: dict[str, float] | None = None
+    near_linear: float | None = None
+    prediction: dict[str, dict[str, float]] | None = None
     aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"],  # config -> field
                                          "lambda0_diag": "zero_lam_diag"}
 
@@ -120,6 +128,20 @@ class MechanismSettings:
                 raise UserError(f"lambda0_diag: needs pgnn.continuation_lambda: 0 (got "
                                 f"{self.pgnn.continuation_lam:g}); with a continuation start "
                                 f"the held row would differ in two settings")
+        if self.near_linear is not None and not (
+                isinstance(self.near_linear, (int, float)) and self.near_linear > 0):
+            raise UserError(f"near_linear: expected a number > 0, got {self.near_linear!r}")
+        for case, p in (self.prediction or {}).items():
+            if case not in self.cases:
+                raise UserError(f"prediction.{case}: not a case (cases: {', '.join(self.cases)})")
+            missing = {"mae_diff_um", "error_beyond_lambda0_n", "error_beyond_lambda_n",
+                       "factor"} - set(p)
+            if missing:
+                raise UserError(f"prediction.{case}: expected the keys "
+                                f"{', '.join(sorted(missing))}")
+            if not p["factor"] > 1:
+                raise UserError(f"prediction.{case}.factor: expected a number > 1, got "
+                                f"{p['factor']!r}")
         if self.outside == self.inside:
             raise UserError(f"outside: {self.inside!r} is the inside reference; an outside "
                             f"reference leaves the training range")
@@ -203,6 +225,7 @@ def _cell(cell: Cell) -> dict:
         return float(np.sqrt(np.mean((model.feedforward(sig.r, ts) - need)[along] ** 2)))
 
     out = {"case": cell.case, "record": cell.record, "position_limit_m": inside.position_m,
+           "effects_beyond": effects_beyond(config, tb, st),
            "y": y.tolist(), "truth": truth.tolist(), "lip_static": lip_static.tolist(),
            "lip": {"theta": dict(lip.theta_), "error_beyond_rms_n": rms_beyond(lip_static),
                    "error_along_rms_n": rms_along(lip),
@@ -236,7 +259,77 @@ def _cell(cell: Cell) -> dict:
                 "model_cubic": cubic(y[within], total[within]),
                 "static": {"physical": phys.tolist(), "network": net.tolist(),
                            "network_linear": lin.tolist(), "remainder": rest.tolist()}})
+            if st.near_linear is not None:
+                out["fits"][-1]["units"] = _units(model, data.phi, y, phys, truth, within,
+                                                  st.near_linear, rms_along, tb, st.outside)
     return out
+
+
+def effects_beyond(config: ExperimentConfig, tb: Testbed, st: MechanismSettings) -> dict:
+    """Per effect of the plant, the rms force (N) that the LIP's columns (a, v, sign v, y, 1)
+    do not hold: the effect's force along the exact motion minus its least-squares projection
+    on those columns over the inside reference; on the inside reference and along the outside
+    one where it is beyond the range."""
+    from clm_sim.features import lip_regressors
+
+    ts = config.ts
+    limit = TrainingRange.of(config.features, tb.reference(st.inside), ts).position_m
+    sig_in, sig_out = (config.references[k].sample(ts) for k in (st.inside, st.outside))
+    cols = lambda g: np.column_stack([lip_regressors(g.r, g.v, g.a), np.ones(len(g.r))])  # noqa
+    beyond = np.abs(sig_out.r) > limit
+    out = {}
+    for k, effect in enumerate(config.plant.effects):
+        force = [effect.force(g.r, g.v, tb.machine.motor_command(g.r, g.v, g.a))
+                 for g in (sig_in, sig_out)]
+        coef = np.linalg.lstsq(cols(sig_in), force[0], rcond=None)[0]
+        rest_in = force[0] - cols(sig_in) @ coef
+        rest_out = (force[1] - cols(sig_out) @ coef)[beyond]
+        out[f"{k}:{effect.type}"] = {
+            "inside_rms_n": float(np.sqrt(np.mean(rest_in ** 2))),
+            "beyond_rms_n": float(np.sqrt(np.mean(rest_out ** 2)))}
+    return out
+
+
+class _LinedFeedforward:
+    """A PGNN whose named units act as their training lines (the intervention), replayed."""
+
+    def __init__(self, model, units, fitted_lines):
+        self.model, self.units, self.lines = model, units, fitted_lines
+
+    def feedforward(self, r, ts):
+        from clm_sim.features import held_force
+        from experiments.studies.units import network_with_lines
+
+        phi = self.model.filtered_features(y=r, ts=ts)
+        theta = np.array([self.model.theta_[k] for k in ("mass", "viscous", "coulomb",
+                                                          "stiffness")])
+        return held_force(phi @ theta + network_with_lines(self.model, phi, self.units,
+                                                           self.lines))
+
+
+def _units(model, phi_train, y, phys, truth, within, near_linear, rms_along, tb, outside):
+    """The unit-by-unit view of one fit and the intervention with its control: per arm, the
+    static force error beyond and inside the range (rms, N), the force error along the outside
+    reference beyond the range and its MAE."""
+    from experiments.studies import units
+
+    grid = np.zeros((len(y), 4))
+    grid[:, 3] = y
+    v = units.view(model, phi_train, grid[~within], near_linear)
+    fl = np.asarray(v["lines"])
+    arms = {}
+    for arm in ("named", "control"):
+        total = phys + units.network_with_lines(model, grid, v[arm], fl)
+        ff = _LinedFeedforward(model, v[arm], fl)
+        arms[arm] = {
+            "units": v[arm],
+            "error_beyond_rms_n": float(np.sqrt(np.mean((total - truth)[~within] ** 2))),
+            "error_inside_rms_n": float(np.sqrt(np.mean((total - truth)[within] ** 2))),
+            "error_along_rms_n": rms_along(ff),
+            "mae_outside": tb.replay(ff, outside).mae}
+    total = phys + model.network(grid)
+    arms["none"] = {"error_inside_rms_n": float(np.sqrt(np.mean((total - truth)[within] ** 2)))}
+    return {"view": v["units"], "intervention": arms}
 
 
 def run_cell(cell: Cell) -> dict:
@@ -415,10 +508,89 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> dict:
                                    "sides_rms_n": worst["error_beyond_sides_rms_n"],
                                    "mae_outside_um": worst["mae"][ref] * 1e6,
                                    "error_along_rms_n": worst["error_along_rms_n"]},
-            "rows": rows, "lip": lip}
+            "rows": rows, "lip": lip,
+            "effects_beyond": cell_list[0].get("effects_beyond")}
+        if settings.near_linear is not None:
+            out[case]["units"] = units_summary(settings, fits)
+        if settings.prediction and case in settings.prediction:
+            out[case]["prediction"] = outcome(settings.prediction[case], out[case])
     for case, p in zip(settings.cases, holm(pvals)):
         out[case]["mae_outside_diff"]["p_holm"] = p
     return {"cases": out, "settings": to_plain(settings)}
+
+
+def units_summary(settings: MechanismSettings, fits: list[dict]) -> dict:
+    """Per row: how many units the reading names (median, range), their share of the network's
+    remainder force beyond the range, and the intervention against its control: medians of the
+    static force error beyond and inside, the change of the error beyond per fit (arm minus
+    none), and in how many fits the named arm changes it more (in absolute value) than the
+    control."""
+    out = {}
+    for name, lam in (("lambda=0", 0.0), (f"lambda={settings.lam:g}", settings.lam)):
+        rows = [f for f in fits if f["lambda"] == lam]
+        n_named = [len(f["units"]["intervention"]["named"]["units"]) for f in rows]
+
+        def share(f):
+            view, named = f["units"]["view"], f["units"]["intervention"]["named"]["units"]
+            tot = sum(u["remainder_beyond_rms_n"] ** 2 for u in view)
+            return (sum(view[j]["remainder_beyond_rms_n"] ** 2 for j in named) / tot
+                    if tot > 0 else 0.0)
+
+        def delta(f, arm):
+            return (f["units"]["intervention"][arm]["error_beyond_rms_n"]
+                    - f["error_beyond_rms_n"])
+
+        both = [f for f in rows if f["units"]["intervention"]["named"]["units"]]
+        out[name] = {
+            "named_median": float(np.median(n_named)), "named_range": [min(n_named),
+                                                                        max(n_named)],
+            "fits_with_named": len(both), "fits": len(rows),
+            "named_share_beyond": float(np.median([share(f) for f in rows])),
+            "error_beyond_none_n": float(np.median([f["error_beyond_rms_n"] for f in rows])),
+            **{f"error_beyond_{arm}_n": float(np.median(
+                [f["units"]["intervention"][arm]["error_beyond_rms_n"] for f in both]))
+               if both else None for arm in ("named", "control")},
+            **{f"error_inside_{arm}_n": float(np.median(
+                [f["units"]["intervention"][arm]["error_inside_rms_n"] for f in both]))
+               if both else None for arm in ("none", "named", "control")},
+            **{f"delta_beyond_{arm}_n": float(np.median([delta(f, arm) for f in both]))
+               if both else None for arm in ("named", "control")},
+            **{f"mae_outside_{arm}_um": float(np.median(
+                [f["units"]["intervention"][arm]["mae_outside"] for f in both])) * 1e6
+               if both else None for arm in ("named", "control")},
+            "mae_outside_none_um": float(np.median([f["mae"][settings.outside] for f in both]))
+            * 1e6 if both else None,
+            "named_lowers_more": int(sum(delta(f, "named") < min(0.0, delta(f, "control"))
+                                         for f in both))}
+    return out
+
+
+def outcome(pred: dict, case: dict) -> dict:
+    """The pre-registered prediction beside what the run measured: the sign holds when the
+    t-interval on the per-record means of lambda - 0 lies wholly on the predicted side of zero;
+    an amount holds when the measured value lies within ``factor`` of the predicted one (same
+    sign)."""
+    d = case["mae_outside_diff"]
+    mean, ci = d["mean"] * 1e6, [c * 1e6 for c in d["ci_records_t"]]
+    side = np.sign(pred["mae_diff_um"])
+    f = pred["factor"]
+
+    def within(measured, predicted):
+        return bool(measured * predicted > 0 and 1 / f <= measured / predicted <= f)
+
+    rows = list(case["rows"].values())
+    out = {**pred, "measured_mae_diff_um": mean, "measured_ci_um": ci,
+           "sign_held": bool(side * ci[0] > 0 and side * ci[1] > 0),
+           "amount_held": within(mean, pred["mae_diff_um"]),
+           "measured_error_beyond_lambda0_n": rows[0]["error_beyond_rms_n"],
+           "measured_error_beyond_lambda_n": rows[1]["error_beyond_rms_n"],
+           "error_beyond_lambda0_held": within(rows[0]["error_beyond_rms_n"],
+                                               pred["error_beyond_lambda0_n"]),
+           "error_beyond_lambda_held": within(rows[1]["error_beyond_rms_n"],
+                                              pred["error_beyond_lambda_n"])}
+    if "mae_diff_calibrated_um" in pred:
+        out["calibrated_amount_held"] = within(mean, pred["mae_diff_calibrated_um"])
+    return out
 
 
 # ----------------------------------------------------------------------------- report
@@ -539,6 +711,68 @@ def report(s: dict) -> str:
                 + "; ".join(f"{case}, {row_label(name)}: "
                             + ", ".join(f"{k} {v:.3g}" for k, v in m.items())
                             for case, name, m in moved) + "."]
+    if all(c.get("effects_beyond") for c in s["cases"].values()):
+        out += ["", "**Per effect, the force the LIP's columns do not hold** (rms of the effect's "
+                "force along the exact motion minus its least-squares projection on a, v, "
+                f"sign v, y, 1 over {st['inside']}; on {st['inside']}, and along "
+                f"{st['outside']} beyond the range):", "",
+                f"| case | effect | on {st['inside']} [N] | along {st['outside']} beyond [N] |",
+                "|---|---|---|---|"]
+        for case, c in s["cases"].items():
+            for name, e in c["effects_beyond"].items():
+                out.append(f"| {case} | {name.split(':', 1)[1]} | {e['inside_rms_n']:.3f} | "
+                           f"{e['beyond_rms_n']:.3f} |")
+    if any("units" in c for c in s["cases"].values()):
+        out += ["", f"**Unit by unit** (medians over the fits; a unit is named near-linear when "
+                f"its pre-activation stays within ±{st['near_linear']:g} on every training "
+                "sample; share: the named units' part of the squared remainder force beyond the "
+                "range; intervention: the named units' tanh replaced by their line over the "
+                "training samples; control: as many unnamed units, those with the most remainder "
+                "force on the training samples; Δ: error beyond, arm minus the fit itself, "
+                "median over the fits that have named units):", "",
+                "| case | row | named units (range) | fits with named | share beyond | static "
+                "error beyond: fit / named / control [N] | Δ named / Δ control [N] | named "
+                "lowers it more | static error inside: fit / named / control [N] | MAE "
+                f"{st['outside']}: fit / named / control [µm] |",
+                "|---|---|---|---|---|---|---|---|---|---|"]
+        f3 = lambda x, p=".2f": "–" if x is None else format(x, p)  # noqa: E731
+        for case, c in s["cases"].items():
+            for name, u in c.get("units", {}).items():
+                out.append(
+                    f"| {case} | {row_label(name)} | {u['named_median']:g} "
+                    f"({u['named_range'][0]}–{u['named_range'][1]}) | "
+                    f"{u['fits_with_named']}/{u['fits']} | {u['named_share_beyond']:.2f} | "
+                    f"{f3(u['error_beyond_none_n'])} / {f3(u['error_beyond_named_n'])} / "
+                    f"{f3(u['error_beyond_control_n'])} | {f3(u['delta_beyond_named_n'], '+.2f')}"
+                    f" / {f3(u['delta_beyond_control_n'], '+.2f')} | "
+                    f"{u['named_lowers_more']}/{u['fits_with_named']} | "
+                    f"{f3(u['error_inside_none_n'], '.3f')} / "
+                    f"{f3(u['error_inside_named_n'], '.3f')} / "
+                    f"{f3(u['error_inside_control_n'], '.3f')} | "
+                    f"{f3(u['mae_outside_none_um'], '.3f')} / "
+                    f"{f3(u['mae_outside_named_um'], '.3f')} / "
+                    f"{f3(u['mae_outside_control_um'], '.3f')} |")
+    for case, c in s["cases"].items():
+        pr = c.get("prediction")
+        if not pr:
+            continue
+        yes = lambda b: "held" if b else "did not hold"  # noqa: E731
+        out += ["", f"**The prediction written before the run ({case})**: MAE {st['outside']}, "
+                f"λ = {st['lam']:g} − {z}: {pr['mae_diff_um']:+.3f} µm"
+                + (f" (calibrated on the cubic cable: {pr['mae_diff_calibrated_um']:+.3f} µm)"
+                   if "mae_diff_calibrated_um" in pr else "")
+                + f"; static force error beyond the range: {z} {pr['error_beyond_lambda0_n']:.2f}"
+                f" N, λ = {st['lam']:g} {pr['error_beyond_lambda_n']:.2f} N; an amount holds "
+                f"within a factor {pr['factor']:g}. Measured: {pr['measured_mae_diff_um']:+.3f}"
+                f" µm (t-interval on the per-record means [{pr['measured_ci_um'][0]:+.3f}, "
+                f"{pr['measured_ci_um'][1]:+.3f}]); errors beyond (medians) "
+                f"{pr['measured_error_beyond_lambda0_n']:.2f} N and "
+                f"{pr['measured_error_beyond_lambda_n']:.2f} N. The sign {yes(pr['sign_held'])}; "
+                f"the amount {yes(pr['amount_held'])}"
+                + (f"; the calibrated amount {yes(pr['calibrated_amount_held'])}"
+                   if "calibrated_amount_held" in pr else "")
+                + f"; {z}'s force error beyond {yes(pr['error_beyond_lambda0_held'])}; "
+                f"λ = {st['lam']:g}'s {yes(pr['error_beyond_lambda_held'])}."]
     out += ["", "Figure: `figures/force_beyond.png` (first record, draw 0 of each case)."]
     return "\n".join(out) + "\n"
 
