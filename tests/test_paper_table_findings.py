@@ -28,10 +28,23 @@ OPT1 = "PGNN simultaneous, lambda=0.01, weight decay 1e-5, best of starts, n_l={
 
 # (a, b, metric, reference) -> (side of zero of the 95 % interval: "+", "-" or "0" where it
 # holds zero, starred after Holm). The page's findings, in its order.
-FINDINGS: dict[tuple, tuple[str, bool]] = {}
+FINDINGS: dict[tuple, tuple[str, bool]] = {
+    # (1) every PGNN row improves on the LIP on r1
+    **{(row.format(n=n), "LIP", "mae", "r1"): ("-", True)
+       for n in (16, 8) for row in (SEQ, PAPER0, PAPER1, OPT0, OPT1)},
+    # (2) lambda = 0.01 holds theta_phy nearer theta_LIP than lambda = 0 at the optimum
+    **{(OPT1.format(n=n), OPT0.format(n=n), "theta_drift", None): ("-", False) for n in (16, 8)},
+    # (3) on r2 lambda resolves no difference, at the optimum and on the paper's cost
+    **{(a.format(n=n), b.format(n=n), "mae", "r2"): ("0", False)
+       for n in (16, 8) for a, b in ((OPT1, OPT0), (PAPER1, PAPER0))},
+    # (4) at n_l = 8, lambda = 0.01 at its optimum ahead of sequential on r1, not on r2
+    (OPT1.format(n=8), SEQ.format(n=8), "mae", "r1"): ("-", False),
+    (OPT1.format(n=8), SEQ.format(n=8), "mae", "r2"): ("0", False),
+}
 
 # rows at their optimum: fits converged (of 10)
-CONVERGED: dict[str, int] = {}
+CONVERGED: dict[str, int] = {OPT0.format(n=16): 9, OPT1.format(n=16): 10,
+                             OPT0.format(n=8): 9, OPT1.format(n=8): 10}
 
 
 def _side(ci) -> str:
@@ -81,8 +94,18 @@ def test_the_optimum_checks_hold_in_the_stored_run(stored):
     assert all(c["passed"] for c in counted), [c["detail"] for c in counted if not c["passed"]]
 
 
-def test_the_page_states_each_finding_on_its_side():
-    """Each finding's a − b is on the page with an interval whose side of zero is the one
-    declared (the digits are the run's business; the side is the conclusion)."""
+def test_the_conclusions_fail_where_they_should(stored):
+    """An interval moved across zero, or a star lost, is a changed conclusion."""
+    key = (OPT1.format(n=16), OPT0.format(n=16), "mae", "r2")
+    doc = {**stored, "comparisons": [dict(c) for c in stored["comparisons"]]}
+    moved = next(c for c in doc["comparisons"]
+                 if (c["a"], c["b"], c["metric"], c["reference"]) == key)
+    moved["ci95"] = [0.001, 0.1]
+    assert conclusions(doc)[0][key] != FINDINGS[key]
+
+
+def test_the_page_quotes_the_findings():
+    """The page's answer names the rows at their optimum and the checks it rests on."""
     page = PAGE.read_text(encoding="utf-8")
-    assert "best of starts" in page and "checks" in page
+    head = "\n".join(page.splitlines()[:25])
+    assert "at its optimum" in head and "(3)" in head and "checks" in page
