@@ -127,7 +127,8 @@ class FitRecord:
     the iterations, a fraction of the training force's rms) and theta_ftol, theta_path (theta_phy
     at checkpoint iterations), continuation_lam (the lambda of the continuation start where one
     ran, else 0), start (the kind of start kept), starts and start_rtol (two starts agree when
-    their objectives differ by at most this fraction of the lower). A pinned fit (``fit_pinned``) has
+    their objectives differ by at most this fraction of the lower). A pinned fit
+    (``fit_pinned``) has
     pinned (name -> value held fixed, SI units) instead.
     """
 
