@@ -128,8 +128,7 @@ class FitRecord:
     at checkpoint iterations), continuation_lam (the lambda of the continuation start where one
     ran, else 0), start (the kind of start kept), starts and start_rtol (two starts agree when
     their objectives differ by at most this fraction of the lower). A pinned fit
-    (``fit_pinned``) has
-    pinned (name -> value held fixed, SI units) instead.
+    (``fit_pinned``) has pinned (name -> value held fixed, SI units) instead.
     """
 
     stop: str
