@@ -256,6 +256,7 @@ class PGNNSettings:
 
     def __post_init__(self):
         check_settings({f.name: getattr(self, f.name) for f in fields(self)})
+        object.__setattr__(self, "starts", tuple(self.starts))  # a file's list, one form
 
 
 DECIMATION_S = 0.008  # s between kept samples of the filtered data: 125 samples/s

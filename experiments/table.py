@@ -61,9 +61,6 @@ REGULARIZER_KEYS = ("training", "lambda", "lambda_diag", "orthogonal_weight", "p
 OTHER_KEYS = ("weight_decay", "continuation_lambda", "init", "restarts", "optimizer",
               "activation", "max_iter", "ftol", "theta_ftol", "decimation",
               "validation_fraction", "adam_lr", "starts", "start_rtol")
-# A setting that does not apply to a row (None in its settings: a sequential fit has no lambda to
-# continue from) is no difference from any value.
-NOT_APPLICABLE = ("continuation_lambda",)
 
 
 def row_settings(spec, fits: list[FitRecord]) -> dict:
@@ -78,16 +75,17 @@ def row_settings(spec, fits: list[FitRecord]) -> dict:
     out.update({k: pg[k] for k in OTHER_KEYS if k in pg and k not in out})
     if "starts" in out:
         out["starts"] = list(out["starts"])
-    if spec.training == "sequential":
-        out["continuation_lambda"] = None
+    if spec.training == "sequential" and "exchange" in pg.get("starts", ()):
+        # A sequential fit has no lambda to continue from; with the exchange it is compared
+        # with the simultaneous rows that exchange, as one procedure applied to each.
+        out["continuation_lambda"] = pg["continuation_lam"]
     return out
 
 
 def varies(a: dict, b: dict) -> tuple[str, dict] | None:
     """The one setting in which rows with settings ``a`` and ``b`` differ, with its values
     ``{key: [a's, b's]}``; None when they differ in none or in more than one (or in n_l)."""
-    diff = {k: [a.get(k), b.get(k)] for k in dict.fromkeys([*a, *b]) if a.get(k) != b.get(k)
-            and not (k in NOT_APPLICABLE and None in (a.get(k), b.get(k)))}
+    diff = {k: [a.get(k), b.get(k)] for k in dict.fromkeys([*a, *b]) if a.get(k) != b.get(k)}
     if not diff or "hidden" in diff:
         return None
     reg = {k: v for k, v in diff.items() if k in REGULARIZER_KEYS}

@@ -11,7 +11,7 @@ its keys.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from clm_sim.errors import UserError
@@ -101,7 +101,7 @@ class Start:
     cost: float
     stop: str
     iterations: int
-    reused: bool = False
+    reused: bool = field(default=False, compare=False)  # bookkeeping, not the outcome
 
     def to_json(self) -> dict:
         return {"start": self.start, "cost": self.cost, "stop": self.stop,
