@@ -351,7 +351,7 @@ class PGNNFeedforward:
         if self._exchanges():
             zero = replace(own, lam_diag=np.zeros(4))
             reg = replace(own, lam_diag=np.full(4, float(s.continuation_lam)))
-            at = {"zero": base(zero), "reg": base(reg)}
+            free, pulled = base(zero), base(reg)
 
             def cost(tries):
                 return min(t[1][0].result.cost for t in tries)
@@ -359,16 +359,16 @@ class PGNNFeedforward:
             def beta(tries):
                 return min(tries, key=lambda t: t[1][0].result.cost)[1][0].net.get_nonlinear()
 
-            at["zero"].append(("continuation", optimize(beta(at["reg"]), zero)))
+            free.append(("continuation", optimize(beta(pulled), zero)))
             for _ in range(EXCHANGE_ROUNDS):
-                before = cost(at["reg"])
-                at["reg"].append(("exchange", optimize(beta(at["zero"]), reg)))
-                if cost(at["reg"]) >= before * (1 - s.start_rtol):
+                before = cost(pulled)
+                pulled.append(("exchange", optimize(beta(free), reg)))
+                if cost(pulled) >= before * (1 - s.start_rtol):
                     break
-                at["zero"].append(("continuation", optimize(beta(at["reg"]), zero)))
-            if cost(at["reg"]) < cost(at["zero"]):
-                at["zero"].append(("continuation", optimize(beta(at["reg"]), zero)))
-            return at["zero"] if not np.any(own.lam_diag) else at["reg"]
+                free.append(("continuation", optimize(beta(pulled), zero)))
+            if cost(pulled) < cost(free):
+                free.append(("continuation", optimize(beta(pulled), zero)))
+            return free if not np.any(own.lam_diag) else pulled
         tries = base(own)
         if self._continues():
             lam_c = np.full(4, float(s.continuation_lam))
