@@ -24,6 +24,12 @@ TRAININGS = ("simultaneous", "sequential", "pinn")
 OPTIMIZERS = ("varpro", "lm", "adam")
 INITS = ("optimized", "random")
 ACTIVATION_NAMES = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
+# Where a fit's optimizations start (PGNNSettings.starts): its drawn hidden layers; the
+# sequential solution of that draw (theta_phy held at theta_LIP, the network fitted to the LIP's
+# residual: the lambda -> infinity end of the homotopy); at lambda = 0 the solution regularized
+# with continuation_lambda; and the exchange of the lambda = 0 and lambda = continuation_lambda
+# fits' best solutions until neither lowers its objective by more than start_rtol.
+START_NAMES = ("draw", "lip", "continuation", "exchange")
 
 
 @dataclass(frozen=True)
@@ -98,6 +104,19 @@ class PerParameter:
 
 
 @dataclass(frozen=True)
+class Starts:
+    """A list of distinct names of ``START_NAMES`` that holds ``draw``."""
+
+    def describe(self) -> str:
+        return f"a list of distinct names of {', '.join(START_NAMES)} holding draw"
+
+    def accepts(self, value) -> bool:
+        return (isinstance(value, (list, tuple)) and "draw" in value
+                and len(set(value)) == len(value)
+                and all(isinstance(v, str) and v in START_NAMES for v in value))
+
+
+@dataclass(frozen=True)
 class OrNone:
     """``None`` (a default that depends on the data), or what ``rule`` accepts."""
 
@@ -135,6 +154,8 @@ CONSTRAINTS = {
     "validation_fraction": ("pgnn.validation_fraction", Interval(float, 0, 0.5, "high")),
     "decimation": ("pgnn.decimation", OrNone(Interval(int, 1))),
     "theta_ftol": ("pgnn.theta_ftol", Interval(float, 0)),
+    "starts": ("pgnn.starts", Starts()),
+    "start_rtol": ("pgnn.start_rtol", Interval(float, 0, 1, "high")),
 }
 
 
@@ -227,6 +248,15 @@ class PGNNSettings:
         moved by at most this fraction of the training force's rms (else the stop is
         ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
         converge to).
+    starts : tuple of str
+        Where each draw's optimizations start (``START_NAMES``): ``draw``; ``lip``, from the
+        draw's sequential solution; ``continuation``, at lambda = 0 from the draw's solution
+        regularized with continuation_lam; ``exchange``, the lambda = 0 and lambda =
+        continuation_lam fits of the draw start from each other's best until neither improves
+        by more than start_rtol (implies the continuation). The lowest objective is kept.
+    start_rtol : float
+        Two starts agree when their objectives differ by at most this fraction of the lower
+        (the fit record counts the starts that agree with the kept one).
 
     Raises
     ------
@@ -261,12 +291,15 @@ class PGNNSettings:
     lam_diag: dict[str, float] | None = None
     decimation: int | None = None
     theta_ftol: float = 0.01
+    starts: tuple[str, ...] = ("draw", "continuation")
+    start_rtol: float = 1e-3
 
     aliases: ClassVar[dict[str, str]] = {k: LAMBDA_KEYS[k] for k in ("lambda_diag",
                                                                       "continuation_lambda")}
 
     def __post_init__(self):
         check_settings({f.name: getattr(self, f.name) for f in fields(self)})
+        object.__setattr__(self, "starts", tuple(self.starts))  # a file's list, one form
 
 
 DECIMATION_S = 0.008  # s between kept samples of the filtered data: 125 samples/s

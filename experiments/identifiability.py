@@ -259,13 +259,14 @@ def sloppy_directions(model, phi: np.ndarray, target: np.ndarray, count: int = 3
 
 def lip_intervals(phi: np.ndarray, target: np.ndarray) -> LipIntervals:
     """The LIP (least squares of ``target`` on ``phi``'s four columns, named) on the fitting
-    samples, with white-noise and Newey-West (autocorrelation-robust) standard errors and the
-    residual's lag-1 autocorrelation (:func:`experiments.hac.newey_west`)."""
+    samples, with white-noise and Newey-West (autocorrelation-robust) standard errors at the
+    automatic bandwidth of Newey and West (1994), the residual's lag-1 autocorrelation and its
+    autocorrelation at the lags chosen (:func:`experiments.hac.newey_west`)."""
     from experiments.hac import newey_west
 
-    fit = newey_west(phi, target)
+    fit = newey_west(phi, target, lags="auto")
     def named(values):
         return dict(zip(THETA_NAMES, map(float, values)))
 
     return LipIntervals(named(fit.theta), named(fit.std_white), named(fit.std_newey_west),
-                        fit.lag1_autocorr, fit.lags, int(len(target)))
+                        fit.lag1_autocorr, fit.lags, int(len(target)), fit.autocorr_at_lags)

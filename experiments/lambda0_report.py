@@ -1,4 +1,4 @@
-"""The two tables of ``docs/results/lambda0.md`` section 2, printed from a paper-table run.
+"""The λ rows of a paper-table run and their comparisons (``docs/results/lambda0.md``).
 
     python -m experiments.lambda0_report results/paper_table/table.json
 
@@ -7,8 +7,8 @@ Both come from the run's ``table.json`` (``clm-sim run experiments/configs/paper
 * per PGNN row, MAE on r1 and r2 (mean ± std over draws, the largest draw), θ_phy's largest
   relative drift from θ_LIP (mean / largest over the draws, %), the median stiffness over the
   draws (smallest, largest) and how many fits converged;
-* the paired comparisons on r2 between rows one setting apart in λ, the network weight decay or
-  the continuation start (the run's own ``comparisons``: difference a − b with its 95 %
+* the paired comparisons on r2 between rows one setting apart in λ (and, where a run has them,
+  the network weight decay or the continuation start; the run's own ``comparisons``: difference a − b with its 95 %
   t-interval, the draws in which a is lower, Wilcoxon p, Holm's p of the t-test, starred below
   0.05, and the paired ratio a/b).
 """

@@ -455,8 +455,9 @@ def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):
     """The data cost's profile over parameter ``name`` (above the best data cost, N²) per
     network size, the threshold δ, and the λ = 0 fits at their θ (a fit beyond the grid is
     drawn at its edge as a triangle pointing out; data costs are those of each fit, its data
-    term alone). A point that passed a convergence test (the optimizer's relative one or the
-    profile's resolution) is filled; one that passed neither, an upper bound, is hollow; a
+    term alone). A point that passed the optimizer's own test (a relative decrease of at most
+    ftol predicted) is filled; a stop (resolved to the profile's resolution, or neither: an
+    upper bound on the profile) is hollow, a resolved one with a dot inside; a
     point continued further (a rise confirmed, or the resolution checked) has a segment to
     where the longer descent took it (a triangle)."""
     ax = _ax(ax)
@@ -466,10 +467,13 @@ def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):
         best = rec.best_data_cost
         ax.plot([p.value for p in pts], [p.data_cost - best for p in pts], "-", color=color(i),
                 label=f"profile, n_l={key}")
-        for settled in (True, False):
-            sel = [p for p in pts if p.settled == settled]
+        for converged in (True, False):
+            sel = [p for p in pts if p.relative_test == converged]
             ax.plot([p.value for p in sel], [p.data_cost - best for p in sel], "o", ms=3,
-                    ls="none", mec=color(i), mfc=color(i) if settled else "white")
+                    ls="none", mec=color(i), mfc=color(i) if converged else "white")
+        resolved = [p for p in pts if p.resolution_test and not p.relative_test]
+        ax.plot([p.value for p in resolved], [p.data_cost - best for p in resolved], ".",
+                ms=1.5, ls="none", color=color(i))
         # Continued points (a rise confirmed, or a resolved point checked): where they were
         # and where the longer descent took them.
         moves = [(p.value, p.confirmed_from, p.data_cost) for p in pts
@@ -488,9 +492,9 @@ def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):
                 v, marker = (lo, "<") if v < lo else (hi, ">")
             ax.plot([v], [max(f.data_cost - best, 0.0)], marker, ms=6, ls="none",
                     mec=color(i), mfc="none", alpha=0.7)
-    ax.plot([], [], "o", ms=3, color="0.3", ls="none", label="converged or resolved")
+    ax.plot([], [], "o", ms=3, color="0.3", ls="none", label="converged (optimizer's test)")
     ax.plot([], [], "o", ms=3, mec="0.3", mfc="white", ls="none",
-            label="neither (upper bound)")
+            label="a stop: resolved (dot) or neither (upper bounds)")
     ax.plot([], [], "v", ms=5, mec="0.3", mfc="none", ls="none",
             label="continued (check, or a rise confirmed)")
     ax.plot([], [], "x", color="0.3", ls="none", label="λ = 0 fits (colour: n_l)")

@@ -236,7 +236,8 @@ class SloppyDirections:
 @dataclass(frozen=True)
 class LipIntervals:
     """The LIP on the fitting samples (named theta, SI units) with white-noise and Newey-West
-    standard errors, the residual's lag-1 autocorrelation, the lags used and the samples."""
+    standard errors, the residual's lag-1 autocorrelation, the lags used, the samples and the
+    residual's autocorrelation at the lags used."""
 
     theta: dict[str, float]
     std_white: dict[str, float]
@@ -244,17 +245,18 @@ class LipIntervals:
     lag1_autocorr: float
     lags: int
     n_samples: int
+    autocorr_at_lags: float | None = None
 
     def to_json(self) -> dict:
         return {"theta": dict(self.theta), "std_white": dict(self.std_white),
                 "std_newey_west": dict(self.std_newey_west),
                 "lag1_autocorr": self.lag1_autocorr, "lags": self.lags,
-                "n_samples": self.n_samples}
+                "n_samples": self.n_samples, "autocorr_at_lags": self.autocorr_at_lags}
 
     @classmethod
     def from_json(cls, d: dict) -> LipIntervals:
         return cls(_names(d["theta"]), _names(d["std_white"]), _names(d["std_newey_west"]),
-                   d["lag1_autocorr"], d["lags"], d["n_samples"])
+                   d["lag1_autocorr"], d["lags"], d["n_samples"], d.get("autocorr_at_lags"))
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,10 @@ class SeedFit:
                "data_cost": f.data_cost, "reg_cost": f.reg_cost, "grad_norm": f.grad_norm,
                "first_order": f.first_order, "theta_moved": f.theta_moved,
                "theta_path": [p.to_json() for p in f.theta_path],
-               "continuation_lambda": f.continuation_lam, "start": f.start}
+               "continuation_lambda": f.continuation_lam, "start": f.start,
+               "objective": f.objective, "starts": [s.to_json() for s in f.starts],
+               "start_rtol": f.start_rtol, "agree": f.agree, "spread": f.spread,
+               "multiple_optima": f.multiple_optima}
         if self.theta_drift is not None:
             out["theta_drift"] = self.theta_drift
         return out

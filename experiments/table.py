@@ -60,7 +60,7 @@ def regularizers(spec, fits: list[FitRecord]) -> dict:
 REGULARIZER_KEYS = ("training", "lambda", "lambda_diag", "orthogonal_weight", "pinn_weight")
 OTHER_KEYS = ("weight_decay", "continuation_lambda", "init", "restarts", "optimizer",
               "activation", "max_iter", "ftol", "theta_ftol", "decimation",
-              "validation_fraction", "adam_lr")
+              "validation_fraction", "adam_lr", "starts", "start_rtol")
 
 
 def row_settings(spec, fits: list[FitRecord]) -> dict:
@@ -73,6 +73,12 @@ def row_settings(spec, fits: list[FitRecord]) -> dict:
     out.update({k: reg[k] for k in ("lambda", "lambda_diag", "orthogonal_weight", "pinn_weight",
                                     "weight_decay", "continuation_lambda", "init")})
     out.update({k: pg[k] for k in OTHER_KEYS if k in pg and k not in out})
+    if "starts" in out:
+        out["starts"] = list(out["starts"])
+    if spec.training == "sequential" and "exchange" in pg.get("starts", ()):
+        # A sequential fit has no lambda to continue from; with the exchange it is compared
+        # with the simultaneous rows that exchange, as one procedure applied to each.
+        out["continuation_lambda"] = pg["continuation_lam"]
     return out
 
 
@@ -141,6 +147,70 @@ def comparisons(rows: list[dict]) -> list[dict]:
     return out
 
 
+def at_optimum(row: dict) -> bool:
+    """Whether a PGNN row reports each draw at the lowest objective of several starts (its
+    ``starts`` setting holds more than the draw), rather than where one start's budget ends."""
+    return len((row.get("settings") or {}).get("starts") or ["draw"]) > 1
+
+
+BOUND_RTOL = 1e-12  # the lambda = 0 bound holds by construction; this is rounding
+
+
+def optimum_checks(rows: list[dict]) -> list[dict]:
+    """What must hold at an optimum, per pair of PGNN rows that differ in lambda alone, one at
+    lambda = 0 (``table.json``'s ``checks``): ``bound``, no lambda = 0 fit's objective (data cost
+    and weight decay) ends above its draw's regularized fit's objective (pull included), since
+    that fit is feasible at lambda = 0; ``data_cost``, the lambda = 0 row's mean data cost is no
+    higher than the regularized row's. And per PGNN row, ``converged_beaten``: no fit is marked
+    converged that another of its starts beats by more than its ``start_rtol``. A pair or row
+    with one start per draw (the paper's cost: a fixed budget, no minimizer) is listed with
+    ``at_optimum`` false and does not count toward ``passed``."""
+    out = []
+    pgnn = [r for r in rows if r["kind"] == "pgnn" and "fits" in r and "settings" in r]
+    for a in pgnn:
+        for b in pgnn:
+            one = varies(a["settings"], b["settings"])
+            if (one is None or one[0] != "lambda" or a["lambda"] != 0 or not b["lambda"]
+                    or a["n_seeds"] != b["n_seeds"]):
+                continue
+            optimum = at_optimum(a) and at_optimum(b)
+            above = [fa["seed"] for fa, fb in zip(a["fits"], b["fits"])
+                     if fa["objective"] > fb["objective"] * (1 + BOUND_RTOL)]
+            out.append({"check": "bound", "a": a["label"], "b": b["label"],
+                        "hidden": a["hidden"], "at_optimum": optimum,
+                        "passed": not above, "failing_seeds": above,
+                        "detail": f"{len(above)} of {a['n_seeds']} lambda = 0 fits end above "
+                                  f"their draw's lambda = {b['lambda']:g} objective"})
+            da, db = a["data_cost"]["mean"], b["data_cost"]["mean"]
+            out.append({"check": "data_cost", "a": a["label"], "b": b["label"],
+                        "hidden": a["hidden"], "at_optimum": optimum, "passed": da <= db,
+                        "mean_a": da, "mean_b": db,
+                        "detail": f"mean data cost {da:.5f} against {db:.5f} N² "
+                                  f"({(da / db - 1) * 100:+.2f} %)"})
+    for r in pgnn:
+        beaten = [f["seed"] for f in r["fits"] if f["stop"] == "converged"
+                  and f.get("start_rtol") is not None and f.get("starts")
+                  and min(s["cost"] for s in f["starts"])
+                  < f["objective"] * (1 - f["start_rtol"])]
+        out.append({"check": "converged_beaten", "a": r["label"], "b": None,
+                    "hidden": r["hidden"], "at_optimum": at_optimum(r), "passed": not beaten,
+                    "failing_seeds": beaten,
+                    "detail": f"{len(beaten)} fits marked converged that another of their "
+                              f"starts beats by more than start_rtol"})
+    return out
+
+
+def check_lines(checks: list[dict]) -> list[str]:
+    """The checks as Markdown list items, the rows at their optimum first."""
+    lines = []
+    for c in sorted(checks, key=lambda c: not c["at_optimum"]):
+        what = c["a"] if c["b"] is None else f"{c['a']} against {c['b']}"
+        mark = "holds" if c["passed"] else "FAILS"
+        budget = "" if c["at_optimum"] else " (a fixed budget, not an optimum: not counted)"
+        lines.append(f"- {c['check']}, {what}: {mark}: {c['detail']}{budget}")
+    return lines
+
+
 def to_json(rows: list[dict], environment: dict | None = None,
             pairs: list[dict] | None = None) -> str:
     """``{"rows": ...}``, with ``"comparisons"`` when there are PGNN rows to compare and
@@ -151,6 +221,10 @@ def to_json(rows: list[dict], environment: dict | None = None,
     pairs = comparisons(rows) if pairs is None else pairs
     if pairs:
         doc["comparisons"] = pairs
+    checks = optimum_checks(rows)
+    if checks:
+        doc["checks"] = checks
+        doc["checks_passed"] = all(c["passed"] for c in checks if c["at_optimum"])
     if environment is not None:
         doc["environment"] = environment
     return json.dumps(doc, indent=1)
@@ -255,6 +329,11 @@ def fit_report(rows: list[dict], pairs: list[dict] | None = None) -> str:
                   f"{r['network_peak_beyond_n'][ref]['std']:.2f}"
                   if ref in r["network_peak_beyond_n"] else "–" for ref in beyond]
         lines.append("| " + " | ".join(cells) + " |")
+    lines += start_report(pgnn)
+    checks = optimum_checks(rows)
+    if checks:
+        lines += ["", "**What must hold at an optimum** (`checks` in table.json):", ""]
+        lines += check_lines(checks)
     capped = [(r["label"], f) for r in pgnn for f in r["fits"] if f["stop"] != "converged"]
     total = sum(len(r["fits"]) for r in pgnn)
     lines += ["", (f"**Fits:** {total - len(capped)} of {total} converged (the Gauss-Newton "
@@ -278,6 +357,39 @@ def fit_report(rows: list[dict], pairs: list[dict] | None = None) -> str:
     for c in comparisons(rows) if pairs is None else pairs:
         lines.append(comparison_line(c))
     return "\n".join(lines) + "\n"
+
+
+def start_report(pgnn: list[dict]) -> list[str]:
+    """For the PGNN rows fitted from several starts per draw: the start kept, how many starts
+    agree with it (within ``start_rtol`` of its objective), the fits with multiple optima
+    (two converged starts more than ``start_rtol`` apart) and the spread of the starts'
+    objectives, and the iterations run and taken from other rows."""
+    several = [r for r in pgnn if at_optimum(r)]
+    if not several:
+        return []
+    lines = ["", ("**Starts** (rows at their optimum: per draw the lowest objective of its "
+                  "starts is kept; a start agrees when its objective is within start_rtol of "
+                  "the kept one; multiple optima: two starts that passed the optimizer's test "
+                  "end more than start_rtol apart; iterations run, and taken from another "
+                  "row's fits of the same draw):"), "",
+             "| PGNN | start_rtol | kept (draws) | starts agreeing, median (min) of n | "
+             "fits with multiple optima | spread of the starts' objectives, median (max) [%] | "
+             "iterations run (taken) |", "|---|---|---|---|---|---|---|"]
+    for r in several:
+        fits = r["fits"]
+        kept = [f.get("start") or "draw" for f in fits]
+        agree = [f["agree"] for f in fits]
+        n = [len(f["starts"]) for f in fits]
+        spread = [f["spread"] * 100 for f in fits]
+        run = sum(s["iterations"] for f in fits for s in f["starts"] if not s["reused"])
+        taken = sum(s["iterations"] for f in fits for s in f["starts"] if s["reused"])
+        lines.append(
+            f"| {r['label']} | {fits[0]['start_rtol']:g} | "
+            + ", ".join(f"{k} {kept.count(k)}" for k in sorted(set(kept)))
+            + f" | {np.median(agree):g} ({min(agree)}) of {np.median(n):g} "
+            f"({min(n)}–{max(n)}) | {sum(f['multiple_optima'] for f in fits)}/{len(fits)} | "
+            f"{np.median(spread):.2f} ({max(spread):.2f}) | {run} ({taken}) |")
+    return lines
 
 
 def _p(p) -> str:

@@ -80,7 +80,7 @@ def _record(start: str, continuation_lam: float):
 def test_regularizers_name_every_term_and_start():
     from experiments import table
     config = load_config(PAPER)
-    spec = next(s for s in config.feedforwards if s.name and "continuation" in s.name)
+    spec = next(s for s in config.feedforwards if s.name and "best of starts" in s.name)
     reg = table.regularizers(spec, [_record("continuation", 0.01), _record("draw", 0.01)])
     assert reg["weight_decay"] == 1e-5 and reg["continuation_lambda"] == 0.01
     assert reg["init"] == "lemma" and reg["starts_kept"] == {"continuation": 1, "draw": 1}
@@ -318,8 +318,8 @@ def test_paper_cost_lambda0_predicts_its_training_record_at_its_training_cost(pa
 def test_table_compares_only_rows_that_differ_in_one_setting():
     """paper_table.yaml's PGNN rows, as the table sees them: every comparison pairs rows that
     differ in exactly one setting and names it; the paper's-cost lambda = 0 / 0.01 pair exists
-    per n_l and varies lambda; weight decay and the continuation start are compared alone; no
-    pair mixes lambda with weight decay or continuation."""
+    per n_l and varies lambda, and so does the pair at the optimum (both rows exchange their
+    starts); no pair mixes lambda with weight decay or the starts."""
     from experiments import table
     from experiments.results import ReferenceMetrics, SeedFit, SeedResult, TableRow
 
@@ -330,7 +330,7 @@ def test_table_compares_only_rows_that_differ_in_one_setting():
         if spec.kind != "pgnn":
             continue
         cont = (spec.pgnn.continuation_lam if spec.training == "simultaneous"
-                and not spec.lam and spec.pgnn.continuation_lam else 0.0)
+                and "exchange" in spec.pgnn.starts else 0.0)
         record = _record("draw", cont)
         seeds = [SeedResult({"r1": ReferenceMetrics(float(rng.uniform(2e-7, 4e-7)), 1e-7, 1e-6)},
                             SeedFit(s, record, float(rng.uniform(0, 1))))
@@ -351,8 +351,10 @@ def test_table_compares_only_rows_that_differ_in_one_setting():
                     and c["a"] == f"PGNN simultaneous, lambda=0.01, the paper's cost, n_l={n}"
                     and c["b"] == f"PGNN simultaneous, lambda=0, the paper's cost, n_l={n}"]
         assert len(lam_pair) == 1 and lam_pair[0]["values"] == {"lambda": [0.01, 0.0]}
-        assert any(c["varies"] == "weight_decay" and f"n_l={n}" in c["a"] for c in mae)
-        assert any(c["varies"] == "continuation_lambda" and f"n_l={n}" in c["a"] for c in mae)
+        optimum = [c for c in mae if c["varies"] == "lambda" and c["a"] ==
+                   f"PGNN simultaneous, lambda=0.01, weight decay 1e-5, best of starts, n_l={n}"]
+        assert len(optimum) == 1
+        assert not any(c["varies"] in ("weight_decay", "starts") for c in mae)
     # The pair the outside review found confounded is not compared.
     assert not any(c["a"].startswith("PGNN simultaneous, lambda=0.01, weight decay 1e-5")
                    and "the paper's cost" in c["b"] and "lambda=0," in c["b"] for c in pairs)
@@ -585,23 +587,24 @@ def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():
     assert all(li.std_newey_west[n] > li.std_white[n] for n in ("viscous", "stiffness"))
 
 
-def test_section_two_of_the_page_is_what_the_report_prints_for_the_stored_run():
-    """lambda0.md section 2's two tables are ``experiments.lambda0_report`` of the paper table's
-    stored run (the run behind paper_table.md), line for line: no hand-copied number."""
+def test_the_page_table_is_what_the_report_prints_for_the_stored_run():
+    """lambda0.md's table is ``experiments.lambda0_report``'s comparisons of the paper table's
+    stored run (the run behind paper_table.md), line for line: no hand-copied number; the
+    report's rows table is printed from the same run."""
     import json
 
     from experiments import lambda0_report
 
     doc = json.loads((ROOT / "docs/results/paper_table.json").read_text(encoding="utf-8"))
     page = (ROOT / "docs/results/lambda0.md").read_text(encoding="utf-8")
-    section = page[page.index("## 2. One setting at a time"):page.index("## 3.")]
-    for table in (lambda0_report.rows_table(doc), lambda0_report.comparisons_table(doc)):
-        lines = table.strip().splitlines()
-        start = section.index(lines[0])
-        assert section[start:].splitlines()[:len(lines)] == lines
+    section = page[:page.index("## Method")]
+    lines = lambda0_report.comparisons_table(doc).strip().splitlines()
+    start = section.index(lines[0])
+    assert section[start:].splitlines()[:len(lines)] == lines
+    assert len(lambda0_report.rows_table(doc).strip().splitlines()) == 2 + 10
     varied = {line.split(" | ")[1] for line in
               lambda0_report.comparisons_table(doc).strip().splitlines()[2:]}
-    assert varied == {"lambda", "weight_decay", "continuation_lambda"}
+    assert varied == {"lambda"}
 
 
 @pytest.mark.parametrize("content, expected", [
@@ -644,9 +647,11 @@ def test_every_shipped_lambda_comparison_varies_lambda_alone():
     paper = load_config(configs / "paper_table.yaml").feedforwards
     by_name = {f.label(): f for f in paper}
     for n_l in (16, 8):
-        zero = by_name[f"PGNN simultaneous, lambda=0, weight decay 1e-5, n_l={n_l}"]
-        pulled = by_name[f"PGNN simultaneous, lambda=0.01, weight decay 1e-5, n_l={n_l}"]
-        assert zero.pgnn.continuation_lam == 0 and zero.pgnn.weight_decay == pulled.pgnn.weight_decay
+        zero = by_name[f"PGNN simultaneous, lambda=0, weight decay 1e-5, best of starts, n_l={n_l}"]
+        pulled = by_name[f"PGNN simultaneous, lambda=0.01, weight decay 1e-5, best of starts, "
+                         f"n_l={n_l}"]
+        # the exchange runs both ways: the rows differ in lambda alone
+        assert zero.pgnn == pulled.pgnn and "exchange" in zero.pgnn.starts
 
 
 @pytest.mark.parametrize("extra, text", [

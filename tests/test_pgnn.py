@@ -387,9 +387,9 @@ def test_predict_refuses_before_fit():
         PGNNFeedforward().feedforward(np.zeros(100), 1e-4)
 
 
-def test_paper_table_config_has_the_fourteen_rows():
-    """Per n_l: sequential; lambda = 0 and 0.01 with the paper's cost; lambda = 0 with weight
-    decay, then with weight decay and continuation; lambda = 0.01 with weight decay."""
+def test_paper_table_config_has_the_twelve_rows():
+    """Per n_l: sequential; lambda = 0 and 0.01 with the paper's cost (one start); lambda = 0
+    and 0.01 with weight decay at their optimum (several starts, exchanged)."""
     from pathlib import Path
 
     from experiments.config import load_config
@@ -400,8 +400,63 @@ def test_paper_table_config_has_the_fourteen_rows():
     assert rows == [("none", None, None, None), ("lip", None, None, None)] + [
         ("pgnn", t, lam, n) for n in (16, 8)
         for t, lam in (("sequential", None), ("simultaneous", 0.0), ("simultaneous", 0.01),
-                       ("simultaneous", 0.0), ("simultaneous", 0.0), ("simultaneous", 0.01))]
+                       ("simultaneous", 0.0), ("simultaneous", 0.01))]
     assert all(f.seeds >= 10 for f in config.feedforwards if f.kind == "pgnn")
+    starts = [f.pgnn.starts for f in config.feedforwards if f.kind == "pgnn"]
+    assert starts == [("draw", "lip", "exchange"), ("draw",), ("draw",),
+                      ("draw", "lip", "exchange"), ("draw", "lip", "exchange")] * 2
+
+
+def test_exchanged_starts_put_lambda_zero_at_or_below_the_regularized_objective(data):
+    """With ``starts: [draw, lip, exchange]`` the lambda = 0 and lambda = 0.01 fits of a draw
+    share their optimizations (the second fit runs none: it takes them from the cache), each
+    keeps its lowest objective, and the lambda = 0 objective never ends above the lambda =
+    0.01 objective, pull included (every regularized solution is feasible at lambda = 0). The
+    record's counts are those of its starts."""
+    from controllers.pgnn.starts import StartCache
+
+    theta = as_dict(lip_theta(data))
+    kw = dict(hidden=6, weight_decay=1e-5, max_iter=40, starts=("draw", "lip", "exchange"))
+    for seed in range(3):
+        cache = StartCache()
+        free = PGNNFeedforward(lam=0.0, **kw).fit_data(
+            data=data, theta_lip=theta, rng=np.random.default_rng(seed), reuse=cache)
+        reg = PGNNFeedforward(lam=0.01, **kw).fit_data(
+            data=data, theta_lip=theta, rng=np.random.default_rng(seed), reuse=cache)
+        assert all(s.reused for s in reg.fit_.starts)
+        assert not free.fit_.starts[0].reused  # the first fit ran its own draw
+        assert {s.start for s in free.fit_.starts} >= {"draw", "lip", "continuation"}
+        assert {s.start for s in reg.fit_.starts} >= {"draw", "lip", "exchange"}
+        for model in (free, reg):
+            f = model.fit_
+            assert f.objective == pytest.approx(min(s.cost for s in f.starts), rel=1e-12)
+            assert 1 <= f.agree <= len(f.starts)
+            assert f.spread == pytest.approx(
+                max(s.cost for s in f.starts) / min(s.cost for s in f.starts) - 1)
+        # rounding only: the bound holds by construction
+        assert free.fit_.objective <= reg.fit_.objective * (1 + 1e-12), (seed, free.fit_)
+        assert reg.fit_.continuation_lam == free.fit_.continuation_lam == 0.01
+
+
+def test_default_starts_are_the_draw_and_the_continuation(data):
+    """Without ``starts`` a fit runs as it always did: lambda = 0 from its draw and from the
+    draw's regularized solution; lambda > 0 from its draw alone."""
+    theta = as_dict(lip_theta(data))
+    free = PGNNFeedforward(lam=0.0, hidden=4, max_iter=10).fit_data(
+        data=data, theta_lip=theta, rng=np.random.default_rng(0))
+    reg = PGNNFeedforward(lam=0.01, hidden=4, max_iter=10).fit_data(
+        data=data, theta_lip=theta, rng=np.random.default_rng(0))
+    assert [s.start for s in free.fit_.starts] == ["draw", "continuation"]
+    assert [s.start for s in reg.fit_.starts] == ["draw"]
+    assert reg.fit_.agree == 1 and not reg.fit_.multiple_optima
+
+
+@pytest.mark.parametrize("starts", [["lip"], ["draw", "draw"], ["draw", "nowhere"], "draw"])
+def test_starts_must_name_known_starts_with_the_draw(starts):
+    from clm_sim.errors import UserError
+
+    with pytest.raises(UserError, match="pgnn.starts"):
+        PGNNFeedforward(starts=starts)
 
 
 def test_study_config_loads_and_refuses_unknown_keys(tmp_path):

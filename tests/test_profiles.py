@@ -170,7 +170,8 @@ def test_shipped_config_loads():
 
     config, settings = load_profiles(CONFIG)
     assert settings.records >= 5 and settings.hidden == (16, 8)
-    assert settings.pgnn.weight_decay == 0 and settings.pgnn.continuation_lam == 0
+    # the paper's cost, each record's fit the lowest of its starts
+    assert settings.pgnn.weight_decay == 0 and settings.pgnn.starts == ("draw", "lip", "exchange")
 
 
 @pytest.mark.parametrize("section,key", [

@@ -11,7 +11,7 @@ its keys.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from clm_sim.errors import UserError
@@ -90,22 +90,27 @@ class ThetaPoint:
 
 @dataclass(frozen=True)
 class Start:
-    """One optimization of a fit: ``start`` (``draw``: from the random hidden layers;
-    ``continuation``: from the solution regularized with ``continuation_lam``), its final
-    training cost (N**2), why it stopped and its iterations."""
+    """One optimization of a fit: ``start`` (``draw``: from the random hidden layers; ``lip``:
+    from the draw's sequential solution; ``continuation``: from the solution regularized with
+    ``continuation_lam``; ``exchange``: at lambda = continuation_lam, from the lambda = 0 fit's
+    best), its final training cost (the objective: data cost and every regularizer, N**2), why
+    it stopped, its iterations and whether another fit had run it already (``reused``: taken
+    from the start cache, no iteration spent)."""
 
     start: str
     cost: float
     stop: str
     iterations: int
+    reused: bool = field(default=False, compare=False)  # bookkeeping, not the outcome
 
     def to_json(self) -> dict:
         return {"start": self.start, "cost": self.cost, "stop": self.stop,
-                "iterations": self.iterations}
+                "iterations": self.iterations, "reused": self.reused}
 
     @classmethod
     def from_json(cls, d: dict) -> Start:
-        return cls(str(d["start"]), float(d["cost"]), str(d["stop"]), int(d["iterations"]))
+        return cls(str(d["start"]), float(d["cost"]), str(d["stop"]), int(d["iterations"]),
+                   bool(d.get("reused", False)))
 
 
 @dataclass(frozen=True)
@@ -121,8 +126,9 @@ class FitRecord:
     every start), theta_moved (how far theta_phy's force still moved over the last quarter of
     the iterations, a fraction of the training force's rms) and theta_ftol, theta_path (theta_phy
     at checkpoint iterations), continuation_lam (the lambda of the continuation start where one
-    ran, else 0), start (the kind of start kept) and starts. A pinned fit (``fit_pinned``) has
-    pinned (name -> value held fixed, SI units) instead.
+    ran, else 0), start (the kind of start kept), starts and start_rtol (two starts agree when
+    their objectives differ by at most this fraction of the lower). A pinned fit
+    (``fit_pinned``) has pinned (name -> value held fixed, SI units) instead.
     """
 
     stop: str
@@ -142,6 +148,39 @@ class FitRecord:
     start: str | None = None
     starts: tuple[Start, ...] = ()
     pinned: dict[str, float] | None = None
+    start_rtol: float | None = None
+
+    @property
+    def objective(self) -> float:
+        """The kept fit's training cost: data cost plus every regularizer (N**2)."""
+        return self.data_cost + self.reg_cost
+
+    @property
+    def agree(self) -> int:
+        """How many starts end within ``start_rtol`` of the lowest objective (the kept one's
+        among them; 1 for a fit of one start)."""
+        if len(self.starts) < 2 or self.start_rtol is None:
+            return 1
+        low = min(s.cost for s in self.starts)
+        return sum(s.cost <= low * (1 + self.start_rtol) for s in self.starts)
+
+    @property
+    def spread(self) -> float:
+        """The highest start's objective above the lowest, a fraction of the lowest (0 for one
+        start)."""
+        if len(self.starts) < 2:
+            return 0.0
+        costs = [s.cost for s in self.starts]
+        return (max(costs) - min(costs)) / min(costs)
+
+    @property
+    def multiple_optima(self) -> bool:
+        """Whether two starts that both passed the optimizer's test end more than
+        ``start_rtol`` apart: distinct local minima of the objective."""
+        if self.start_rtol is None:
+            return False
+        done = sorted(s.cost for s in self.starts if s.stop == "converged")
+        return len(done) > 1 and done[-1] > done[0] * (1 + self.start_rtol)
 
     @property
     def converged(self) -> bool:
@@ -170,7 +209,8 @@ class FitRecord:
                 "continuation_lambda": self.continuation_lam, "data_cost": self.data_cost,
                 "reg_cost": self.reg_cost, "grad_norm": self.grad_norm,
                 "first_order": self.first_order, "ftol": self.ftol, "max_iter": self.max_iter,
-                "start": self.start, "starts": [s.to_json() for s in self.starts]}
+                "start": self.start, "starts": [s.to_json() for s in self.starts],
+                "start_rtol": self.start_rtol}
 
     @classmethod
     def from_json(cls, d, where: str = "fit") -> FitRecord | None:
@@ -193,6 +233,7 @@ class FitRecord:
                 continuation_lam=_number(d.get("continuation_lambda")),
                 start=d.get("start"),
                 starts=tuple(Start.from_json(s) for s in d.get("starts") or ()),
+                start_rtol=_number(d.get("start_rtol")),
                 pinned=None if pinned is None else {str(k): float(v) for k, v in
                                                     pinned.items()})
         except (AttributeError, KeyError, TypeError, ValueError) as exc:

@@ -305,9 +305,20 @@ class PGNNFeedforward:
         optimum costs no more than it; a descent from there finds such a point, which a descent
         from the draw alone need not (the cost is flat along the physics/network trade-off)."""
         s = self.settings
-        return (s.continuation_lam > 0 and s.optimizer == "varpro"
+        return ("continuation" in s.starts and s.continuation_lam > 0
+                and s.optimizer == "varpro" and not self._exchanges()
                 and self.training == "simultaneous" and s.orthogonal_weight == 0
                 and not np.any(self.lam_matrix_diag()))
+
+    def _exchanges(self) -> bool:
+        """Whether this fit's draws exchange solutions with the other end of the continuation
+        (``starts`` has ``exchange``): a simultaneous varpro fit without the projection penalty
+        at lambda = 0 or at a uniform lambda = continuation_lam."""
+        s = self.settings
+        diag = self.lam_matrix_diag()
+        return ("exchange" in s.starts and s.continuation_lam > 0 and s.optimizer == "varpro"
+                and self.training == "simultaneous" and s.orthogonal_weight == 0
+                and (not np.any(diag) or bool(np.all(diag == float(s.continuation_lam)))))
 
     def initial_point(self, cost: SeparableCost, theta_lip, rng: np.random.Generator):
         """Starting parameters for the optimizer: ``beta`` (varpro) or ``(x, beta)``."""
@@ -353,25 +364,27 @@ class PGNNFeedforward:
         cache = StartCache() if reuse is None else reuse
         best, starts = None, []
 
-        def optimize(beta0, weights=None) -> StartOutcome:
-            key = self._start_key(fit, held_out, theta_lip_v, beta0, weights)
+        def optimize(beta0, weights=None, model=self) -> tuple[StartOutcome, bool, str]:
+            """The outcome from ``beta0`` of ``model``'s cost (``weights``), whether it was
+            taken from the cache, and its key."""
+            key = model._start_key(fit, held_out, theta_lip_v, beta0, weights)
             got = cache.take(key)
-            if got is None:
-                got = self._one_start(fit, held_out, theta_lip_v, rng, beta0, weights)
-                cache.keep(key, got)
-            return got
+            if got is not None:
+                return got, True, key
+            got = model._one_start(fit, held_out, theta_lip_v, rng, beta0, weights)
+            cache.keep(key, got)
+            return got, False, key
 
         with single_threaded():
             for _ in range(opt.restarts):
                 beta0 = self.new_network(fit, rng).get_nonlinear()
-                tries = [("draw", optimize(beta0))]
-                if self._continues():
-                    lam_c = np.full(4, float(opt.continuation_lam))
-                    pre = optimize(beta0, self._weights(lam_c))
-                    tries.append(("continuation", optimize(pre.net.get_nonlinear())))
-                for start, got in tries:
+                seen = set()
+                for start, (got, reused, key) in self._tries(beta0, optimize):
+                    if key is not None and key in seen:  # one optimization reached twice
+                        continue
+                    seen.add(key)
                     starts.append(Start(start, got.result.cost, got.result.stop,
-                                        got.result.iterations))
+                                        got.result.iterations, reused))
                     if best is None or got.result.cost < best[1].result.cost:
                         best = (start, got)
         kept_start, best = best
@@ -392,11 +405,65 @@ class PGNNFeedforward:
             stop=stop, cost_stop=res.stop, iterations=res.iterations,
             iterations_total=int(sum(s.iterations for s in starts)), theta_moved=moved,
             theta_ftol=opt.theta_ftol, theta_path=theta_path(best.history),
-            continuation_lam=(float(opt.continuation_lam) if self._continues() else 0.0),
+            continuation_lam=(float(opt.continuation_lam)
+                              if self._continues() or self._exchanges() else 0.0),
             data_cost=self.cost_.data, reg_cost=self.cost_.regularization,
             grad_norm=res.grad_norm, first_order=res.first_order, ftol=opt.ftol,
-            max_iter=opt.max_iter, start=kept_start, starts=tuple(starts))
+            max_iter=opt.max_iter, start=kept_start, starts=tuple(starts),
+            start_rtol=opt.start_rtol)
         return self
+
+    def _tries(self, beta0: np.ndarray, optimize) -> list[tuple[str, tuple]]:
+        """The optimizations of one draw at this model's cost, as ``(start, (outcome, reused,
+        key))`` (see ``PGNNSettings.starts``): from the draw; from the draw's sequential
+        solution (``lip``); at lambda = 0 from the solution regularized with
+        ``continuation_lam`` (``continuation``); with ``exchange``, the lambda = 0 and lambda =
+        ``continuation_lam`` fits start from each other's best until the regularized one
+        improves by at most ``start_rtol`` (``EXCHANGE_ROUNDS`` at most), and the lambda = 0 fit
+        last starts from the regularized best wherever that is lower than its own: its
+        objective then never ends above the regularized solution's (every regularized solution
+        is feasible at lambda = 0, and a fit keeps its lowest iterate). ``optimize(beta0,
+        weights, model)`` runs or takes one optimization; one optimization may be listed twice
+        (two starts that reach the same hidden layers)."""
+        s = self.settings
+        own = self._weights()
+        bases = [beta0]
+        if "lip" in s.starts and self.training != "sequential":
+            twin = PGNNFeedforward(hidden=self.hidden, training="sequential",
+                                   settings=self.settings, features=self.features)
+            bases.append(optimize(beta0, None, twin)[0].net.get_nonlinear())
+        names = ("draw", "lip")
+
+        def base(weights):
+            return [(names[i], optimize(b, weights)) for i, b in enumerate(bases)]
+
+        if self._exchanges():
+            zero = replace(own, lam_diag=np.zeros(4))
+            reg = replace(own, lam_diag=np.full(4, float(s.continuation_lam)))
+            free, pulled = base(zero), base(reg)
+
+            def cost(tries):
+                return min(t[1][0].result.cost for t in tries)
+
+            def beta(tries):
+                return min(tries, key=lambda t: t[1][0].result.cost)[1][0].net.get_nonlinear()
+
+            free.append(("continuation", optimize(beta(pulled), zero)))
+            for _ in range(EXCHANGE_ROUNDS):
+                before = cost(pulled)
+                pulled.append(("exchange", optimize(beta(free), reg)))
+                if cost(pulled) >= before * (1 - s.start_rtol):
+                    break
+                free.append(("continuation", optimize(beta(pulled), zero)))
+            if cost(pulled) < cost(free):
+                free.append(("continuation", optimize(beta(pulled), zero)))
+            return free if not np.any(own.lam_diag) else pulled
+        tries = base(own)
+        if self._continues():
+            lam_c = np.full(4, float(s.continuation_lam))
+            pre = optimize(beta0, self._weights(lam_c))[0]
+            tries.append(("continuation", optimize(pre.net.get_nonlinear())))
+        return tries
 
     def fit_pinned(self, *, data: TrainingData, theta_lip: dict[str, float],
                    beta0: np.ndarray, pinned: dict[str, float],
@@ -687,6 +754,8 @@ def _generator(rng) -> np.random.Generator:
     raise UserError(f"PGNNFeedforward.fit: rng must be a numpy.random.Generator or an integer "
                     f"seed, got {type(rng).__name__}")
 
+
+EXCHANGE_ROUNDS = 3  # at most: each round is two optimizations of a draw
 
 CHECKPOINTS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
 

@@ -111,8 +111,11 @@ def to_markdown(sizes: dict[int, SizeRecord]) -> str:
                           f"{c.predicted_decrease / rec.delta:.2g} δ" for c in rec.checks)
                       + f"); the stated resolution is {ws.resolution:g} δ: "
                       + ("held" if max(moved) <= ws.atol else "NOT held") + ".", ""]
-        lines += [f"LIP residual lag-1 autocorrelation {li.lag1_autocorr:.2f} "
-                  f"({li.lags} Newey-West lags, {li.n_samples} samples).", "",
+        at = ("" if li.autocorr_at_lags is None
+              else f", {li.autocorr_at_lags:.2f} at lag {li.lags}")
+        lines += [f"LIP residual autocorrelation {li.lag1_autocorr:.2f} at lag 1{at} "
+                  f"({li.lags} Newey-West lags, the automatic bandwidth of Newey and West "
+                  f"1994; {li.n_samples} samples).", "",
                   "Sloppy directions of each record's fit (Gauss-Newton matrix J'J of the "
                   "data cost over every parameter, each scaled so that one unit moves the force "
                   "by 1 N rms; an eigenvalue is the cost rise in N² of a unit step): the "
