@@ -201,9 +201,10 @@ class PGNNSettings:
     one sample per 8 ms whatever the record's rate, :func:`decimation_for`: 80 at 10 kHz, 8 at
     1 kHz); theta_ftol: a fit is ``converged`` only when, besides the first-order test on the
     cost, theta_phy has settled: over the last quarter of the iterations its force
-    ``T . delta theta`` moved by at most this fraction of the training force's rms (else the stop
-    is ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
-    converge to).
+    ``T . delta theta`` moved by less than this fraction of the training force's rms, by the
+    margin of :func:`controllers.pgnn.fit_record.verdict` (beyond the margin the stop is
+    ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
+    converge to; within it, ``at_edge``).
     """
 
     activation: str = "tanh"
