@@ -97,16 +97,18 @@ class Range:
     approximately orthonormal (to about ``u * kappa**2``); the second pass makes it orthonormal
     to working precision where ``As``'s condition number is at most ``KAPPA_QR`` and ``U1``'s
     Gram matrix is within ``QR_GRAM_DEVIATION`` of the identity (``U1`` then has a condition
-    number of at most 1.7: that pass squares nothing that matters). About three times cheaper than an SVD
-    here (21 columns), because it is made of matrix products. ``svd``: the thin SVD, used
+    number of at most 1.7: that pass squares nothing that matters). ``U = U1 T`` is kept as
+    its two factors (``T`` the second pass's inverse triangular factor). About three times
+    cheaper than an SVD here (21 columns): it is made of matrix products. ``svd``: the thin
+    SVD, used
     where the check fails or the first Cholesky factorization does (nearly dependent columns:
     a network that mimics a physical regressor, a saturated neuron whose output is a constant,
     a condition number up to 1e16); its minimum-norm solution in scaled coordinates leaves out
     singular values below 1e-12 of the largest. Neither squares the condition number of the
     result: the solution and the basis are those of a backward-stable QR."""
 
-    def __init__(self, kind: str, U: np.ndarray, R=None, s=None, Vt=None):
-        self.kind, self.U, self.R, self.s, self.Vt = kind, U, R, s, Vt
+    def __init__(self, kind: str, U: np.ndarray, R=None, s=None, Vt=None, T=None):
+        self.kind, self._U, self.R, self.s, self.Vt, self._T = kind, U, R, s, Vt, T
 
     @classmethod
     def of(cls, As: np.ndarray, exact: bool = False) -> Range:
@@ -114,19 +116,41 @@ class Range:
         if not exact:
             got = _cholesky_qr2(As)
             if got is not None:
-                return cls("qr", *got)
+                U1, T, R = got
+                return cls("qr", U1, R=R, T=T)
         U, s, Vt = np.linalg.svd(As, full_matrices=False)
         keep = s > s[0] * 1e-12
         if not keep.all():
             U, s, Vt = U[:, keep], s[keep], Vt[keep]
         return cls("svd", U, s=s, Vt=Vt)
 
+    @property
+    def U(self) -> np.ndarray:
+        """The orthonormal basis itself (``qr``: formed on demand; the methods do without)."""
+        return self._U if self._T is None else self._U @ self._T
+
+    def coordinates(self, M: np.ndarray) -> np.ndarray:
+        """``U'M`` (``qr``: ``U = U1 T`` with the first pass's basis ``U1`` and the second
+        pass's inverse factor ``T``, ``T'(U1'M)``: the product ``U1 T`` is never formed)."""
+        C = self._U.T @ M
+        return C if self._T is None else self._T.T @ C
+
+    def project_out(self, J: np.ndarray) -> None:
+        """``J -= U U'J`` in place (``J`` C-ordered): the update is one BLAS call that adds
+        into ``J``, with no temporary of ``J``'s size."""
+        C = self.coordinates(J)
+        if self._T is not None:
+            C = self._T @ C
+        # In Fortran order J is J' (p, m): J' <- J' - C' U1'.
+        scipy.linalg.blas.dgemm(-1.0, C, self._U, beta=1.0, c=J.T, trans_a=1, trans_b=1,
+                                overwrite_c=1)
+
     def solve(self, c: np.ndarray) -> np.ndarray:
         """The least-squares solution of ``As x = c`` (minimum-norm where ``svd`` left out
         directions)."""
         if self.kind == "svd":
-            return self.Vt.T @ ((self.U.T @ c) / self.s)
-        return scipy.linalg.solve_triangular(self.R, self.U.T @ c, check_finite=False)
+            return self.Vt.T @ ((self._U.T @ c) / self.s)
+        return scipy.linalg.solve_triangular(self.R, self.coordinates(c), check_finite=False)
 
 
 KAPPA_QR = 1e6
@@ -140,8 +164,9 @@ for which :class:`Range` keeps the second pass's basis (checked after the fact).
 
 
 def _cholesky_qr2(As: np.ndarray):
-    """``(U, R)`` with ``As = U R``, ``U`` orthonormal, by Cholesky QR twice; None where the
-    first factorization fails or its basis is too far from orthonormal (:class:`Range`)."""
+    """``(U1, T, R)`` with ``As = U R``, ``U = U1 T`` orthonormal and ``R`` upper triangular, by
+    Cholesky QR twice; None where the first factorization fails or its basis is too far from
+    orthonormal (:class:`Range`)."""
     potrf, trtri = scipy.linalg.lapack.dpotrf, scipy.linalg.lapack.dtrtri
     R1, info = potrf(As.T @ As, lower=0, clean=1)
     if info != 0:
@@ -161,16 +186,7 @@ def _cholesky_qr2(As: np.ndarray):
     if info != 0:
         return None
     inv2, _ = trtri(R2, lower=0)
-    return U1 @ inv2, R2 @ R1
-
-
-def _project_out(U: np.ndarray, J: np.ndarray) -> None:
-    """``J -= U (U'J)`` in place (``J`` C-ordered): one BLAS call that adds into ``J``, with
-    no temporary of ``J``'s size."""
-    C = U.T @ J
-    gemm = scipy.linalg.blas.dgemm
-    # In Fortran order J is J' (p, m): J' <- J' - C' U'.
-    gemm(-1.0, C, U, beta=1.0, c=J.T, trans_a=1, trans_b=1, overwrite_c=1)
+    return U1, inv2, R2 @ R1
 
 
 class SeparableCost:
@@ -349,7 +365,7 @@ class SeparableCost:
         J = self._J[:m]
         self._beta_rows(beta, w_out, sol["layers"], out=J)
         # Kaufman: project out the range of A.
-        _project_out(sol["range"].U, J)
+        sol["range"].project_out(J)
         return r, self._J
 
     def _beta_rows(self, beta, w_out, layers=None, out=None) -> np.ndarray:
