@@ -18,7 +18,13 @@ thread, CPU time, for an accepted step (a rejected step adds a trial, on every s
   do not tolerate everywhere), and the projected normal matrix formed as ``G'G - C'C`` block
   by block over the samples from the network's structure (``G = d f_NN / d beta`` never stored
   whole, ``C`` its product with the orthonormal basis of the linear system), then the same
-  first-order test and damped solve.
+  first-order test and damped solve. The product keeps two of its savings (no SVD, no second
+  pass over the Jacobian to scale it) and not the other two: ``G'G - C'C`` is not the Gram
+  matrix of any Jacobian, so its rounding (some ``1e-14 * ||G_j||**2``) lands in the flat
+  directions that the first-order test and the damped step resolve down to ``1e-12`` of the
+  largest curvature (in an exactly flat valley it made both wander:
+  ``tests/test_profiles.py``), and the Gram matrix's Cholesky factor squares the condition
+  number that the product's Cholesky QR repairs in its second pass.
 
 It checks that the three give the same normal matrix and gradient at the start (relative
 difference printed), and prints each rate, the product's ratio to the restructured one and
