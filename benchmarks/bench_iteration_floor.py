@@ -1,32 +1,38 @@
-"""How far a cheaper arithmetic could take the paper table's fits (a benchmark, not a test).
+"""One LM iteration of the PGNN fit, the product's against the least arithmetic known for it
+(a benchmark, not a test).
 
-For the paper table, whose fits run 12,268 LM iterations (``benchmarks/bench_table.py``), a
-bar of 60 s of CPU allows under 5 ms per iteration even if nothing
-else in the table cost anything. This script times one LM iteration of a paper's-cost fit (lambda = 0, no weight decay:
-the rows that are 64 % of those iterations) on the paper table's training data, two ways, on one
-thread, CPU time:
+Times one LM iteration of a paper's-cost fit (lambda = 0, no weight decay: the rows that are
+most of the paper table's iterations) on the paper table's training data, three ways, on one
+thread, CPU time, for an accepted step (a rejected step adds a trial, on every side alike):
 
-* ``product``: the product's iteration with an accepted step: a trial evaluation (forward pass,
-  SVD of the scaled linear system), then at that point the Jacobian (closed form, Kaufman's
-  projection; the linear solve cached), ``J'J`` and ``J'r``, the first-order test and a damped
-  solve (a rejected step adds a trial, on both sides alike);
+* ``product``: a trial evaluation (forward pass, the scaled linear system factorized by
+  Cholesky QR twice, :class:`controllers.pgnn.cost.Range`), then at that point the Jacobian
+  (closed form, Kaufman's projection in place; the linear solve cached), ``J'J``, ``J'r``, the
+  first-order test and the damped Cholesky solve of
+  :func:`controllers.optim.levenberg_marquardt`;
+* ``reference``: the same step with the thin SVD of the linear system (the product's
+  arithmetic before Cholesky QR; the SVD is still its fallback);
 * ``restructured``: the least arithmetic known here for the same step, in numpy: the linear
   system solved through the Cholesky factor of its Gram matrix (numerically the weakest choice:
   it squares the condition number, which the lambda = 0 rows, nearly rank-deficient by design,
-  would not tolerate everywhere), and the projected normal matrix formed as ``G'G - C'C`` block
+  do not tolerate everywhere), and the projected normal matrix formed as ``G'G - C'C`` block
   by block over the samples from the network's structure (``G = d f_NN / d beta`` never stored
   whole, ``C`` its product with the orthonormal basis of the linear system), then the same
-  first-order test and damped solve.
+  first-order test and damped solve. The product keeps two of its savings (no SVD, no second
+  pass over the Jacobian to scale it) and not the other two: ``G'G - C'C`` is not the Gram
+  matrix of any Jacobian, so its rounding (some ``1e-14 * ||G_j||**2``) lands in the flat
+  directions that the first-order test and the damped step resolve down to ``1e-12`` of the
+  largest curvature (in an exactly flat valley it made both wander:
+  ``tests/test_profiles.py``), and the Gram matrix's Cholesky factor squares the condition
+  number that the product's Cholesky QR repairs in its second pass.
 
-It checks that both give the same normal matrix and gradient at the start (relative
-difference printed), and prints the ratio and what the table's iterations would cost at each
-rate (``--iterations``: the table's LM iterations at n_l = 16 and 8). The restructured
-iteration is a floor for the arithmetic, not a method the product could adopt as it is: its
-rounding differs, and the rows without a minimizer end elsewhere after 200 iterations when the
-rounding moves (docs/performance.md).
+It checks that the three give the same normal matrix and gradient at the start (relative
+difference printed), and prints each rate, the product's ratio to the restructured one and
+what the table's iterations cost at each rate (``--iterations``: the table's LM iterations at
+n_l = 16 and 8, as its ``table.json`` records them; ``--table``: read them from that file).
 
     python benchmarks/bench_iteration_floor.py [--rounds 7] [--repeats 20]
-                                           [--iterations 6353,5915]
+                                               [--iterations 6907,6213 | --table DIR/table.json]
 """
 
 from __future__ import annotations
@@ -50,6 +56,7 @@ import torch  # noqa: E402
 from clm_sim.numerics import single_threaded  # noqa: E402
 from controllers import optim  # noqa: E402
 from controllers.pgnn import PGNNFeedforward, TrainingData, training_data  # noqa: E402
+from controllers.pgnn.cost import Range  # noqa: E402
 from controllers.pgnn.model import _as_theta  # noqa: E402
 from experiments.testbed import STREAM_NETWORK, Testbed, stream  # noqa: E402
 
@@ -67,9 +74,9 @@ def cost_at_start(data, theta_lip, hidden, seed):
 
 
 def product_iteration(cost, beta):
-    """One iteration of the product's fit: a trial evaluation at a new point (forward pass,
-    SVD), which is accepted, then the Jacobian there (its linear solve cached), ``J'J``, ``J'r``,
-    the first-order test and a damped solve."""
+    """One iteration of the product's fit: a trial evaluation at a new point, which is
+    accepted, then the projected normal matrix and gradient there (its linear solve cached), the
+    first-order test and a damped solve."""
     moved = [0]
 
     def one():
@@ -78,10 +85,43 @@ def product_iteration(cost, beta):
         cost(b, False)
         r, J = cost(b, True)
         normal, g = J.T @ J, J.T @ r
-        optim.first_order_measure(r, J, normal, g)
-        np.linalg.solve(normal + np.eye(len(g)) * normal.trace() * 1e-3, g)
+        optim.first_order_from_normal(normal, g, float(r @ r))
+        damped_solve(normal, g)
         return normal, g
     return one
+
+
+def reference_iteration(cost, beta):
+    """The same iteration with the SVD of the linear system and the Jacobian projected
+    explicitly before ``J'J``."""
+    moved = [0]
+
+    def solve(b):
+        h = cost.net.layer_outputs(b, cost.zs)
+        A = cost._fill(h[1][-1].numpy())
+        scale = np.linalg.norm(A, axis=0)
+        span = Range.of(A / scale, exact=True)
+        x = span.solve(cost._c) / scale
+        return h, x, span.U, A @ x - cost._c
+
+    def one():
+        moved[0] += 1
+        b = beta + moved[0] * 1e-12
+        layers, x, U, r = solve(b)
+        J = cost._beta_rows(b, x[cost.n_theta:cost.n_theta + cost.n_hidden], layers)
+        J -= U @ (U.T @ J)
+        normal, g = J.T @ J, J.T @ r
+        optim.first_order_measure(r, J, normal, g)
+        damped_solve(normal, g)
+        return normal, g
+    return one
+
+
+def damped_solve(normal, g):
+    """The damped Gauss-Newton step of the optimizer (Marquardt scaling, Cholesky)."""
+    d = np.sqrt(np.diag(normal))
+    f = scipy.linalg.cho_factor(normal / np.outer(d, d) + 1e-3 * np.eye(len(g)))
+    return -scipy.linalg.cho_solve(f, g / d) / d
 
 
 class Restructured:
@@ -142,8 +182,7 @@ class Restructured:
             keep = w > w[-1] * 1e-12
             proj = V[:, keep].T @ (g / d)
             float(proj @ (proj / w[keep]) / float(r @ r))
-            f = scipy.linalg.cho_factor(normal + np.eye(len(g)) * normal.trace() * 1e-3)
-            scipy.linalg.cho_solve(f, g)
+            damped_solve(normal, g)
             return normal, g
         return one
 
@@ -156,15 +195,29 @@ def cpu_ms(fn, repeats):
     return (time.process_time() - c0) / repeats * 1e3
 
 
+def table_iterations(path) -> list[int]:
+    """The LM iterations a table's ``table.json`` records, at n_l = 16 and 8 (every start)."""
+    import json
+
+    counts = {16: 0, 8: 0}
+    for row in json.loads(Path(path).read_text())["rows"]:
+        if row.get("kind") == "pgnn" and row.get("hidden") in counts:
+            counts[row["hidden"]] += sum(f["iterations_total"] for f in row["fits"])
+    return [counts[16], counts[8]]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=20, help="iterations per round")
     ap.add_argument("--rounds", type=int, default=7,
-                    help="rounds, the two sides interleaved; the median round is printed")
-    ap.add_argument("--iterations", default="6353,5915",
-                    help="the table's LM iterations at n_l = 16 and 8 (bench_table.py)")
+                    help="rounds, the sides interleaved; the median round is printed")
+    ap.add_argument("--iterations", default="6907,6213",
+                    help="the table's LM iterations at n_l = 16 and 8")
+    ap.add_argument("--table", default=None,
+                    help="a table.json to read the iterations from (instead of --iterations)")
     args = ap.parse_args(argv)
-    counts = [int(v) for v in args.iterations.split(",")]
+    counts = (table_iterations(args.table) if args.table
+              else [int(v) for v in args.iterations.split(",")])
 
     tb = Testbed.from_config(ROOT / "experiments/configs/paper_table.yaml")
     run = tb.training_run()
@@ -173,29 +226,39 @@ def main(argv=None) -> int:
     data = TrainingData(d.phi, d.target, d.ts)
     print(f"data: {len(data.target)} samples; one LM iteration of a paper's-cost fit "
           f"(lambda = 0), CPU ms on one thread", flush=True)
-    totals = {"product": 0.0, "restructured": 0.0}
+    sides = ("product", "reference", "restructured")
+    totals = dict.fromkeys(sides, 0.0)
     with single_threaded():
         for hidden, count in zip((16, 8), counts):
             cost, beta = cost_at_start(data, theta_lip, hidden, tb.config.seed)
-            mine, floor = product_iteration(cost, beta), Restructured(cost).iteration(beta)
-            (n1, g1), (n2, g2) = mine(), floor()
-            dn = np.abs(n1 - n2).max() / np.abs(n1).max()
-            dg = np.abs(g1 - g2).max() / np.abs(g1).max()
-            # Interleaved rounds, the median of each side: both see the same load.
-            rounds = {"product": [], "restructured": []}
+            fns = {"product": product_iteration(cost, beta),
+                   "reference": reference_iteration(cost, beta),
+                   "restructured": Restructured(cost).iteration(beta)}
+            got = {k: fn() for k, fn in fns.items()}
+            n0, g0 = got["reference"]
+            diff = {k: (np.abs(n - n0).max() / np.abs(n0).max(),
+                        np.abs(g - g0).max() / np.abs(g0).max()) for k, (n, g) in got.items()}
+            # Interleaved rounds, the median of each side: all see the same load.
+            rounds = {k: [] for k in sides}
             for _ in range(args.rounds):
-                rounds["product"].append(cpu_ms(mine, args.repeats))
-                rounds["restructured"].append(cpu_ms(floor, args.repeats))
+                for k in sides:
+                    rounds[k].append(cpu_ms(fns[k], args.repeats))
             ms = {k: float(np.median(v)) for k, v in rounds.items()}
             for k in totals:
                 totals[k] += ms[k] * count / 1e3
-            print(f"n_l = {hidden:2d}: product {ms['product']:6.2f} ms, restructured "
-                  f"{ms['restructured']:6.2f} ms ({ms['product'] / ms['restructured']:.2f}x); "
-                  f"same normal matrix within {dn:.1e}, gradient within {dg:.1e} (relative)",
+            print(f"n_l = {hidden:2d}: product {ms['product']:6.2f} ms, reference "
+                  f"{ms['reference']:6.2f} ms, restructured {ms['restructured']:6.2f} ms; "
+                  f"product / restructured {ms['product'] / ms['restructured']:.2f}x, "
+                  f"reference / restructured {ms['reference'] / ms['restructured']:.2f}x",
                   flush=True)
-    print(f"the table's {sum(counts):,} iterations: {totals['product']:.0f} s at the product's "
-          f"rate, {totals['restructured']:.0f} s at the restructured one (fits alone; the bar "
-          f"is 60 s for the whole table)")
+            for k in ("product", "restructured"):
+                print(f"         {k}: the reference's normal matrix within {diff[k][0]:.1e}, "
+                      f"gradient within {diff[k][1]:.1e} (relative)")
+    print(f"the table's {sum(counts):,} iterations ({counts[0]:,} at n_l = 16, {counts[1]:,} at "
+          f"n_l = 8): " + ", ".join(f"{totals[k]:.1f} s at the {k} rate" for k in sides)
+          + " (the fits' iterations alone)")
+    print(f"restructured_s={totals['restructured']:.1f} product_s={totals['product']:.1f} "
+          f"reference_s={totals['reference']:.1f}")
     return 0
 
 

@@ -1,22 +1,33 @@
-"""Where the paper table's CPU goes, row by row (a benchmark, not a test).
+"""Where the paper table's CPU goes, stage by stage and row by row (a benchmark, not a test).
 
-Runs the rows of a table config (default ``experiments/configs/paper_table.yaml``) the way
-``clm-sim run`` does (:meth:`experiments.testbed.Testbed.evaluate`), but in this one process on
-one core, so that every CPU second is counted in one place, and prints per row: the CPU of its
-PGNN fits, of its closed-loop replays (the simulation) and of the rest of ``evaluate`` (the
-feedforward: the filtered features and the network's force on every reference sample, the peak
-force, the fit records); the LM iterations its fits ran (every start: the draw and, where the
-row uses one, the continuation's two; a start an earlier row ran from the same draw is reused,
-not run) and the fits' stops (and each start's). The identifiability profiles are their own
-study (``clm-sim study experiments/configs/identifiability.yaml``), timed with ``/usr/bin/time``.
+Runs a table config (default ``experiments/configs/paper_table.yaml``) through the runner's own
+code (:func:`experiments.runner._run`, every file written into a temporary folder) and counts
+the CPU of each stage where it is spent:
+
+* ``start-up and imports``: the interpreter and the modules a ``clm-sim run`` imports before
+  its first computation;
+* ``training run and LIP``: the PID design, the dithered closed-loop run, the LIP;
+* ``fits``: the PGNN fits (their LM iterations counted, every start: a start an earlier row ran
+  from the same draw is reused, not run);
+* ``replays``: the closed loops on the references (the simulation);
+* ``references and features``: the references, their filtered features, the network's force
+  on them, the training range's masks;
+* ``figures``: the tracking and feedforward figures (matplotlib imported on the way);
+* ``writing``: the records, models and tables written;
+* ``rest``: whatever a row's evaluation spends beside the above (metrics, fit records).
+
+Default: every fit in this process, pinned to one core, so that every CPU second is counted
+here (the runner uses its worker pool only with more than one core). ``--pool``: the worker
+pool as ``clm-sim run`` uses it on this machine's cores; the fits then run in the pool's
+processes, whose CPU (their start-up, imports and transfers included) is counted as
+``worker processes``, and what the main process spends waiting and receiving as ``fits``.
+The difference of the two runs' totals is what the pool costs.
 
     python benchmarks/bench_table.py [--config experiments/configs/paper_table.yaml]
-                                     [--rows 2,3] [--seeds 10]
+                                     [--rows 2,3] [--seeds 10] [--pool]
 
-Every timing is CPU time of this process (``time.process_time``): on a shared machine the
-fair figure. The fits run in-process because the process is pinned to one core (the runner
-uses its worker pool only with more than one), which changes no result (every fit is
-single-threaded, docs/performance.md).
+Every timing is CPU time (``time.process_time`` in this process, ``getrusage`` of the
+children): on a shared machine the fair figure.
 """
 
 from __future__ import annotations
@@ -25,7 +36,9 @@ import argparse
 import collections
 import dataclasses
 import os
+import resource
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -36,6 +49,48 @@ from clm_sim.numerics import pin_portable_kernels  # noqa: E402
 
 pin_portable_kernels()
 
+STAGES = ("start-up and imports", "training run and LIP", "fits", "replays",
+          "references and features", "figures", "writing", "rest")
+OUTER = ("training run and LIP", "figures", "writing")  # what runs inside them is theirs
+
+
+def _children_cpu() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+class Clock:
+    """CPU seconds per stage; a stage entered inside another is counted once, in the inner
+    (inside one of :data:`OUTER`, in that one)."""
+
+    def __init__(self):
+        self.spent = collections.Counter()
+        self._stack: list[str] = []
+        self._t = time.process_time()
+
+    def _switch(self):
+        now = time.process_time()
+        if self._stack:
+            self.spent[self._stack[-1]] += now - self._t
+        self._t = now
+
+    def wrap(self, stage: str, fn):
+        def wrapper(*a, **k):
+            if self._stack and self._stack[-1] in OUTER:  # e.g. the training run's loop
+                return fn(*a, **k)
+            self._switch()
+            self._stack.append(stage)
+            try:
+                return fn(*a, **k)
+            finally:
+                self._switch()
+                self._stack.pop()
+        return wrapper
+
+    def patch(self, stage: str, owner, *names: str):
+        for name in names:
+            setattr(owner, name, self.wrap(stage, getattr(owner, name)))
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -43,76 +98,101 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", default="", help="indices of the rows to run (default: all)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per PGNN row (default: "
                     "the config's)")
+    ap.add_argument("--pool", action="store_true",
+                    help="the fits on the worker pool, as clm-sim run (default: in this process)")
     args = ap.parse_args(argv)
-    try:  # one core: the fits run in this process (experiments.workers.map_fits)
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    except (AttributeError, OSError):
-        pass
+    if not args.pool:
+        try:  # one core: the fits run in this process (experiments.workers.map_fits)
+            os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+        except (AttributeError, OSError):
+            pass
 
-    t_start = time.process_time()
+    startup = time.process_time()  # the interpreter and the imports above
+    clock = Clock()
+    t0 = time.process_time()
+    import clm_sim.loop
+    import experiments.testbed as testbed
+    from controllers import optim
     from controllers.pgnn import PGNNFeedforward
+    from experiments import plots, runner, table, workers
     from experiments.config import load_config
-    from experiments.testbed import Testbed
+    from clm_sim import features
+    clock.spent["start-up and imports"] = startup + time.process_time() - t0
+    clock._t = time.process_time()
 
     config = load_config(args.config)
-    tb = Testbed(config, progress=lambda s: None)
-    clock = collections.Counter()
+    specs = list(config.feedforwards)
+    if args.rows:
+        specs = [specs[int(i)] for i in args.rows.split(",")]
+    if args.seeds is not None:
+        specs = [dataclasses.replace(s, seeds=args.seeds) if s.kind == "pgnn" else s
+                 for s in specs]
+    config = dataclasses.replace(config, feedforwards=tuple(specs))
 
-    def timed(key, fn):
-        def wrapper(*a, **k):
-            t0 = time.process_time()
-            try:
-                return fn(*a, **k)
-            finally:
-                clock[key] += time.process_time() - t0
-        return wrapper
-
-    from controllers import optim
+    iterations, per_row, label = collections.Counter(), {}, [None]
     lm = optim.levenberg_marquardt
 
     def counted(*a, **k):  # the LM iterations actually run (a reused start runs none)
         res = lm(*a, **k)
-        clock["run"] += res.iterations
+        iterations[label[0]] += res.iterations
         return res
 
     optim.levenberg_marquardt = counted
-    tb.fit_row = timed("fit", tb.fit_row)
-    t0 = time.process_time()
-    run = tb.training_run()
-    lip = tb.fit_lip(run)
-    setup = time.process_time() - t0
-    from experiments import testbed
-    testbed.simulate = timed("replay", testbed.simulate)  # the closed loops of the replays
-    print(f"imports and config {t0 - t_start:.1f} s, training run and LIP {setup:.1f} s "
-          f"(CPU)")
-    rows = [int(i) for i in args.rows.split(",") if i] or range(len(config.feedforwards))
-    print(f"{'row':<74} {'fits':>6} {'replays':>8} {'other':>6} {'iterations':>10} "
-          f"{'per it':>7}  stops")
-    total = collections.Counter()
-    for i in rows:
-        spec = config.feedforwards[i]
-        if args.seeds is not None and spec.kind == "pgnn":
-            spec = dataclasses.replace(spec, seeds=args.seeds)
-        clock.clear()
-        t0 = time.process_time()
-        res = tb.evaluate(spec, run, lip)
-        whole = time.process_time() - t0
-        models = [m for m in res.models if isinstance(m, PGNNFeedforward)]
-        its = int(clock["run"])
-        stops = collections.Counter(m.fit_.stop for m in models)
-        starts = collections.Counter(f"{s.start}:{s.stop}" for m in models
-                                     for s in m.fit_.starts)
-        other = whole - clock["fit"] - clock["replay"]
-        per_it = f"{clock['fit'] / its * 1e3:.1f} ms" if its else ""
-        print(f"{spec.label()[:74]:<74} {clock['fit']:6.1f} {clock['replay']:8.1f} "
-              f"{other:6.1f} {its:10d} {per_it:>7}  "
-              + ", ".join(f"{n} {k}" for k, n in sorted(stops.items()))
-              + ("" if not models else "  [" + ", ".join(f"{n} {k}" for k, n in
-                                                        sorted(starts.items())) + "]"))
-        total.update(fit=clock["fit"], replay=clock["replay"], other=other, iterations=its)
-    print(f"{'all rows':<74} {total['fit']:6.1f} {total['replay']:8.1f} {total['other']:6.1f} "
-          f"{total['iterations']:10d}")
-    print(f"total {time.process_time() - t_start:.1f} s CPU in this process")
+    testbed_cls = testbed.Testbed
+    clock.patch("training run and LIP", testbed_cls, "training_run", "fit_lip")
+    clock.patch("fits", testbed_cls, "fit_row")
+    clock.patch("replays", testbed, "simulate")
+    clock.patch("references and features", testbed_cls, "reference")
+    clock.patch("references and features", PGNNFeedforward, "filtered_features", "parts")
+    clock.patch("references and features", features.TrainingRange, "of", "beyond")
+    clock.patch("figures", plots, "tracking_figure", "feedforward_figure", "save")
+    clock.patch("writing", runner, "save_npz")
+    clock.patch("writing", PGNNFeedforward, "save")
+    clock.patch("writing", table, "to_json", "to_markdown", "to_csv")
+    evaluate = testbed_cls.evaluate
+
+    def evaluate_row(self, spec, *a, **k):
+        label[0] = spec.label()
+        before = dict(clock.spent)
+        res = evaluate(self, spec, *a, **k)
+        per_row[spec.label()] = {s: clock.spent[s] - before.get(s, 0.0) for s in STAGES}
+        stops = collections.Counter(m.fit_.stop for m in res.models
+                                    if isinstance(m, PGNNFeedforward))
+        per_row[spec.label()]["stops"] = ", ".join(f"{n} {k}" for k, n in sorted(stops.items()))
+        return res
+
+    testbed_cls.evaluate = clock.wrap("rest", evaluate_row)
+
+    children0 = _children_cpu()
+    with tempfile.TemporaryDirectory(prefix="bench_table_") as tmp:
+        out = Path(tmp) / "out"
+        for sub in ("runs", "params", "figures"):
+            (out / sub).mkdir(parents=True)
+        run_all = clock.wrap("rest", runner._run)
+        run_all(config, out, testbed.Progress(quiet=True), args.config)
+    workers.stop_fits()  # the pool's workers reaped: their CPU is the children's
+    children = _children_cpu() - children0
+    clock._switch()
+
+    print(f"{'row':<72} {'fits':>6} {'replays':>8} {'refs':>5} {'rest':>5} "
+          f"{'iterations':>10} {'per it':>7}  stops")
+    for name, spent in per_row.items():
+        its = iterations[name]
+        per_it = f"{spent['fits'] / its * 1e3:.1f} ms" if its and not args.pool else ""
+        print(f"{name[:72]:<72} {spent['fits']:6.1f} {spent['replays']:8.1f} "
+              f"{spent['references and features']:5.1f} {spent['rest']:5.1f} {its:10d} "
+              f"{per_it:>7}  {spent['stops']}")
+    total_its = sum(iterations.values())
+    print(f"LM iterations run: {total_its:,}")
+    whole = time.process_time()
+    print("stage                              CPU s")
+    for stage in STAGES:
+        print(f"  {stage:<32} {clock.spent[stage]:7.1f}")
+    if args.pool:
+        print(f"  {'worker processes':<32} {children:7.1f}")
+    print(f"  {'this process, in all':<32} {whole:7.1f}")
+    print(f"total_cpu_s={whole + children:.1f} fits_s={clock.spent['fits'] + children:.1f} "
+          f"not_fitting_s={whole - clock.spent['fits']:.1f} iterations={total_its}")
     return 0
 
 

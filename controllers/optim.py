@@ -53,22 +53,31 @@ def first_order_measure(r: np.ndarray, J: np.ndarray, normal: np.ndarray | None 
     are scaled; directions whose curvature is below 1e-12 of the largest (after Marquardt scaling)
     count as flat and are left out. ``normal`` (``J'J``) and ``g`` (``J'r``): these products when
     the caller has them already."""
-    d = np.sqrt(np.einsum("ij,ij->j", J, J))
+    if normal is None:
+        normal = J.T @ J
+    if g is None:
+        g = J.T @ r
+    return first_order_from_normal(normal, g, float(r @ r),
+                                   np.sqrt(np.einsum("ij,ij->j", J, J)))
+
+
+def first_order_from_normal(normal: np.ndarray, g: np.ndarray, rr: float,
+                            d: np.ndarray | None = None) -> float:
+    """:func:`first_order_measure` from ``J'J``, ``J'r`` and ``r'r`` alone; ``d``: the column
+    norms of ``J`` (default ``sqrt(diag(J'J))``)."""
+    if d is None:
+        d = np.sqrt(np.maximum(np.diag(normal), 0.0))
     # A column below 1e-12 of the largest is flat too; left in, its denormal-sized entries can
     # make LAPACK's eigensolver fail to converge (seen with saturated neurons).
     live = d > 1e-12 * d.max() if d.max() > 0 else np.zeros(d.shape, bool)
     if not live.any():
         return 0.0
-    if normal is None:
-        normal = J.T @ J
-    if g is None:
-        g = J.T @ r
     if not live.all():
         normal, g, d = normal[np.ix_(live, live)], g[live], d[live]
     w, V = _symmetric_eigen(normal / np.outer(d, d))
     keep = w > w[-1] * 1e-12
     proj = V[:, keep].T @ (g / d)
-    return float(proj @ (proj / w[keep]) / max(float(r @ r), 1e-300))
+    return float(proj @ (proj / w[keep]) / max(rr, 1e-300))
 
 
 def _symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,7 +109,15 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     resolution should check it by continuing some such points).
     """
     p = np.array(p0, dtype=np.float64)
-    r, J = fun(p, True)
+
+    def products(p):
+        """``r``, ``J'J`` and ``J'r`` at ``p`` (the Gauss-Newton matrix from ``J`` itself,
+        never as a difference of larger products: it is the Gram matrix of a computed ``J``,
+        so its small eigenvalues, the flat directions, are those of a nearby problem)."""
+        r, J = fun(p, True)
+        return r, J.T @ J, J.T @ r
+
+    r, A, g = products(p)
     cost = float(r @ r)
     if callback is not None:
         callback(0, p, cost)
@@ -109,10 +126,8 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     stop = "max_iter"
     d = np.zeros(len(p))
     while True:
-        A = J.T @ J
-        g = J.T @ r
         if ftol is not None or atol is not None:
-            measure = first_order_measure(r, J, A, g)
+            measure = first_order_from_normal(A, g, cost)
             if ftol is not None and measure <= ftol:
                 stop = "converged"
                 break
@@ -155,7 +170,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         decrease = (cost - cost_new) / max(cost, 1e-300)
         mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
         nu = 2.0
-        r, J = fun(p, True)
+        r, A, g = products(p)
         evals += 1
         cost = float(r @ r)
         recent.append(cost)
@@ -164,9 +179,8 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         if decrease < rtol:
             stop = "small_decrease"
             break
-    A, g = J.T @ J, J.T @ r
     return OptimResult(p=p, cost=cost, iterations=it, evaluations=evals, stop=stop,
-                       first_order=first_order_measure(r, J, A, g),
+                       first_order=first_order_from_normal(A, g, cost),
                        grad_norm=float(np.linalg.norm(2.0 * g)), mu=float(mu))
 
 

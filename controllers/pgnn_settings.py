@@ -245,9 +245,10 @@ class PGNNSettings:
     theta_ftol : float
         A fit is ``converged`` only when, besides the first-order test on the cost, theta_phy
         has settled: over the last quarter of the iterations its force ``T . delta theta``
-        moved by at most this fraction of the training force's rms (else the stop is
+        moved by less than this fraction of the training force's rms, by the margin of
+        :func:`controllers.pgnn.fit_record.verdict` (beyond the margin the stop is
         ``theta_moving``: a flat cost along which theta_phy still travels has no minimizer to
-        converge to).
+        converge to; within it, ``at_edge``).
     starts : tuple of str
         Where each draw's optimizations start (``START_NAMES``): ``draw``; ``lip``, from the
         draw's sequential solution; ``continuation``, at lambda = 0 from the draw's solution

@@ -155,6 +155,7 @@ class TableRow:
             row["settings"] = row_settings(spec, records)
             row["fits"] = [f.to_json() for f in fits]
             row["converged"] = sum(r.converged for r in records)
+            row["at_edge"] = sum(r.at_edge for r in records)
             row["data_cost"] = _stat([r.data_cost for r in records])
             row["reg_cost"] = _stat([r.reg_cost for r in records])
             row["theta_drift"] = _stat([f.theta_drift for f in fits])

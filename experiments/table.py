@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES, THETA_UNITS  # noqa: F401 (THETA_UNITS: re-exported)
+from controllers.pgnn.fit_record import VERDICT_MARGIN
 from experiments.agreement import Cell
 from experiments.paired import Paired, holm, t_interval  # noqa: F401 (t_interval: re-exported)
 
@@ -277,6 +278,7 @@ def results_table(rows: list[dict], swept: list[str] = ()) -> str:
             conv = "–"
             if "fits" in row:
                 conv = f"{row['converged']}/{len(row['fits'])}" + (
+                    f" ({row['at_edge']} at the edge)" if row.get("at_edge") else "") + (
                     " ⚠" if row["converged"] < len(row["fits"]) else "")
             cells.append(conv)
         lines.append("| " + " | ".join(cells) + " |")
@@ -336,11 +338,15 @@ def fit_report(rows: list[dict], pairs: list[dict] | None = None) -> str:
         lines += check_lines(checks)
     capped = [(r["label"], f) for r in pgnn for f in r["fits"] if f["stop"] != "converged"]
     total = sum(len(r["fits"]) for r in pgnn)
-    lines += ["", (f"**Fits:** {total - len(capped)} of {total} converged (the Gauss-Newton "
-                   "model predicts at most a relative decrease ftol of the training cost, and "
-                   "θ_phy has settled: over the last quarter of the iterations its force moved "
-                   "by at most theta_ftol of the training force's rms; `theta_moving`: the "
-                   "cost test held while θ_phy still travelled).")]
+    edge = sum(f["stop"] == "at_edge" for r in pgnn for f in r["fits"])
+    lines += ["", (f"**Fits:** {total - len(capped)} of {total} converged, {edge} at the edge "
+                   "(converged: the Gauss-Newton model predicts at most a relative decrease "
+                   "ftol of the training cost, and θ_phy has settled: over the last quarter of "
+                   f"the iterations its force moved by at most theta_ftol / {VERDICT_MARGIN:g} "
+                   "of the training force's rms; `theta_moving`: it moved more than "
+                   f"theta_ftol × {VERDICT_MARGIN:g}; `at_edge`: a test within that factor of "
+                   "its threshold, where the last bits decide it, or a fit at its iteration "
+                   f"cap within {VERDICT_MARGIN:g} × ftol).")]
     if capped:
         lines += ["Not converged (⚠ above): " + "; ".join(
             f"{label} seed {f['seed']} ({f['stop']} after {f['iterations']} iterations, "

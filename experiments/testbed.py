@@ -112,6 +112,10 @@ class Testbed:
         # (a controllers.pgnn.starts.StartCache: PGNNFeedforward.fit_data's ``reuse``)
         self._starts: dict[tuple[int, int], StartCache] = {}
         self.warnings: list[str] = []  # suspect fits, one line each (fit_lip)
+        # What the replays need that depends on neither the row nor the fit, computed once
+        # for the table: the references (m), the training range and the samples of each
+        # reference beyond it, a PGNN's filtered features of each reference (by FeatureMap).
+        self._once: dict[tuple, object] = {}
 
     def __repr__(self) -> str:
         c = self.config
@@ -291,12 +295,16 @@ class Testbed:
         refs = self.config.replay if references is None else references
         models = self.fit_row(spec, run, lip)
         ts, features = self.ts, self.config.features
-        inside = TrainingRange.of(features, self.reference(self.config.training.reference), ts)
-        # What does not depend on the fit, once per reference for all seeds: the reference,
-        # the samples beyond the training range and (PGNN) the filtered features.
-        seen = {name: self.reference(name) for name in refs}
-        beyond_of = ({name: inside.beyond(features, r, ts) for name, r in seen.items()}
-                     if spec.kind == "pgnn" else {})
+        # What does not depend on the fit, once per reference for every row and seed: the
+        # reference, the samples beyond the training range and (PGNN) the filtered features.
+        seen = {name: self._once_for(("reference", name), lambda n=name: self.reference(n))
+                for name in refs}
+        if spec.kind == "pgnn":
+            inside = self._once_for(("inside", features), lambda: TrainingRange.of(
+                features, self.reference(self.config.training.reference), ts))
+            beyond_of = {name: self._once_for(("beyond", name, features),
+                                              lambda r=r: inside.beyond(features, r, ts))
+                         for name, r in seen.items()}
         phi_f = {}
         seeds, first = [], {}
         for s, model in enumerate(models):
@@ -309,7 +317,9 @@ class Testbed:
                 else:
                     # The network's force once: it is the feedforward's part and the peak.
                     if name not in phi_f:
-                        phi_f[name] = model.filtered_features(y=seen[name], ts=ts)
+                        phi_f[name] = self._once_for(
+                            ("features", name, model.features),
+                            lambda n=name, m=model: m.filtered_features(y=seen[n], ts=ts))
                     physical, net = model.parts(phi_f[name])
                     rep = simulate(self.machine, self.pid, seen[name], ts,
                                    u_ff=held_force(physical + net), meta=meta)
@@ -328,6 +338,15 @@ class Testbed:
             f"MAE {name} {np.mean([m.references[name].mae for m in seeds]) * 1e6:.3f} µm"
             for name in refs))
         return row
+
+    def _once_for(self, key: tuple, compute):
+        """``compute()``, once per ``key`` for this testbed (its config is fixed)."""
+        if key not in self._once:
+            value = compute()
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)  # shared by every row: nobody writes into it
+            self._once[key] = value
+        return self._once[key]
 
     def rows(self) -> list[RowResult]:
         """Every row of the config's table: one training run, one LIP, each feedforward."""

@@ -111,3 +111,22 @@ def test_a_row_in_one_table_only_is_named_without_nan(tmp_path, capsys):
                for line in out), out
     # and the count says rows, not cells outside the tolerance
     assert out[-1] == "2 row(s) in one table only (a table of another config?)", out
+
+
+@pytest.mark.parametrize("page_cell,fresh_converged,fresh_edge,code", [
+    ("6/10 ⚠", 5, 0, 0), ("6/10 ⚠", 4, 0, 1), ("6/10 ⚠", 3, 2, 0), ("6/10 ⚠", 2, 2, 1),
+    ("6/10 (3 at the edge) ⚠", 2, 0, 0)])
+def test_fits_at_the_edge_widen_the_converged_count_tolerance(
+        tmp_path, capsys, page_cell, fresh_converged, fresh_edge, code):
+    """One fit either way, and one more per fit at the edge in either run."""
+    row = {"kind": "pgnn", "label": "P", "n_seeds": 10, "hidden": 8,
+           "mae": {"r1": {"mean": 1e-6, "std": 1e-7}},
+           "theta_phy": {"mass": 1.0, "viscous": 1.0, "coulomb": 1.0, "stiffness": 1.0},
+           "fits": [{"seed": s, "stop": "converged"} for s in range(10)],
+           "converged": fresh_converged, "at_edge": fresh_edge}
+    (tmp_path / "fresh.json").write_text(json.dumps({"rows": [row]}))
+    (tmp_path / "page.md").write_text(
+        "| feedforward | seeds | MAE r1 [µm] | fits converged |\n|---|---|---|---|\n"
+        f"| P | 10 | 1.000 ± 0.100 | {page_cell} |\n")
+    assert main(["compare", str(tmp_path / "page.md"), str(tmp_path / "fresh.json")]) == code
+    capsys.readouterr()

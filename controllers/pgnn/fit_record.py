@@ -113,12 +113,50 @@ class Start:
                    bool(d.get("reused", False)))
 
 
+VERDICT_MARGIN = 3.0
+"""The factor by which a convergence test's measure must clear its threshold for the verdict to
+stand (:func:`verdict`). A change of rounding (another BLAS, another factorization of the same
+linear algebra) moves the end of a fit in a flat valley: between two such roundings of the paper
+table's fits, theta_phy's travel over the last quarter of a fit changed by up to 2.3 times (the
+converging rows' 100 fits), so a verdict decided within a factor of 3 of its threshold is one
+that the last bits decide."""
+
+
+def verdict(cost_stop: str, first_order: float | None, ftol: float,
+            theta_moved: float | None = None, theta_ftol: float | None = None,
+            margin: float = VERDICT_MARGIN) -> str:
+    """A fit's stop judged with a margin: ``converged`` where the optimizer's first-order test
+    held (``cost_stop`` ``converged``: the Gauss-Newton model predicts at most ``ftol``
+    relative decrease) and theta_phy's force moved by at most ``theta_ftol / margin`` over the
+    last quarter of the iterations; ``theta_moving`` where it moved more than
+    ``theta_ftol * margin`` (the cost test held, or was at its edge); ``at_edge`` where neither
+    test fails by more than its margin and one is within it (theta's travel within a factor
+    ``margin`` of ``theta_ftol``, or a fit at its iteration cap whose first-order measure is
+    within a factor ``margin`` of ``ftol``): another rounding may put it on either side;
+    otherwise the optimizer's stop (``max_iter``, ``stalled``). ``theta_moved`` None: no theta
+    test (a sequential fit)."""
+    if cost_stop == "converged":
+        cost = "held"
+    elif cost_stop == "max_iter" and first_order is not None and first_order <= margin * ftol:
+        cost = "edge"
+    else:
+        return cost_stop
+    theta = "held"
+    if theta_moved is not None and theta_ftol is not None:
+        if theta_moved > theta_ftol * margin:
+            return "theta_moving"
+        if theta_moved > theta_ftol / margin:
+            theta = "edge"
+    return "converged" if cost == theta == "held" else "at_edge"
+
+
 @dataclass(frozen=True)
 class FitRecord:
     """How one PGNN fit stopped and what it cost.
 
-    stop: ``converged``, ``theta_moving`` (the cost test held while theta_phy still travelled),
-    ``max_iter`` or ``stalled`` (a pinned fit given an absolute tolerance also ``resolved``); cost_stop: the optimizer's own verdict before the theta test;
+    stop: ``converged``, ``at_edge``, ``theta_moving`` (the cost test held while theta_phy still
+    travelled), ``max_iter`` or ``stalled`` (:func:`verdict`; a pinned fit given an absolute
+    tolerance also ``resolved``); cost_stop: the optimizer's own verdict before the theta test;
     iterations: of the kept start; data_cost, reg_cost: the training cost's data term and the sum
     of its other terms (N**2); grad_norm, first_order: the optimizer's last gradient norm and
     first-order measure (:func:`controllers.optim.first_order_measure`); ftol, max_iter: the
@@ -185,6 +223,11 @@ class FitRecord:
     @property
     def converged(self) -> bool:
         return self.stop == "converged"
+
+    @property
+    def at_edge(self) -> bool:
+        """Whether a convergence test was within its margin (:func:`verdict`)."""
+        return self.stop == "at_edge"
 
     @property
     def restarts(self) -> int:

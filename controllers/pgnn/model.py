@@ -73,7 +73,7 @@ from clm_sim.plant import THETA_NAMES
 from controllers import optim
 from controllers.pgnn.cost import CostTerms, SeparableCost, Weights
 from controllers.pgnn.data import TrainingData, training_data
-from controllers.pgnn.fit_record import FitRecord, Iterate, Start, ThetaPoint
+from controllers.pgnn.fit_record import FitRecord, Iterate, Start, ThetaPoint, verdict
 from controllers.pgnn.network import PGNNNetwork
 from controllers.pgnn.starts import StartCache, StartOutcome
 from clm_sim.schema import build
@@ -390,9 +390,8 @@ class PGNNFeedforward:
         kept_start, best = best
         res = best.result
         moved = theta_movement(best.history, fit)
-        stop = res.stop
-        if stop == "converged" and self.training != "sequential" and moved > opt.theta_ftol:
-            stop = "theta_moving"
+        stop = verdict(res.stop, res.first_order, opt.ftol,
+                       None if self.training == "sequential" else moved, opt.theta_ftol)
         self.network_ = best.net
         self.theta_ = dict(zip(THETA_NAMES, map(float, self.network_.theta.detach().numpy())))
         self.theta_lip_ = dict(zip(THETA_NAMES, map(float, theta_lip_v)))
