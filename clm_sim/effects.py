@@ -559,8 +559,8 @@ Examples
 --------
 >>> from clm_sim import EFFECTS
 >>> sorted(EFFECTS)  # doctest: +NORMALIZE_WHITESPACE
-['cable_slab', 'cogging', 'force_offset', 'force_ripple', 'friction_asymmetry', 'presliding',
- 'stribeck', 'track_end']
+['cable_slab', 'cable_taut', 'cogging', 'force_offset', 'force_ripple', 'friction_asymmetry',
+ 'presliding', 'stribeck', 'track_end']
 >>> cogging = EFFECTS["cogging"](amplitude=3.0, period=0.016)
 >>> cogging.as_config()
 {'type': 'cogging', 'amplitude': 3.0, 'period': 0.016, 'phase': 0.0}
