@@ -93,7 +93,10 @@ def _agree_with_coefficients(data: dict) -> None:
     coefficients = data.get("coefficients")
     if not isinstance(coefficients, dict):
         return
-    offsets = [e.get("force") for e in data.get("effects") or []
+    effects = data.get("effects") or []
+    if not isinstance(effects, list):  # the loader refuses it in one line, naming the key
+        return
+    offsets = [e.get("force") for e in effects
                if isinstance(e, dict) and e.get("type") == "force_offset"]
     for key, value in coefficients.items():
         # the offset's loaded value is the force_offset effect's force (identify --offset)

@@ -90,6 +90,9 @@ def export_date() -> str:
         stamp = int(epoch) if epoch is not None else time.time()
     except ValueError:
         raise UserError(f"SOURCE_DATE_EPOCH: expected whole seconds, got {epoch!r}") from None
+    if not 0 <= stamp <= 253402300799:  # 9999-12-31T23:59:59Z, the last date strftime writes
+        raise UserError(f"SOURCE_DATE_EPOCH: expected 0 to 253402300799 s (up to the year 9999), "
+                        f"got {epoch!r}")
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(stamp))
 
 
