@@ -45,7 +45,7 @@ from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments import output_error as oe
 from experiments.diagnosis.model import SimulationModel, load_model
-from experiments.simulation import Simulation, simulate_record
+from experiments.simulation import simulate_record
 from experiments.studies.emps_cycles import cycle_edges, left_out
 from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
 from experiments.studies.emps_plateaus import cycle_friction, plateaus
