@@ -39,7 +39,7 @@ from experiments import worker_life, workers
 EXIT_USER = 2  # a user mistake: bad input, a file that cannot be written
 EXIT_BUG = 1  # an internal error (also: sweep tasks that failed, compare mismatches)
 # The signals that end a command, each with its exit code (128 + the signal) and its line:
-# SIGHUP (a closed terminal, a dropped ssh session) and SIGQUIT (Ctrl-\\) end it as SIGTERM
+# SIGHUP (a closed terminal, a dropped ssh connection) and SIGQUIT (Ctrl-\\) end it as SIGTERM
 # does, every temporary file removed and the workers ended, never as the default action would
 # (at once, or with a core dump, leaving a ``.partial`` folder and the workers running).
 CODES = {signal.SIGINT: 130, signal.SIGTERM: 128 + signal.SIGTERM}

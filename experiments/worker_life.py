@@ -46,7 +46,7 @@ def single_threaded_children():
 
 
 # The signals that stop a command (experiments.process.CODES): Ctrl-C, SIGTERM, and where the
-# platform has them SIGHUP (a closed terminal, a dropped ssh session) and SIGQUIT (Ctrl-\\).
+# platform has them SIGHUP (a closed terminal, a dropped ssh connection) and SIGQUIT (Ctrl-\\).
 _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM,
                  *(getattr(signal, name) for name in ("SIGHUP", "SIGQUIT")
                    if hasattr(signal, name))}
