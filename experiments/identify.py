@@ -102,8 +102,9 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
     return Identified(result, run, source, cross, validation_source, tuple(warnings))
 
 
-def write(result: Identified, out: Path) -> Path:
-    """Write ``out/lip.json`` (the model, its source and the protocol); returns its path."""
+def write(result: Identified, out: Path, extra: dict[str, str] | None = None) -> Path:
+    """Write ``out/lip.json`` (the model, its source and the protocol) and the ``extra`` files
+    (name -> text) into one result folder; returns the path of ``lip.json``."""
     info = {**result.fit.model.to_json(), "source": result.source,
             "identification": {**result.fit.protocol.as_dict(),
                                "relative_error": result.fit.relative_error,
@@ -116,6 +117,8 @@ def write(result: Identified, out: Path) -> Path:
     text = json.dumps(info, indent=1, allow_nan=False)
     with atomic_folder(out, what=WHAT, subdirs=()) as tmp:
         (tmp / "lip.json").write_text(text)
+        for name, body in (extra or {}).items():
+            (tmp / name).write_text(body)
     return out / "lip.json"
 
 
@@ -190,21 +193,16 @@ def simulation_fit(result: Identified, *, model=None, model_source: str | None =
         raise UserError(f"{source}: {exc}") from None
 
 
-def write_simulation(fit, result: Identified, out: Path) -> Path:
-    """Write ``out/model.json`` (a model file of the simulation-error fit, its stops under
-    ``identification``); returns its path."""
+def simulation_files(fit, result: Identified) -> dict[str, str]:
+    """``model.json`` (a model file of the simulation-error fit, its stops under
+    ``identification``) and ``simulation_fit.json`` (every start), as name -> text."""
     from experiments import output_error as oe
 
     info = oe.model_file(fit.plant, result.run.ts, name=f"{Path(result.source).stem} "
                          f"(simulation error)", description=fit.verdict())
     record = {"source": result.source, **fit.to_json()}
-    try:
-        atomic_write(out / "model.json", json.dumps(info, indent=1, allow_nan=False))
-        atomic_write(out / "simulation_fit.json", json.dumps(record, indent=1,
-                                                             allow_nan=False))
-    except OSError as exc:
-        raise write_error(out, exc) from None
-    return out / "model.json"
+    return {"model.json": json.dumps(info, indent=1, allow_nan=False),
+            "simulation_fit.json": json.dumps(record, indent=1, allow_nan=False)}
 
 
 def command(args, *, load) -> int:
@@ -240,8 +238,8 @@ def command(args, *, load) -> int:
         print(f"simulation error (open loop from the input, initial state from a parabola "
               f"through the first {fit.init_samples} positions):")
         print(fit.summary())
-        write(result, out)
-        print(f"wrote {write_simulation(fit, result, out)} (a model for clm-sim simulate and "
+        write(result, out, simulation_files(fit, result))
+        print(f"wrote {out / 'model.json'} (a model for clm-sim simulate and "
               f"clm-sim diagnose --model), {out / 'lip.json'} (the force fit) and "
               f"{out / 'simulation_fit.json'} (every start's stop)")
         return 0
