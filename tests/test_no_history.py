@@ -17,15 +17,6 @@ import clm_sim
 ROOT = Path(__file__).resolve().parent.parent
 CODE = ("clm_sim", "controllers", "experiments", "benchmarks", "tests")
 
-# Pages and files owned by work that lands with them; each fails this test until it does. The
-# lead empties this set when they are merged: nothing here is excluded for good.
-PENDING = {
-    "docs/results/lambda0.md",  # rewritten with the λ = 0 results
-    "docs/results/paper_table.md",  # rewritten with the λ = 0 results
-    "docs/results/emps_benchmark.md",  # rewritten with the EMPS benchmark
-    "experiments/configs/emps_benchmark.yaml",  # its rules' dates: with the EMPS benchmark
-}
-
 ORDINAL = (r"(?:first|second|third|fourth|fifth|sixth|seventh|eighth|ninth|tenth|eleventh|"
            r"twelfth|thirteenth|fourteenth|fifteenth|\d+(?:st|nd|rd|th))")
 # A word that names a period of the project's making, in any text a user reads.
@@ -91,8 +82,6 @@ def _rel(path: Path) -> str:
 def _check(path: Path, text: str, hashes: bool) -> None:
     if path == Path(__file__).resolve():
         pytest.skip("this file: its examples are the words it catches (test_the_words_are_caught)")
-    if _rel(path) in PENDING:
-        pytest.xfail(f"{_rel(path)}: pending (see PENDING)")
     found = _hits(text) + (HASH.findall(text) if hashes else [])
     assert not found, f"{_rel(path)}: history in the product: {sorted(set(found))}"
 
