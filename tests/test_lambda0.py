@@ -259,15 +259,16 @@ def test_record_lip_has_an_offset_column():
 @pytest.fixture(scope="session")
 def paper_cost_fit():
     """The default testbed's training run (seed 1), its LIP, and the lambda = 0 fit with the
-    paper's cost (no weight decay, no continuation) of network draw 3: a draw whose theta_phy
-    drifts by orders of magnitude (viscous -1.44e5 N·s/m on this code), the case where a replay
-    of theta on other features than the fitted ones leaks hundreds of newtons at reversals."""
+    paper's cost (no weight decay, no continuation) of network draw 0: a draw whose theta_phy
+    drifts by orders of magnitude (the stiffness about 1e3 times the LIP's under the portable
+    kernels the tests pin), the case where a replay of theta on other features than the fitted
+    ones leaks far more than the bound below at the reversals."""
     from experiments.testbed import Testbed
 
     tb = Testbed()
     run = tb.training_run(seed=1)
     lip = tb.fit_lip(run)
-    model = tb.fit_pgnn(run, hidden=16, lam=0.0, seed=3, lip=lip, weight_decay=0.0,
+    model = tb.fit_pgnn(run, hidden=16, lam=0.0, seed=0, lip=lip, weight_decay=0.0,
                         continuation_lam=0.0)
     return tb, run, lip, model
 
@@ -277,8 +278,8 @@ def test_paper_cost_lambda0_replays_near_the_lip_without_reversal_spikes(paper_c
     """The replayed function is the fitted one: a drifted lambda = 0 fit's feedforward on r1
     stays within tens of newtons of the LIP's at every sample (the network cancels the drift on
     the filtered features it was fitted on, and replay uses the same ones). Replaying theta on
-    the raw features instead (the old path) leaks delta_theta . (T - filt T) at the reversals:
-    the check below shows that leak is large for this draw, so the bound is not vacuous."""
+    the raw features instead leaks delta_theta . (T - filt T) at the reversals: the check below
+    shows that leak exceeds the bound for this draw, so the bound tells the two apart."""
     from clm_sim.features import held_force, lip_regressors
 
     tb, _, lip, model = paper_cost_fit
@@ -294,7 +295,7 @@ def test_paper_cost_lambda0_replays_near_the_lip_without_reversal_spikes(paper_c
     raw = lip_regressors(yf, v, a) @ np.array([model.theta_[k] for k in THETA_NAMES])
     phys, net = model.predict_parts(y=r, ts=tb.ts)
     leak = np.abs(held_force(raw + net) - held_force(phys + net))
-    assert leak.max() > 100.0, leak.max()
+    assert leak.max() > 30.0, leak.max()  # beyond the bound above (about 100 N for this draw)
 
 
 @pytest.mark.slow

@@ -147,14 +147,17 @@ print(f"MAE r2 PGNN: {testbed.replay(pgnn, 'r2').mae * 1e6:.3f} µm")
 # `clm-sim export-ff` writes the feedforward as C99 (`clm_ff.h`, `clm_ff.c`) with a self-test
 # (`clm_ff_selftest.c`: the product's force on a short motion, checked to 1e-9 of its peak).
 # Compiled with a three-line `main`, the self-test is what a target runs once at start-up
-# ([the export's contract](../export.md)). In a shell the first call is
-# `clm-sim export-ff pgnn.pt --to c --out ff`.
+# ([the export's contract](../export.md)). The C is limited by default to the data the model
+# was fitted on (its positions, velocities, accelerations and forces, widened by 50 %), so the
+# export reads that record: `--limits-from`. In a shell the first call is
+# `clm-sim export-ff pgnn.pt --to c --out ff --limits-from record.csv`.
 #
-# **What must hold:** the self-test passes (exit code 0).
+# **What must hold:** the self-test passes (exit code 0), and the limits are the record's.
 
 # %%
 subprocess.run([sys.executable, "-m", "experiments.cli", "export-ff", str(work / "pgnn.pt"),
-                "--to", "c", "--out", str(work / "ff")], check=True)
+                "--to", "c", "--out", str(work / "ff"), "--limits-from", str(work / "record.csv")],
+               check=True)
 (work / "ff" / "main.c").write_text(
     '#include <stdio.h>\n#include "clm_ff.h"\n'
     "int main(void) { static clm_ff_stream s; int failed = clm_ff_selftest(&s);\n"
@@ -169,6 +172,8 @@ print(f"C self-test: exit {done.returncode} ({'passed' if done.returncode == 0 e
 export = json.loads((ff / "export.json").read_text())
 print(f"exported a {export['kind']} at ts = {export['ts']} s, window {export['lag']} samples "
       f"back and {export['lead']} ahead")
+print(f"limits from {export['limits_from']}: position {export['r_min']:.4f} to "
+      f"{export['r_max']:.4f} m, force {export['max_force']:.1f} N")
 
 # %%
 shutil.rmtree(work)
