@@ -15,11 +15,6 @@ PAGES = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").rglo
 LINK = re.compile(r"\[[^\]]*\]\(([^)#\s]+)(?:#[^)]*)?\)")
 
 
-# Results pages rewritten with their results elsewhere; each may fail the length test until it
-# lands. The lead empties this set when they are merged: nothing here is excluded for good.
-PENDING = {"docs/results/lambda0.md", "docs/results/paper_table.md",
-           "docs/results/emps_benchmark.md"}
-
 
 def test_readme_is_a_front_door():
     lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
@@ -56,8 +51,6 @@ def _pages(under: str) -> list[Path]:
                          ids=lambda p: str(p.relative_to(ROOT)))
 def test_a_page_keeps_its_length_and_width(page):
     name = str(page.relative_to(ROOT))
-    if name in PENDING:
-        pytest.xfail(f"{name}: pending (see PENDING)")
     lines = page.read_text(encoding="utf-8").splitlines()
     limit = 150 if name == "README.md" else 250 if "/results/" in name else 400
     assert len(lines) <= limit, f"{name}: {len(lines)} lines (at most {limit})"
