@@ -221,7 +221,7 @@ def command(args, *, load) -> int:
     protocol = protocol_from_options(args, source=str(args.data))
     model = None
     if args.model:
-        from experiments.diagnosis.model import load_model
+        from experiments.model_files import load_model
         model = load_model(args.model).plant
     hold = tuple(k.strip() for k in (args.hold or "").split(",") if k.strip())
     validation = load(args.validate, args) if args.validate else None

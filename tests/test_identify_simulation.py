@@ -14,7 +14,7 @@ import pytest
 import reference_sim as ref
 from clm_sim.record import Run
 from experiments.cli import main
-from experiments.diagnosis.model import load_model
+from experiments.model_files import load_model
 from experiments.output_error import training_rmse
 
 TS = 1e-3

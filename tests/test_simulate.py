@@ -15,7 +15,7 @@ from clm_sim.open_loop import initial_state, score, simulate_input
 from clm_sim.plant import Plant
 from clm_sim.record import Run
 from experiments.cli import main
-from experiments.diagnosis.model import SimulationModel
+from experiments.model_files import SimulationModel
 from experiments.simulation import simulate_record
 
 TS = 1e-3
@@ -183,7 +183,7 @@ def test_the_published_emps_model_scores_as_published():
     sample (zero-order hold) and takes the state from a parabola through 20 samples; the
     published figures come from another integration: measured +2.0 % and +0.6 %, hence 3 %."""
     from clm_sim.record import load_record
-    from experiments.diagnosis.model import load_model
+    from experiments.model_files import load_model
 
     model = load_model(Path(__file__).resolve().parents[1] / "experiments" /
                                   "configs" / "emps_model.yaml")
@@ -393,5 +393,5 @@ def test_a_shipped_config_without_ts_runs_at_the_records_rate(record, tmp_path, 
     if mode == "open loop":
         assert scores["plant"]["mass"] == 18.8  # the config's plant:, not its truth:
     else:
-        from experiments.diagnosis.model import load_model
+        from experiments.model_files import load_model
         assert load_model(config, TS).controller.ts == TS

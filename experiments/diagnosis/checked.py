@@ -8,7 +8,7 @@ from clm_sim.features import FeatureMap
 from clm_sim.outdir import check_output_folder
 from controllers.lip import LIPFeedforward
 from experiments.diagnosis.diagnose import Diagnosis, diagnose
-from experiments.diagnosis.model import SimulationModel, load_model
+from experiments.model_files import SimulationModel, load_model
 from experiments.diagnosis.report import write
 from experiments.diagnosis.residual import DiagnosisSettings
 from experiments.record_guards import fit_warnings, refuse_unidentifiable

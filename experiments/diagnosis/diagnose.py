@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from experiments.diagnosis.extend import extended_plant, gains, joint_fit
 from experiments.diagnosis.finding import Finding, Unexplained
-from experiments.diagnosis.model import SimulationModel
+from experiments.model_files import SimulationModel
 from experiments.diagnosis.outcome import (DiagnosisInfo, Gain, GainSignals, RecordInfo,
                                            SignificanceRule)
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of

@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 
-from experiments.diagnosis.model import Controller
+from experiments.model_files import Controller
 from experiments.diagnosis.origin import registered_gain
 from experiments.diagnosis.outcome import Gain, GainSignals
 from experiments.diagnosis.residual import DiagnosisSettings, Residual

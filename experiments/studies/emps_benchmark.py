@@ -44,7 +44,7 @@ from clm_sim.record import Run, load_record
 from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments import output_error as oe
-from experiments.diagnosis.model import SimulationModel, load_model
+from experiments.model_files import SimulationModel, load_model
 from experiments.simulation import simulate_record
 from experiments.studies.emps_cycles import cycle_edges, left_out
 from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
