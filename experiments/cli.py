@@ -124,7 +124,7 @@ def _cmd_diagnose(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    from experiments.agreement import verdict
+    from experiments.stats.agreement import verdict
 
     lines, code = verdict(Path(args.expected), Path(args.fresh))
     print("\n".join(lines))

@@ -261,8 +261,8 @@ def lip_intervals(phi: np.ndarray, target: np.ndarray) -> LipIntervals:
     """The LIP (least squares of ``target`` on ``phi``'s four columns, named) on the fitting
     samples, with white-noise and Newey-West (autocorrelation-robust) standard errors at the
     automatic bandwidth of Newey and West (1994), the residual's lag-1 autocorrelation and its
-    autocorrelation at the lags chosen (:func:`experiments.hac.newey_west`)."""
-    from experiments.hac import newey_west
+    autocorrelation at the lags chosen (:func:`experiments.stats.hac.newey_west`)."""
+    from experiments.stats.hac import newey_west
 
     fit = newey_west(phi, target, lags="auto")
     def named(values):

@@ -25,7 +25,7 @@ from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
 from experiments import table
 from experiments.config import ExperimentConfig
-from experiments.paired import Paired, holm
+from experiments.stats.paired import Paired, holm
 from experiments.results import SeedFit
 
 

@@ -15,7 +15,7 @@ from scipy import stats
 
 from clm_sim.errors import UserError
 from experiments.cli import main as cli
-from experiments.paired import LogRatio, holm
+from experiments.stats.paired import LogRatio, holm
 from experiments.studies.failure_map import load_failure_map, verdict
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -558,7 +558,7 @@ def test_newey_west_widens_with_autocorrelated_residuals():
     """On AR(1) residuals with rho = 0.8 the Newey-West standard error of a mean is about
     sqrt((1 + rho) / (1 - rho)) = 3 times the white-noise one, and the white-noise one is right
     (ratio about 1) on white residuals."""
-    from experiments.hac import newey_west
+    from experiments.stats.hac import newey_west
 
     rng = np.random.default_rng(0)
     n = 20000

@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 
 from clm_sim.numerics import environment
-from experiments import agreement, table
+from experiments.stats import agreement
+from experiments import table
 from experiments.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]

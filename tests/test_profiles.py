@@ -390,7 +390,7 @@ def test_pinned_fit_stops_resolved_within_its_tolerance():
 # ----------------------------------------------------------------------------- the record's keys
 
 # identifiability.json's keys (theta names, the LIP-interval names that
-# experiments.hac.NeweyWest names, and "bound", also a walk's end reason, aside): none is a
+# experiments.stats.hac.NeweyWest names, and "bound", also a walk's end reason, aside): none is a
 # contract between modules.
 _RECORD_KEYS = {
     "range", "open", "inside", "profile", "start", "ends", "monotone", "why_open",

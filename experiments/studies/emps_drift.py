@@ -3,7 +3,7 @@
 The extended model's terms are taken apart three ways (``explain_drift``):
 
 * **Determined?** Each coefficient of the diagnosis's joint fit on the training record with
-  white-noise and Newey-West (autocorrelation-robust, :mod:`experiments.hac`) standard errors,
+  white-noise and Newey-West (autocorrelation-robust, :mod:`experiments.stats.hac`) standard errors,
   and its value fitted again on each of ``blocks`` contiguous blocks of the training record: the
   spread a standard error cannot show when the machine itself changes within a record.
 * **Which term?** The extended model refitted without one term at a time (the same terms and
@@ -28,7 +28,7 @@ from experiments.diagnosis.context import Step
 from experiments.diagnosis.extend import extended_plant, joint_fit
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.search import forward_select
-from experiments.hac import newey_west
+from experiments.stats.hac import newey_west
 from experiments.studies.emps_plateaus import to_markdown as steady_table
 
 

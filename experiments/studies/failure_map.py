@@ -47,7 +47,7 @@ from clm_sim.schema import to_plain
 from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study, run_checked
 from experiments.sweeps.store import code_version
-from experiments.paired import LogRatio, Paired, holm
+from experiments.stats.paired import LogRatio, Paired, holm
 from experiments.results import BeyondRange, error_beyond_rms
 from experiments.studies.failure_map_result import (BothFits, CellFailure, CellStats, Drift,
                                                     FailureMapResult, FitRow, Interval, Mechanism,

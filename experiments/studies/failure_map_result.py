@@ -15,7 +15,7 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from clm_sim.schema import build, to_plain
-from experiments.paired import LogRatio
+from experiments.stats.paired import LogRatio
 from experiments.studies.failure_map_settings import FailureMapSettings
 
 T = TypeVar("T")
