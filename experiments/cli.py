@@ -4,7 +4,7 @@ feedforward to C or ONNX, ``compare`` a fresh table with a published one.
 
 This module only parses the command line and calls the library; how the process ends (user
 mistakes: one line, exit 2; Ctrl-C 130, SIGTERM 143; an internal error: one line, exit 1, the
-traceback with ``--debug``) is :mod:`experiments.process`. ``sweep`` exits with 1 when some tasks
+traceback with ``--debug``) is :mod:`experiments.processes.process`. ``sweep`` exits with 1 when some tasks
 failed (the table is still written and lists them). Data that look wrong but may be right give
 one warning line each. docs/cli.md states it all.
 """
@@ -18,9 +18,8 @@ from pathlib import Path
 
 import clm_sim
 from clm_sim.numerics import one_thread_per_process, pin_portable_kernels
-from experiments import arguments, process
-
-
+from experiments import arguments
+from experiments.processes import process
 def _cmd_run(args) -> int:
     from clm_sim.schema import load_yaml
     from experiments.config import load_config, refuse_other_commands
@@ -219,7 +218,7 @@ def parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """The command line; ``argv=None`` means a real process (``sys.argv``), which receives its
     signals in a thread of its own and after an interruption ends at once
-    (:mod:`experiments.process`)."""
+    (:mod:`experiments.processes.process`)."""
     program = argv is None
     if program:
         process.receive_signals()

@@ -155,7 +155,7 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
     (``lip``: the LIP of the window, if already fitted)."""
     from controllers.pgnn import TrainingData
     from controllers.pgnn_settings import decimation_for
-    from experiments import workers
+    from experiments.processes import workers
     from experiments.testbed import STREAM_NETWORK, stream
 
     train = records[0]

@@ -232,8 +232,7 @@ class Testbed:
         progress line per finished fit."""
         from controllers.pgnn import training_data  # torch is imported only for a PGNN
         from controllers.pgnn.starts import StartCache
-        from experiments import workers as parallel
-
+        from experiments.processes import workers as parallel
         run_seed = run.meta.get("seed", self.config.seed)
         data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
                              decimation=spec.pgnn.decimation)

@@ -131,8 +131,8 @@ def test_the_process_lifecycle_is_a_module_the_graph_sees():
     """The signal and exit handling stops the workers and removes temporary folders: it names
     those modules in imports (an edge of this graph), never reaches them through sys.modules,
     and the command line only dispatches to it."""
-    assert {"experiments.workers", "clm_sim.outdir"} <= GRAPH["experiments.process"]
-    assert "experiments.process" in GRAPH["experiments.cli"]
+    assert {"experiments.processes.workers", "clm_sim.outdir"} <= GRAPH["experiments.processes.process"]
+    assert "experiments.processes.process" in GRAPH["experiments.cli"]
     hidden = re.compile(r"sys\.modules(\.get\(|\[)\s*['\"](clm_sim|controllers|experiments)")
     reached = [m for m, path in MODULES.items() if hidden.search(path.read_text("utf-8"))]
     assert not reached, f"{reached} reach project modules through sys.modules"
@@ -164,7 +164,7 @@ def test_physics_import_loads_no_higher_layer_nor_heavy_library():
      ("torch", "control", "matplotlib", "numba", "scipy.signal", "scipy.stats",
       "scipy.special")),
     # what a run imports to prepare its PGNN fits before it starts their worker pool
-    ("controllers.pgnn, controllers.pgnn.data, controllers.pgnn.starts, experiments.workers",
+    ("controllers.pgnn, controllers.pgnn.data, controllers.pgnn.starts, experiments.processes.workers",
      ("torch", "control", "matplotlib", "scipy.signal", "scipy.stats")),
 ])
 def test_start_up_imports_load_no_library_they_do_not_use(modules, absent):

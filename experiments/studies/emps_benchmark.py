@@ -50,7 +50,7 @@ from experiments.studies.emps_cycles import cycle_edges, left_out
 from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
 from experiments.studies.emps_plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
-from experiments.workers import map_in_order
+from experiments.processes.workers import map_in_order
 
 STRUCTURES = ("equation_error", "diagnosis")
 ADDABLE = ("friction_asymmetry",)

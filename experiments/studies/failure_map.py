@@ -20,7 +20,7 @@ claim is about, and the log makes it symmetric), transformed back to a ratio. A 
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
 (:class:`~experiments.studies.failure_map_settings.FailureMapSettings`); the cells (case x n_l
-x seed) are independent and run on a process pool (``experiments.workers.map_in_order``, one
+x seed) are independent and run on a process pool (``experiments.processes.workers.map_in_order``, one
 thread per worker). The result is a typed
 :class:`~experiments.studies.failure_map_result.FailureMapResult`; the output folder holds
 ``failure_map.json`` (its ``to_json``), ``report.md``, ``config.resolved.yaml`` and
@@ -55,7 +55,7 @@ from experiments.studies.failure_map_result import (BothFits, CellFailure, CellS
 from experiments.studies.failure_map_settings import FailureMapSettings
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
-from experiments.workers import cores
+from experiments.processes.workers import cores
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
@@ -317,7 +317,7 @@ def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: 
             progress=None) -> list[CellResult | CellFailure]:
     """Run every cell (in ``workers`` processes when > 1) and return the results in task order.
     The results do not depend on ``workers``: each cell is deterministic and single-threaded."""
-    from experiments.workers import map_in_order
+    from experiments.processes.workers import map_in_order
 
     progress = progress or (lambda message: None)
     tasks = cells(config, settings)

@@ -58,7 +58,7 @@ from experiments.config import ExperimentConfig, resolved
 from experiments.studies.kinds import load_case_study, run_checked
 from experiments.table import holm
 from experiments.testbed import Progress, Testbed
-from experiments.workers import cores
+from experiments.processes.workers import cores
 
 
 def _default_cases() -> dict[str, tuple[Effect, ...]]:
@@ -833,7 +833,7 @@ def compute(config: ExperimentConfig, settings: MechanismSettings, *, workers: i
             progress=None) -> list[dict]:
     """Every cell (in ``workers`` processes when > 1), in task order; the results do not depend
     on ``workers`` (a record split over tasks, :func:`parts_for`, is merged back)."""
-    from experiments.workers import map_in_order
+    from experiments.processes.workers import map_in_order
 
     progress = progress or (lambda message: None)
     tasks = cells(config, settings, parts_for(settings, workers))

@@ -53,7 +53,7 @@ from experiments.profiles_result import (Check, FirstStop, LipIntervals, MarkedF
 from experiments.studies.kinds import refuse_unread, run_checked, take_kind
 from experiments.studies.profiles_report import to_markdown
 from experiments.testbed import STREAM_NETWORK, Progress, Testbed, stream
-from experiments.workers import cores
+from experiments.processes.workers import cores
 
 
 _LOW, _GT_ZERO = "integer at least", "number above zero"  # a setting's constraint
@@ -295,7 +295,7 @@ def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int
             progress=None) -> dict[int, SizeRecord]:
     """Every record, then every profile direction, then the checks (in ``workers`` processes
     when > 1); the result does not depend on ``workers``."""
-    from experiments.workers import local_pool, map_in_order
+    from experiments.processes.workers import local_pool, map_in_order
 
     # One pool for all phases: its workers import torch once, not once a phase.
     with local_pool(workers) if workers > 1 else contextlib.nullcontext() as pool:
@@ -305,7 +305,7 @@ def compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int
 def _compute(config: ExperimentConfig, settings: ProfileSettings, workers: int, pool,
              progress) -> dict[int, SizeRecord]:
     """:func:`compute` on ``pool`` (``None``: in this process)."""
-    from experiments.workers import map_in_order
+    from experiments.processes.workers import map_in_order
 
     tasks = [(config, settings, i) for i in range(settings.records)]
     records = map_in_order(run_record, tasks, workers, pool=pool,

@@ -31,7 +31,7 @@ from experiments.sweeps.grid import Sweep
 from experiments.runner import run_task, slug
 from experiments.sweeps.store import ResultStore
 from experiments.testbed import Progress
-from experiments.workers import cores
+from experiments.processes.workers import cores
 
 
 @dataclass

@@ -3,7 +3,7 @@
 Two users: :func:`run_local` maps a function over task payloads in completion order (sweeps, the
 studies; a study of several phases maps them on one :func:`local_pool`), and :func:`map_fits`
 runs the PGNN fits of one table row on a pool kept for the process. How the workers start and
-end (a fork server, one thread each, Ctrl-C left to the owner) is :mod:`experiments.worker_life`.
+end (a fork server, one thread each, Ctrl-C left to the owner) is :mod:`experiments.processes.worker_life`.
 
 The fits of one table row differ only in their seed, so they run in a pool of worker processes
 (one per available core). Every fit pins torch and BLAS to one thread itself
@@ -21,7 +21,7 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, as_completed, wait
 
-from experiments.worker_life import FIT_PRELOAD, new_pool, retire, spawning, stop
+from experiments.processes.worker_life import FIT_PRELOAD, new_pool, retire, spawning, stop
 
 
 @contextlib.contextmanager

@@ -11,7 +11,7 @@ has no fork server, workers are ``spawn`` processes. Every pool is made by :func
 known here until :func:`retire`, so that a process ending at once can kill every worker it owns
 and its fork server (:func:`kill_now`; an orderly end: :func:`stop`, :func:`stop_server`). What
 runs on the pools is
-:mod:`experiments.workers`.
+:mod:`experiments.processes.workers`.
 """
 
 from __future__ import annotations
@@ -45,13 +45,13 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
-# The signals that stop a command (experiments.process.CODES): Ctrl-C, SIGTERM, and where the
+# The signals that stop a command (experiments.processes.process.CODES): Ctrl-C, SIGTERM, and where the
 # platform has them SIGHUP (a closed terminal, a dropped ssh connection) and SIGQUIT (Ctrl-\\).
 _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM,
                  *(getattr(signal, name) for name in ("SIGHUP", "SIGQUIT")
                    if hasattr(signal, name))}
 # Held while workers are being started (their signals set to "ignore"): a signal that comes
-# meanwhile is handed to the main thread once it is released (experiments.process).
+# meanwhile is handed to the main thread once it is released (experiments.processes.process).
 SPAWNING = threading.Lock()
 
 
@@ -90,7 +90,7 @@ def _starting():
     """Child processes started within the block start single-threaded, with Ctrl-C and SIGTERM
     blocked (a new process inherits the signal mask, through ``exec`` too) and, where they were
     not blocked here already, ignored. A command line process has them blocked and receives
-    them in a thread of its own (:func:`experiments.process.receive_signals`), which waits for
+    them in a thread of its own (:func:`experiments.processes.process.receive_signals`), which waits for
     :data:`SPAWNING` before it passes one on, so none is lost; their handlers are then left as
     they are: setting "ignore" discards a signal that is pending, one the signal thread has not
     yet taken (a sweep's SIGTERM was lost so, when it came as the next task was submitted)."""
@@ -144,12 +144,12 @@ def _start_resource_tracker() -> None:
 # clm-sim process, not once per worker.
 PRELOAD = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.signal", "control", "torch",
            "clm_sim.loop", "controllers.pgnn", "controllers.pgnn.model",
-           "experiments.worker_life", "experiments.workers", "experiments.runner",
+           "experiments.processes.worker_life", "experiments.processes.workers", "experiments.runner",
            "experiments.testbed")
-# A pool of PGNN fits (experiments.workers.map_fits) needs only torch and the fit's modules: the
+# A pool of PGNN fits (experiments.processes.workers.map_fits) needs only torch and the fit's modules: the
 # server then imports in 3 s of CPU what PRELOAD takes 5 s for, and the first fit waits for it.
 FIT_PRELOAD = ("numpy", "scipy.linalg", "threadpoolctl", "torch", "controllers.pgnn",
-               "controllers.pgnn.model", "experiments.worker_life", "experiments.workers")
+               "controllers.pgnn.model", "experiments.processes.worker_life", "experiments.processes.workers")
 
 
 def context() -> multiprocessing.context.BaseContext:
