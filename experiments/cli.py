@@ -24,7 +24,7 @@ def _cmd_run(args) -> int:
     from clm_sim.schema import load_yaml
     from experiments.config import load_config, refuse_other_commands
     from experiments.runner import run_experiment
-    from experiments.suspicions import config_warnings
+    from experiments.records.suspicions import config_warnings
 
     data = load_yaml(args.config)
     refuse_other_commands(data, args.config)
@@ -51,7 +51,7 @@ def _cmd_identify(args) -> int:
 
 
 def _cmd_simulate(args) -> int:
-    from experiments.simulation import command
+    from experiments.records.simulation import command
     return command(args, load=_load)
 
 
@@ -91,7 +91,7 @@ def _cmd_sweep(args) -> int:
 
 
 def _warn(path, lines: list[str]) -> None:
-    from experiments.suspicions import warn
+    from experiments.records.suspicions import warn
     warn(path, lines)
 
 

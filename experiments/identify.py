@@ -59,9 +59,9 @@ def identify(run: Run, protocol: IDIMProtocol, *, source: str,
              ) -> Identified:
     """Fit ``run`` by ``protocol``; cross-test on ``validation`` (same sample time) if given.
     Errors name ``source`` (or ``validation_source``)."""
-    from experiments.record_guards import (fit_warnings, refuse_other_rate,
+    from experiments.records.guards import (fit_warnings, refuse_other_rate,
                                            refuse_unidentifiable)
-    from experiments.suspicions import record_warnings
+    from experiments.records.suspicions import record_warnings
 
     refuse_unidentifiable(run, source)
     try:
@@ -144,14 +144,13 @@ def simulation_fit(result: Identified, *, model=None, model_source: str | None =
                    hold: tuple[str, ...] = (), starts: int = 2, seed: int = 0,
                    init_samples: int = 20):
     """The force fit of ``result`` refined on the open-loop simulation error of its record
-    (:func:`experiments.output_error.fit`): the structure is ``model``'s plant (a
+    (:func:`experiments.records.output_error.fit`): the structure is ``model``'s plant (a
     :class:`~clm_sim.plant.Plant`) or else the force fit's; the starts are the force fit, the
     model, and ``starts`` perturbations of the force fit (seeded by ``seed``); ``hold`` names
     parameters kept at the force fit's value (the model's where the force fit has none)."""
     from clm_sim.effects import ForceOffset
     from clm_sim.plant import Plant
-    from experiments import output_error as oe
-
+    from experiments.records import output_error as oe
     source = result.source
     lip = result.fit.model
     if not 3 <= init_samples <= len(result.run) - 100:
@@ -196,8 +195,7 @@ def simulation_fit(result: Identified, *, model=None, model_source: str | None =
 def simulation_files(fit, result: Identified) -> dict[str, str]:
     """``model.json`` (a model file of the simulation-error fit, its stops under
     ``identification``) and ``simulation_fit.json`` (every start), as name -> text."""
-    from experiments import output_error as oe
-
+    from experiments.records import output_error as oe
     info = oe.model_file(fit.plant, result.run.ts, name=f"{Path(result.source).stem} "
                          f"(simulation error)", description=fit.verdict())
     record = {"source": result.source, **fit.to_json()}
@@ -208,7 +206,7 @@ def simulation_files(fit, result: Identified) -> dict[str, str]:
 def command(args, *, load) -> int:
     """``clm-sim identify`` on the parsed ``args``; ``load(path, args)`` reads a record."""
     from clm_sim.outdir import check_output_folder
-    from experiments.suspicions import warn
+    from experiments.records.suspicions import warn
 
     simulation = args.criterion == "simulation"
     given = [k for k in SIMULATION_OPTIONS if getattr(args, k) is not None]

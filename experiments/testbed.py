@@ -189,10 +189,10 @@ class Testbed:
 
     def fit_lip(self, run: Run) -> LIPFeedforward:
         """The LIP feedforward identified from a logged run (the config's feature map), behind
-        the guards of every fit (:func:`experiments.record_guards.simulated_fit_checks`): a fit
+        the guards of every fit (:func:`experiments.records.guards.simulated_fit_checks`): a fit
         the run cannot carry is refused; a suspect one is said through ``progress`` and kept in
         :attr:`warnings` (the runner writes them with the results)."""
-        from experiments.record_guards import simulated_fit_checks
+        from experiments.records.guards import simulated_fit_checks
 
         features = self.config.features
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):

@@ -964,7 +964,7 @@ def test_a_mass_far_from_the_records_is_a_warning(scale, model_mass, warned,
                                                   small_training_run):
     from clm_sim.record import Run
     from controllers.lip import LIPFeedforward
-    from experiments.suspicions import record_warnings
+    from experiments.records.suspicions import record_warnings
 
     run = Run(**_variant(small_training_run, u=lambda s: s["u"] * scale))
     lip = LIPFeedforward().fit(y=run.y, u=run.u, ts=run.ts)
@@ -987,7 +987,7 @@ def test_identify_names_the_file_and_option_of_a_filter_above_nyquist(small_trai
 
 def test_a_plant_mass_outside_any_carriage_is_a_warning():
     from clm_sim.plant import Plant
-    from experiments.suspicions import plant_warnings
+    from experiments.records.suspicions import plant_warnings
 
     assert plant_warnings(Plant(), "plant") == []
     (line,) = plant_warnings(Plant(mass=18800.0), "plant")

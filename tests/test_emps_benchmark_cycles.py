@@ -65,8 +65,7 @@ def test_leaving_a_cycle_out_keeps_it_out_of_the_estimation_part(record):
 
 
 def _fit(statuses, rmses):
-    from experiments import output_error as oe
-
+    from experiments.records import output_error as oe
     stops = tuple(oe.Stop(f"s{i}", {"mass": 1.0}, {"mass": 1.0}, 1.0, r, st, "", 10, 0.0, 0.0)
                   for i, (st, r) in enumerate(zip(statuses, rmses)))
     return oe.SimulationFit(Plant(effects=()), ("mass",), {}, stops)

@@ -1,5 +1,5 @@
 """``clm-sim identify --criterion simulation``: a physical model fitted by the open-loop
-simulation error of the measured position, from several starts (experiments.output_error), on
+simulation error of the measured position, from several starts (experiments.records.output_error), on
 a record of the independent reference simulator with an effect the force fit's structure does
 not have, and on EMPS from ../shared where present."""
 
@@ -15,7 +15,7 @@ import reference_sim as ref
 from clm_sim.record import Run
 from experiments.cli import main
 from experiments.model_files import load_model
-from experiments.output_error import training_rmse
+from experiments.records.output_error import training_rmse
 
 TS = 1e-3
 RES = 1e-7

@@ -240,8 +240,7 @@ def test_record_lip_has_an_offset_column():
     """The LIP of a measured record carries a constant force offset: on data with an offset and
     a position range that does not straddle zero, it returns the true stiffness and offset (an
     LIP without the column would put the offset into the stiffness)."""
-    from experiments import record_fit
-
+    from experiments.records import fit as record_fit
     data = synthetic()
     phi = data.phi.copy()
     phi[:, 3] += 0.1  # positions 0 to 0.2 m: the mean position is not zero
@@ -521,8 +520,8 @@ def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
     """emps_pgnn.yaml's rows as record_fit compares them: only rows differing in one setting
     (plus each PGNN row against the LIP), each with the Wilcoxon p, the median difference, the
     wins and a log ratio; one exploded seed moves the mean difference but not the median."""
-    from experiments import record_fit, table
-
+    from experiments.records import fit as record_fit
+    from experiments import table
     config = load_config(EMPS_CONFIG)
     rng = np.random.default_rng(0)
     rows = []

@@ -16,7 +16,7 @@ from clm_sim.plant import Plant
 from clm_sim.record import Run
 from experiments.cli import main
 from experiments.model_files import SimulationModel
-from experiments.simulation import simulate_record
+from experiments.records.simulation import simulate_record
 
 TS = 1e-3
 RES = 1e-7  # m, the foreign encoder's count
@@ -254,8 +254,7 @@ def test_simulation_error_returns_the_truth_from_wrong_starts(record):
     perturbations of that, the fit on the simulation error of a record of the truth ends at
     the truth from every start (the reference simulator's record: another integrator, a
     truncating encoder), converged by the stated test, the starts agreeing."""
-    from experiments import output_error as oe
-
+    from experiments.records import output_error as oe
     start = {"mass": STAGE.mass * 1.1, "viscous": STAGE.viscous * 0.8,
              "coulomb": STAGE.coulomb * 1.2}
     rng = np.random.default_rng(0)

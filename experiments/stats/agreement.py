@@ -179,7 +179,7 @@ def _kind(column: str) -> str | None:
 
 def _unit(column: str) -> str | None:
     """The unit a results table prints its column in (:func:`experiments.table.results_table`,
-    ``experiments.record_fit``): what the fresh table's numbers mean in that column."""
+    ``experiments.records.fit``): what the fresh table's numbers mean in that column."""
     kind = _kind(column)
     if kind == "mae":
         return "µm"

@@ -4,7 +4,7 @@ tests, the ratio ``a / b`` on the log scale, and Holm's adjustment over a family
 Two rows share a seed when they share the training data and the network's draw, so their
 per-seed values are paired. :class:`Paired` is what the simulation table
 (:func:`experiments.table.comparisons`), the measured-record rows
-(:func:`experiments.record_fit.comparisons`) and the failure map's cells report; each writes the
+(:func:`experiments.records.fit.comparisons`) and the failure map's cells report; each writes the
 fields its file has always had.
 """
 

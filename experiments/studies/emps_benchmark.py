@@ -9,7 +9,7 @@ simulated position over the remaining samples (``clm_sim.open_loop``).
 
 Reference rows (not candidates): the published model, the published procedure (IDIM-LS) rerun,
 the diagnosis-extended model fitted by force residual. Candidates (``benchmark.candidates``):
-structures fitted by simulation error from several starts (:mod:`experiments.output_error`).
+structures fitted by simulation error from several starts (:mod:`experiments.records.output_error`).
 
 Selection (``benchmark.selection``, written in the config before its first result): every
 candidate made again by its whole procedure on all cycles of the training record's program but
@@ -43,9 +43,9 @@ from clm_sim.plant import Plant
 from clm_sim.record import Run, load_record
 from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
-from experiments import output_error as oe
+from experiments.records import output_error as oe
 from experiments.model_files import SimulationModel, load_model
-from experiments.simulation import simulate_record
+from experiments.records.simulation import simulate_record
 from experiments.studies.emps_cycles import cycle_edges, left_out
 from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
 from experiments.studies.emps_plateaus import cycle_friction, plateaus

@@ -134,7 +134,7 @@ def explain_drift(train: Run, test: Run, base: Plant, simulate, *, estimation: R
                   settings: DiagnosisSettings = DiagnosisSettings()) -> Drift:
     """The diagnosis's terms on ``train`` (model ``base``) taken apart (module docstring);
     ``simulate(plant, run)`` is the benchmark's open-loop simulation
-    (:class:`experiments.simulation.Simulation`)."""
+    (:class:`experiments.records.simulation.Simulation`)."""
     def rmse(plant, run):
         return simulate(plant, run).score.rmse
 

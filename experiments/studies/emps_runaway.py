@@ -76,8 +76,7 @@ def coverage(model, records) -> dict:
 
 
 def compute(config, progress=print) -> dict:
-    from experiments import record_fit
-
+    from experiments.records import fit as record_fit
     recs = [("training", config.data.load("training"))]
     if config.data.validation is not None:
         recs.append(("validation", config.data.load("validation")))

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from clm_sim.errors import UserError
-from experiments.suspicions import MASS_RANGE_KG
+from experiments.records.suspicions import MASS_RANGE_KG
 
 MIN_FIT_SAMPLES = 200  # samples a fit of 4 parameters needs at least (as a record: MIN_SAMPLES)
 NYQUIST_FRACTION = 0.8  # a cut-off above this fraction of Nyquist: the filter is not a filter
@@ -111,7 +111,7 @@ def simulated_fit_checks(run, features, theta: dict, std: dict, *, machine_mass:
     loop's ``u`` is the force on ``y``, so such a fit says the data do not carry the parameters
     (a filter that leaves no signal). Returns the warnings (cut-off, a mass far from the
     machine's, undetermined)."""
-    from experiments.suspicions import MASS_RATIO
+    from experiments.records.suspicions import MASS_RATIO
 
     key = "features.regression_lowpass_hz"
     cutoff = features.regression_lowpass_hz

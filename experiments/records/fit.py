@@ -106,11 +106,11 @@ def fit_lip(train: Prepared) -> RecordLIP:
 
 def record_checks(config: ExperimentConfig, run, train: Prepared, source: str) -> tuple[
         RecordLIP, list[str]]:
-    """The guards of :mod:`experiments.record_guards` on the training record: refuse (one
+    """The guards of :mod:`experiments.records.guards` on the training record: refuse (one
     line) a record or window that identifies nothing or a fit with non-finite numbers; the
     LIP of the window and the warnings where it is suspect."""
-    from experiments.record_guards import cutoff_warnings, fit_warnings, refuse_small_window
-    from experiments.suspicions import record_warnings
+    from experiments.records.guards import cutoff_warnings, fit_warnings, refuse_small_window
+    from experiments.records.suspicions import record_warnings
 
     refuse_small_window(int(train.inside.sum()), len(train.inside), source)
     try:
@@ -302,10 +302,10 @@ def compute(config: ExperimentConfig, progress, warn=None) -> dict:
     "models": [per row, per seed], "warnings", "samples"}``. The record guards refuse in one
     line a record or window that identifies nothing; ``warn(source, lines)`` receives the
     warnings where the result is suspect (default: stderr, one line each)."""
-    from experiments.suspicions import warn as stderr_warn
+    from experiments.records.suspicions import warn as stderr_warn
 
     warn = warn or stderr_warn
-    from experiments.record_guards import refuse_other_rate, refuse_unidentifiable
+    from experiments.records.guards import refuse_other_rate, refuse_unidentifiable
 
     recs = [("training", config.data.load("training"))]
     source = f"data.training ({config.data.training})"
