@@ -21,7 +21,7 @@ from small_config import SMALL_CONFIG
 from clm_sim.record import load_record, save_npz
 from experiments.cli import main
 from experiments.config import load_config
-from experiments.studies.extrapolation_result import ExtrapolationResult
+from experiments.studies.extrapolation.result import ExtrapolationResult
 
 ROOT = Path(__file__).resolve().parents[1]
 BASELINE = ROOT / "experiments" / "configs" / "lip_baseline.yaml"

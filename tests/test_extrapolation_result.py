@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from clm_sim.features import TrainingRange
-from experiments.studies.extrapolation_result import (
+from experiments.studies.extrapolation.result import (
     FEEDBACK, LIP, SEQUENTIAL, Costs, ExtrapolationResult, NetworkParts, Spread, Trained,
     Variant, variant_key, variant_label)
 

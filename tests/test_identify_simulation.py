@@ -134,7 +134,7 @@ def test_the_benchmark_page_rows_reproduce_from_their_model_files():
     (docs/results/emps_models/<row>.json); simulated on PULSES from it, each gives the page's
     test RMSE to its printed two decimals (half a unit of the last digit, 0.005 mm)."""
     from clm_sim.record import load_record
-    from experiments.studies.emps_benchmark import slug
+    from experiments.studies.emps.benchmark import slug
 
     docs = Path(__file__).resolve().parents[1] / "docs" / "results"
     test = load_record(EMPS / "DATA_EMPS_PULSES.mat", columns={"y": "qm", "r": "qg", "u": "vir"},

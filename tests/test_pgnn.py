@@ -550,7 +550,7 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
     from pathlib import Path
 
     from clm_sim.errors import UserError
-    from experiments.studies.extrapolation import load_study
+    from experiments.studies.extrapolation.study import load_study
 
     root = Path(__file__).resolve().parents[1]
     _, study = load_study(root / "experiments/configs/extrapolation_study.yaml")

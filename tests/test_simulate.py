@@ -272,7 +272,7 @@ def test_simulation_error_returns_the_truth_from_wrong_starts(record):
 
 def test_a_benchmark_config_with_a_typo_is_one_line(tmp_path):
     from clm_sim.errors import UserError
-    from experiments.studies.emps_benchmark import load_benchmark
+    from experiments.studies.emps.benchmark import load_benchmark
 
     path = tmp_path / "b.yaml"
     path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, init_sample: 20}\n")
@@ -284,7 +284,7 @@ def test_a_benchmark_config_with_a_typo_is_one_line(tmp_path):
 
 def test_the_split_is_in_time_and_refuses_parts_shorter_than_the_window(record):
     from clm_sim.errors import UserError
-    from experiments.studies.emps_benchmark import split
+    from experiments.studies.emps.benchmark import split
 
     est, held = split(record, 2 / 3, 20)
     assert len(est) == round(2 / 3 * len(record)) and len(est) + len(held) == len(record)
@@ -298,7 +298,7 @@ def test_a_candidate_made_on_a_part_sees_only_that_part():
     """A candidate is made (equation-error fit, starts, simulation-error fit) from the record it
     is given alone: replace the rest of the record by another experiment and the fit on the
     part does not move; the whole record gives another (the test can fail)."""
-    from experiments.studies.emps_benchmark import (BenchmarkSettings, Candidate,
+    from experiments.studies.emps.benchmark import (BenchmarkSettings, Candidate,
                                                     make_candidate, split)
 
     moves = [(0.1, 0.1), (0.0, 0.05), (0.1, 0.15), (0.0, 0.08)] * 3
@@ -327,8 +327,8 @@ def drift():
     """A stage whose viscous friction is 15 % above the nominal model's on the training record
     and 30 % above on the test record (another day), with a 3 N offset on both: the training
     record names the mismatch, and the test record needs another viscous coefficient."""
-    from experiments.studies.emps_drift import explain_drift
-    from experiments.studies.emps_benchmark import split
+    from experiments.studies.emps.drift import explain_drift
+    from experiments.studies.emps.benchmark import split
 
     r = ref.trapezoid_reference(TS, moves=[(0.05, 0.1), (0.0, 0.05), (0.08, 0.15), (0.02, 0.02)]
                                 * 2, accel=1.0, dwell=0.1)
@@ -364,7 +364,7 @@ def test_the_drift_analysis_points_to_the_parameter_that_changed(drift):
 
 
 def test_the_drift_page_prints_every_view(drift):
-    from experiments.studies.emps_drift import plot_drift
+    from experiments.studies.emps.drift import plot_drift
 
     page = "\n".join(drift.to_markdown(1e-3))
     ax = plot_drift(drift)

@@ -20,9 +20,9 @@ from clm_sim.schema import build, load_yaml
 KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
          "emps_benchmark": "benchmark", "mechanism": "mechanism",
          "identifiability": "identifiability"}
-MODULES = {"extrapolation": "extrapolation", "failure_map": "failure_map",  # kind -> its module
-           "emps_benchmark": "emps_benchmark", "mechanism": "mechanism",  # (experiments.studies)
-           "identifiability": "profiles"}
+MODULES = {"extrapolation": "extrapolation.study", "failure_map": "failure_map.study",  # kind ->
+           "emps_benchmark": "emps.benchmark", "mechanism": "mechanism.study",  # its module in
+           "identifiability": "profiles.study"}  # experiments.studies
 POOLED = {"failure_map", "mechanism", "identifiability", "emps_benchmark"}  # kinds whose main() takes workers=
 
 

@@ -1,6 +1,6 @@
 """Which EMPS PGNN seeds run away beyond the training window, and what their networks do there.
 
-``python -m experiments.studies.emps_runaway [CONFIG] [--out DIR] [--rows I,J,...]`` fits the
+``python -m experiments.studies.emps.runaway [CONFIG] [--out DIR] [--rows I,J,...]`` fits the
 PGNN rows of ``experiments/configs/emps_pgnn.yaml`` (default: its three rows at lambda = 0.01
 and lambda = 0 on the paper's cost and lambda = 0.01 with weight decay, the row that the page
 names as the remedy) on the measured training record, as ``clm-sim run`` does (the same seeds,
@@ -38,7 +38,7 @@ def _rms(x) -> float:
 def seed_view(model, records) -> dict:
     """One fitted PGNN on the prepared records: its force error inside and beyond, its
     output weights and its units' pre-activations inside and beyond the window."""
-    from experiments.studies.units import pre_activations
+    from experiments.studies.mechanism.units import pre_activations
 
     mlp = model.network_.mlp
     w_out = mlp.out.weight.detach().numpy()[0]
@@ -171,7 +171,7 @@ def draw(s: dict, path) -> None:
 def main(argv=None) -> int:
     from experiments.config import load_config
 
-    p = argparse.ArgumentParser(prog="python -m experiments.studies.emps_runaway")
+    p = argparse.ArgumentParser(prog="python -m experiments.studies.emps.runaway")
     p.add_argument("config", nargs="?", default="experiments/configs/emps_pgnn.yaml")
     p.add_argument("--out", default="results/emps_runaway")
     p.add_argument("--rows", default="2,1,5",

@@ -1,7 +1,7 @@
 """The profiles study's report (``report.md``): per network size the threshold, the profile
 ranges beside the LIP's intervals, each point's convergence tests and stops, the confirmed rises,
 the check of the resolution test and the sloppy directions of every record's fit; it reads the
-typed record (:class:`experiments.profiles_result.SizeRecord`) only.
+typed record (:class:`experiments.studies.profiles.result.SizeRecord`) only.
 """
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES
-from experiments import identifiability as ident
-from experiments.profiles_result import SizeRecord
+from experiments.studies.profiles import identifiability as ident
+from experiments.studies.profiles.result import SizeRecord
 
 
 def _g(x: float) -> str:

@@ -1,5 +1,5 @@
-"""The failure map's figures, beside the study (:mod:`experiments.studies.failure_map`): they
-draw its typed result (:class:`~experiments.studies.failure_map_result.FailureMapResult`) in the
+"""The failure map's figures, beside the study (:mod:`experiments.studies.failure_map.study`): they
+draw its typed result (:class:`~experiments.studies.failure_map.result.FailureMapResult`) in the
 house style of :mod:`experiments.plots` and compute nothing."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from matplotlib.ticker import FuncFormatter
 
 from clm_sim.plant import THETA_NAMES
 from experiments.plots import PALETTE, _ax, _figure, _legend_right, color
-from experiments.studies.failure_map_result import FailureMapResult
+from experiments.studies.failure_map.result import FailureMapResult
 
 # Palette indices for the cases (black first: the plant without parasitic force) and for n_l,
 # chosen so that no two neighbours are the two blues or the two oranges.
@@ -36,7 +36,7 @@ def _ratio_axis(ax, which: str) -> None:
 
 def plot_failure_ratios(result: FailureMapResult, direction: str, ax=None):
     """MAE(λ = 0)/MAE(λ) on the reference that leaves the training range in ``direction``, per
-    case (rows) and n_l (colours), with the paired interval (``experiments.studies.failure_map``); log
+    case (rows) and n_l (colours), with the paired interval (``experiments.studies.failure_map.study``); log
     axis, 1 marked (right of it: λ = 0 loses)."""
     ax = _ax(ax)
     st = result.settings

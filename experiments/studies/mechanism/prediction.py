@@ -17,7 +17,7 @@ the study prints lambda = 0.01 minus lambda = 0) is the predicted amount; their 
 error beyond the range is the predicted force error of each row. Everything is computed from the
 plant's force law; nothing here fits a PGNN or reads a result.
 
-``python -m experiments.studies.mechanism_prediction CONFIG`` prints it for each case of a
+``python -m experiments.studies.mechanism.prediction CONFIG`` prints it for each case of a
 mechanism config.
 """
 
@@ -95,7 +95,7 @@ def predict(config, effects, *, inside: str = "r1", outside: str = "r2",
 
 
 def main(argv=None) -> int:
-    from experiments.studies.mechanism import load_mechanism
+    from experiments.studies.mechanism.study import load_mechanism
 
     argv = sys.argv[1:] if argv is None else argv
     config, settings = load_mechanism(argv[0])

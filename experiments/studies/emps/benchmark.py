@@ -19,7 +19,7 @@ a number identified on the whole record; the leak of a rule that does is sized
 (:func:`leak`). Beside it: the band of test scores over every end point, each candidate's
 sensitivity of the test score to its parameters (:func:`sensitivity`), the initial-state
 method's effect, and why the force-residual extension drifts
-(:mod:`experiments.studies.emps_drift`).
+(:mod:`experiments.studies.emps.drift`).
 
 ``clm-sim study experiments/configs/emps_benchmark.yaml`` writes ``benchmark.json``,
 ``report.md``, ``models/`` (one model file per row) and ``figures/``.
@@ -46,9 +46,9 @@ from controllers.idim import IDIMProtocol
 from experiments.records import output_error as oe
 from experiments.model_files import SimulationModel, load_model
 from experiments.records.simulation import simulate_record
-from experiments.studies.emps_cycles import cycle_edges, left_out
-from experiments.studies.emps_drift import Drift, explain_drift, plot_drift
-from experiments.studies.emps_plateaus import cycle_friction, plateaus
+from experiments.studies.emps.cycles import cycle_edges, left_out
+from experiments.studies.emps.drift import Drift, explain_drift, plot_drift
+from experiments.studies.emps.plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
 from experiments.processes.workers import map_in_order
 

@@ -1,4 +1,4 @@
-"""The extrapolation study's figures, beside it (:mod:`experiments.studies.extrapolation`): they
+"""The extrapolation study's figures, beside it (:mod:`experiments.studies.extrapolation.study`): they
 draw its summary, the fitted models' histories and the force split it predicted once
 (:class:`experiments.results.ForceSplit`), in the house style of :mod:`experiments.plots`, and
 run no model."""
@@ -14,7 +14,7 @@ from clm_sim.plant import THETA_NAMES
 from experiments.plots import MM, PALETTE, UM, _ax, _figure, _legend_right, _panels, color
 from experiments.table import THETA_UNITS
 
-from experiments.studies.extrapolation_result import (
+from experiments.studies.extrapolation.result import (
     FEEDBACK, LIP, SEQUENTIAL, ExtrapolationResult, variant_key, variant_label)
 
 if TYPE_CHECKING:

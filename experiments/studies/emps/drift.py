@@ -29,7 +29,7 @@ from experiments.diagnosis.extend import extended_plant, joint_fit
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.search import forward_select
 from experiments.stats.hac import newey_west
-from experiments.studies.emps_plateaus import to_markdown as steady_table
+from experiments.studies.emps.plateaus import to_markdown as steady_table
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,10 @@ Per network size (``identifiability.hidden``) and on the config's plant:
    ``draws`` PGNN fits on the profiled cost (``pgnn:``; default the paper's: mean squared error,
    no network weight decay, no continuation start); the best data cost of each record gives the
    threshold ``delta`` (its standard deviation over the records), and the Gauss-Newton matrix of
-   each fit its sloppy directions (:func:`experiments.identifiability.sloppy_directions`);
+   each fit its sloppy directions (:func:`experiments.studies.profiles.identifiability.sloppy_directions`);
 2. on the first record, from its best fit, the warm-started continuation of the data cost's
    profile over each physical parameter, in both directions
-   (:func:`experiments.identifiability.walk`: ``points`` points per direction at most, each of
+   (:func:`experiments.studies.profiles.identifiability.walk`: ``points`` points per direction at most, each of
    ``max_iter`` Levenberg-Marquardt iterations at most, steps ``step * scale_k`` doubling, out to
    ``span * scale_k`` beyond the hull of theta* and theta_LIP); a point stops when converged
    (the optimizer's relative test) or resolved (predicted decrease and last fall within
@@ -21,7 +21,7 @@ Per network size (``identifiability.hidden``) and on the config's plant:
 4. the LIP's Newey-West intervals on that record and its spread over the records, beside the
    profile ranges.
 
-The record of each network size is a :class:`experiments.profiles_result.SizeRecord`.
+The record of each network size is a :class:`experiments.studies.profiles.result.SizeRecord`.
 
 ``clm-sim study CONFIG`` dispatches here for ``kind: identifiability``; ``identifiability.json``,
 ``report.md``, ``config.resolved.yaml`` and ``figures/identifiability.png`` are written into the
@@ -45,13 +45,13 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn.fit_record import FitRecord
 from controllers.pgnn_settings import PGNNSettings
-from experiments import identifiability as ident
+from experiments.studies.profiles import identifiability as ident
 from experiments.config import ExperimentConfig, resolved
-from experiments.profiles_result import (Check, FirstStop, LipIntervals, MarkedFit, Point,
+from experiments.studies.profiles.result import (Check, FirstStop, LipIntervals, MarkedFit, Point,
                                          RecordFit, SizeRecord, Walk, WalkSettings,
                                          study_to_json)
 from experiments.studies.kinds import refuse_unread, run_checked, take_kind
-from experiments.studies.profiles_report import to_markdown
+from experiments.studies.profiles.report import to_markdown
 from experiments.testbed import STREAM_NETWORK, Progress, Testbed, stream
 from experiments.processes.workers import cores
 
@@ -398,6 +398,7 @@ def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
     """Run the study and write it into ``out`` (replaced atomically). Returns the record per
     network size."""
     from experiments import plots
+    from experiments.studies.profiles.figures import identifiability_figure
 
     progress = Progress(quiet)
     out = Path(out)
@@ -410,7 +411,7 @@ def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
         (tmp / "identifiability.json").write_text(json.dumps(
             study_to_json(result, time.perf_counter() - start), indent=1, allow_nan=False))
         (tmp / "report.md").write_text(to_markdown(result))
-        plots.save(plots.identifiability_figure(result), tmp / "figures" / "identifiability.png")
+        plots.save(identifiability_figure(result), tmp / "figures" / "identifiability.png")
     progress(f"report in {out}/report.md")
     return result
 

@@ -12,7 +12,7 @@ not reach the search bound): a profile that rises is found within a few points, 
 flat is followed out to the search bound. A direction ends at the first point that rises above
 ``V_start + delta`` (``rises``) or at the search bound (``bound``: flat all the way).
 
-Convergence, two tests per point (:class:`experiments.profiles_result.Point`): the optimizer's
+Convergence, two tests per point (:class:`experiments.studies.profiles.result.Point`): the optimizer's
 own, relative (the Gauss-Newton model predicts a relative decrease ``first_order <= ftol``), and
 the profile's resolution (it predicts an absolute decrease ``data_cost * first_order`` of at
 most ``resolution * delta``, and the cost fell by no more than that over the last ``TAIL``
@@ -44,7 +44,7 @@ from typing import Callable
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES
-from experiments.profiles_result import (LipIntervals, ParameterProfile, Point, Sides,
+from experiments.studies.profiles.result import (LipIntervals, ParameterProfile, Point, Sides,
                                          SloppyDirections, SmallDirection, ThetaDirection,
                                          ValleyRange, Walk)
 

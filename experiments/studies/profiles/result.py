@@ -1,10 +1,10 @@
 """The profiles study's record as typed values, and the one mapping to and from
 ``identifiability.json``'s ``"sizes"``.
 
-:mod:`experiments.identifiability` builds the pieces (:class:`Point`, :class:`ValleyRange`,
+:mod:`experiments.studies.profiles.identifiability` builds the pieces (:class:`Point`, :class:`ValleyRange`,
 :class:`ParameterProfile`, :class:`SloppyDirections`, :class:`LipIntervals`),
-:func:`experiments.studies.profiles.summarize` assembles a :class:`SizeRecord` per network size;
-the report and :func:`experiments.plots.identifiability_figure` read their fields. The file's
+:func:`experiments.studies.profiles.study.summarize` assembles a :class:`SizeRecord` per network size;
+the report and :func:`experiments.studies.profiles.figures.identifiability_figure` read their fields. The file's
 keys are written and read only here, in each type's ``to_json``/``from_json``
 (``tests/test_profiles.py`` scans the other modules for them).
 """
@@ -95,7 +95,7 @@ class Point:
 @dataclass(frozen=True)
 class Walk:
     """One direction of a profile's continuation: its points in the order fitted and why it
-    ended (:data:`experiments.identifiability.ENDS`)."""
+    ended (:data:`experiments.studies.profiles.identifiability.ENDS`)."""
 
     points: tuple[Point, ...]
     end: str
@@ -215,7 +215,7 @@ class ThetaDirection:
 
 @dataclass(frozen=True)
 class SloppyDirections:
-    """The sloppy directions of one fit (:func:`experiments.identifiability.sloppy_directions`):
+    """The sloppy directions of one fit (:func:`experiments.studies.profiles.identifiability.sloppy_directions`):
     the largest eigenvalue (N**2), the smallest eigenpairs and the theta directions (smallest
     eigenvalue first)."""
 

@@ -79,10 +79,10 @@ class MechanismSettings:
     (``lambda0_diag:`` in a config): per-parameter pulls toward theta_LIP given to the lambda = 0
     row only, e.g. ``{stiffness: 0.01}``: that row then holds those parameters and leaves the rest
     free, a control that acts on one parameter's drift and keeps the plant (None: none);
-    near_linear: the unit-by-unit view and its intervention (:mod:`experiments.studies.units`):
+    near_linear: the unit-by-unit view and its intervention (:mod:`experiments.studies.mechanism.units`):
     a hidden unit whose pre-activation stays within +-near_linear on the training samples is
     near-linear (None: no view); prediction: per case, the numbers written before the run
-    (:mod:`experiments.studies.mechanism_prediction`: ``mae_diff_um``, ``error_beyond_lambda0_n``,
+    (:mod:`experiments.studies.mechanism.prediction`: ``mae_diff_um``, ``error_beyond_lambda0_n``,
     ``error_beyond_lambda_n``, and ``factor``, how far the measured amount may lie from the
     predicted one), which the report sets beside the outcome.
     """
@@ -298,7 +298,7 @@ class _LinedFeedforward:
 
     def feedforward(self, r, ts):
         from clm_sim.features import held_force
-        from experiments.studies.units import network_with_lines
+        from experiments.studies.mechanism.units import network_with_lines
 
         phi = self.model.filtered_features(y=r, ts=ts)
         theta = np.array([self.model.theta_[k] for k in ("mass", "viscous", "coulomb",
@@ -311,8 +311,7 @@ def _units(model, phi_train, y, phys, truth, within, near_linear, rms_along, tb,
     """The unit-by-unit view of one fit and the intervention with its control: per arm, the
     static force error beyond and inside the range (rms, N), the force error along the outside
     reference beyond the range and its MAE."""
-    from experiments.studies import units
-
+    from experiments.studies.mechanism import units
     grid = np.zeros((len(y), 4))
     grid[:, 3] = y
     v = units.view(model, phi_train, grid[~within], near_linear)

@@ -19,10 +19,10 @@ claim is about, and the log makes it symmetric), transformed back to a ratio. A 
 ``undecided``; Holm's correction over all extrapolation cells is reported beside it.
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
-(:class:`~experiments.studies.failure_map_settings.FailureMapSettings`); the cells (case x n_l
+(:class:`~experiments.studies.failure_map.settings.FailureMapSettings`); the cells (case x n_l
 x seed) are independent and run on a process pool (``experiments.processes.workers.map_in_order``, one
 thread per worker). The result is a typed
-:class:`~experiments.studies.failure_map_result.FailureMapResult`; the output folder holds
+:class:`~experiments.studies.failure_map.result.FailureMapResult`; the output folder holds
 ``failure_map.json`` (its ``to_json``), ``report.md``, ``config.resolved.yaml`` and
 ``figures/*.png``.
 """
@@ -49,10 +49,10 @@ from experiments.studies.kinds import load_case_study, run_checked
 from experiments.sweeps.store import code_version
 from experiments.stats.paired import LogRatio, Paired, holm
 from experiments.results import BeyondRange, error_beyond_rms
-from experiments.studies.failure_map_result import (BothFits, CellFailure, CellStats, Drift,
+from experiments.studies.failure_map.result import (BothFits, CellFailure, CellStats, Drift,
                                                     FailureMapResult, FitRow, Interval, Mechanism,
                                                     NetworkBeyond, ThetaDrift)
-from experiments.studies.failure_map_settings import FailureMapSettings
+from experiments.studies.failure_map.settings import FailureMapSettings
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
 from experiments.processes.workers import cores
@@ -510,7 +510,7 @@ def _region_sentence(s: FailureMapResult, outside: list[CellStats]) -> str:
 def draw(result: FailureMapResult, folder: Path) -> None:
     """The report's figures (:func:`failure_map_figures`) as PNG files."""
     from experiments import plots
-    from experiments.studies.failure_map_figures import failure_map_figures
+    from experiments.studies.failure_map.figures import failure_map_figures
 
     for stem, fig in failure_map_figures(result).items():
         plots.save(fig, Path(folder) / f"{stem}.png")
