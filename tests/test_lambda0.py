@@ -588,13 +588,12 @@ def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():
 
 
 def test_the_page_table_is_what_the_report_prints_for_the_stored_run():
-    """lambda0.md's table is ``experiments.lambda0_report``'s comparisons of the paper table's
+    """lambda0.md's table is ``experiments.cli.lambda0_report``'s comparisons of the paper table's
     stored run (the run behind paper_table.md), line for line: no hand-copied number; the
     report's rows table is printed from the same run."""
     import json
 
-    from experiments import lambda0_report
-
+    from experiments.cli import lambda0_report
     doc = json.loads((ROOT / "docs/results/paper_table.json").read_text(encoding="utf-8"))
     page = (ROOT / "docs/results/lambda0.md").read_text(encoding="utf-8")
     section = page[:page.index("## Method")]
@@ -613,8 +612,7 @@ def test_the_page_table_is_what_the_report_prints_for_the_stored_run():
     ('{"rows": [{"kind": "pgnn"}]}', "not a paper-table run's table.json"),
 ])
 def test_the_report_refuses_what_it_cannot_read_in_one_line(content, expected, tmp_path, capsys):
-    from experiments import lambda0_report
-
+    from experiments.cli import lambda0_report
     path = tmp_path / "table.json"
     if content is not None:
         path.write_text(content, encoding="utf-8")

@@ -290,7 +290,7 @@ def test_a_record_given_as_the_model_is_named_a_record(tmp_path, capsys, suffix,
 def test_export_refuses_a_sample_time_that_is_no_number_even_beside_the_files(saved, tmp_path,
                                                                               ts):
     """A NaN ts contradicts no stored one: it was ignored silently where the model has its own."""
-    from experiments.export_ff import export
+    from experiments.cli.export_ff import export
 
     with pytest.raises(UserError, match="ts: expected a sample time"):
         export(saved / "lip.json", "c", tmp_path / "out", ts=ts)

@@ -1,4 +1,5 @@
-"""``clm-sim simulate MODEL RECORD``: a model's forward simulation against a measured record.
+"""A model's forward simulation against a measured record (``clm-sim simulate MODEL RECORD``,
+:mod:`experiments.cli.simulate`).
 
     model file (identify's lip.json, a diagnosis.json's extended plant, a model YAML)
     + record -> open loop from the record's input, initial state from its first output samples
@@ -25,7 +26,7 @@ from clm_sim.open_loop import (INIT_SAMPLES, MIN_SCORED_SAMPLES, Score, initial_
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import Plant
 from clm_sim.record import Run
-from experiments.model_files import SimulationModel, load_model
+from experiments.model_files import SimulationModel
 
 COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")
 
@@ -219,38 +220,3 @@ def write(sim: Simulation, out: Path) -> None:
         (tmp / "scores.json").write_text(json.dumps(sim.to_json(), indent=1))
         axes = plot_simulation(sim)
         plots.save(axes[0].figure, tmp / "figures" / "simulation.png")
-
-
-def command(args, *, load) -> int:
-    """``clm-sim simulate`` on the parsed ``args``; ``load(path, args)`` reads a record."""
-    from clm_sim.outdir import check_output_folder
-
-    out = Path(args.out) if args.out else Path("results") / "simulate" / Path(args.data).stem
-    check_output_folder(out, what="a simulation",  # before the work
-                        inputs=(args.model, args.data))
-    try:
-        run = load(args.data, args)
-    except UserError as exc:
-        if "(signal u)" in str(exc):
-            raise UserError(f"{args.data}: no input column to drive the model with "
-                            f"({str(exc).split(': ', 1)[1]}); name it with --columns u=NAME") \
-                from None
-        raise
-    # A file without a rate (a shipped experiment config, whose PID is designed at the rate it
-    # runs at) runs at the record's, as in diagnose; a file with one refuses another.
-    model = load_model(args.model, run.ts)  # a file without ts runs at the record's
-    if args.closed_loop:
-        if model.controller is None:
-            raise UserError(f"{args.model}: no controller in the model file; --closed-loop needs "
-                            f"one ('controller:' in a model YAML)")
-        twin = twin_record(model, run, source=str(args.data))
-        write_twin(twin, out)
-        print(twin.summary())
-        print(f"wrote {out}/ (twin.csv, twin.npz, scores.json, figures/twin.png)")
-        return 0
-    sim = simulate_record(model, run, init_samples=args.init_samples, source=str(args.data),
-                          substeps=args.substeps)
-    write(sim, out)
-    print(sim.summary())
-    print(f"wrote {out}/ (simulation.csv, simulation.npz, scores.json, figures/simulation.png)")
-    return 0

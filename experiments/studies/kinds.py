@@ -115,7 +115,7 @@ def run_checked(config_path, out, load, run, *, workers: int | None = None,
     returns the run's result."""
     from clm_sim.outdir import check_writable
     from experiments.runner import preflight
-    from experiments.screen import report_summary
+    from experiments.report.screen import report_summary
 
     config, settings = load(config_path)
     try:

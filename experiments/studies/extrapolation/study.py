@@ -103,7 +103,7 @@ def main(config_path, out=None, *, quiet: bool = False) -> int:
     out = Path(out) if out else Path("results") / Path(config_path).stem
     check_writable(out, inputs=(config_path,))  # before the work
     run_study(config, study, out, quiet=quiet)
-    from experiments.screen import report_summary
+    from experiments.report.screen import report_summary
     print(report_summary(out), end="")
     return 0
 

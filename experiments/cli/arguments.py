@@ -71,7 +71,7 @@ def record(p: argparse.ArgumentParser) -> None:
 
 def protocol(p: argparse.ArgumentParser) -> None:
     """``identify``'s published-protocol options on the argparse parser ``p``, read by
-    :func:`experiments.identify.protocol_from_options` (controllers.idim.IDIMProtocol; the EMPS procedure of Janot et
+    :func:`experiments.cli.identify.protocol_from_options` (controllers.idim.IDIMProtocol; the EMPS procedure of Janot et
     al. is in docs/results/emps_benchmark.md)."""
     g = p.add_argument_group("protocol (IDIM-LS) options")
     g.add_argument("--position-lowpass-hz", type=float, metavar="HZ",

@@ -1,6 +1,6 @@
 """The λ rows of a paper-table run and their comparisons (``docs/results/lambda0.md``).
 
-    python -m experiments.lambda0_report results/paper_table/table.json
+    python -m experiments.cli.lambda0_report results/paper_table/table.json
 
 Both come from the run's ``table.json`` (``clm-sim run experiments/configs/paper_table.yaml``):
 

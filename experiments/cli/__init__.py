@@ -18,7 +18,7 @@ from pathlib import Path
 
 import clm_sim
 from clm_sim.numerics import one_thread_per_process, pin_portable_kernels
-from experiments import arguments
+from experiments.cli import arguments
 from experiments.processes import process
 def _cmd_run(args) -> int:
     from clm_sim.schema import load_yaml
@@ -32,7 +32,7 @@ def _cmd_run(args) -> int:
     _warn(args.config, config_warnings(config))
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     run_experiment(config, out, quiet=args.quiet, config_path=str(args.config))
-    from experiments.screen import run_summary
+    from experiments.report.screen import run_summary
     print(run_summary(out), end="")  # read back from what the run wrote
     return 0
 
@@ -46,12 +46,12 @@ def _load(path, args):
 
 
 def _cmd_identify(args) -> int:
-    from experiments.identify import command
+    from experiments.cli.identify import command
     return command(args, load=_load)
 
 
 def _cmd_simulate(args) -> int:
-    from experiments.records.simulation import command
+    from experiments.cli.simulate import command
     return command(args, load=_load)
 
 
@@ -64,7 +64,7 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_export_ff(args) -> int:
-    from experiments.export_ff import export
+    from experiments.cli.export_ff import export
 
     arguments.check_source_date_epoch(os.environ)  # the export's date, read in its trace
     files = export(args.model, args.to, args.out, ts=args.ts, filter_tail=args.filter_tail,
