@@ -75,7 +75,7 @@ def _json_key_uses() -> set[tuple[str, int]]:
 def test_lam0_and_reg_appear_only_in_the_json_mapping():
     import ast
 
-    module = ROOT / "experiments" / "studies" / "failure_map_result.py"
+    module = ROOT / "experiments" / "studies" / "failure_map" / "result.py"
     mapping = next(node.lineno for node in ast.parse(module.read_text()).body
                    if isinstance(node, ast.Assign) and node.targets[0].id == "_JSON_KEYS")
     # The scan finds the mapping itself (so it can find a use), and nothing else: the report,
