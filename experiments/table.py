@@ -29,7 +29,8 @@ import numpy as np
 from clm_sim.plant import THETA_NAMES, THETA_UNITS  # noqa: F401 (THETA_UNITS: re-exported)
 from controllers.pgnn.fit_record import VERDICT_MARGIN
 from experiments.stats.agreement import Cell
-from experiments.stats.paired import Paired, holm, t_interval  # noqa: F401 (t_interval: re-exported)
+from experiments.stats.paired import (Paired, holm,
+                                      t_interval)  # noqa: F401 (t_interval: re-exported)
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord

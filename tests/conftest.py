@@ -248,8 +248,8 @@ def pytest_unconfigure(config):
 @pytest.fixture(scope="session", autouse=True)
 def fits_in_the_tests_process():
     """With pytest-xdist (``-n``) every core already runs a test: a test's PGNN fits run in its
-    own process rather than on the fit pool (:func:`experiments.processes.workers.map_fits`), whose fork
-    server imports torch again and whose fits travel pickled. The pool gives the same bits
+    own process rather than on the fit pool (:func:`experiments.processes.workers.map_fits`), whose
+    fork server imports torch again and whose fits travel pickled. The pool gives the same bits
     (``test_pgnn.py::test_worker_pool_gives_the_same_bits`` and, for rows that reuse starts,
     ``test_testbed.py::test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool``, which
     ask for it: :func:`fit_pool`), and the tests of real ``clm-sim`` processes still run theirs on it. Measured on the 2-core machine: 35 s of

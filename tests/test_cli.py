@@ -384,7 +384,8 @@ def test_run_ends_its_output_with_the_table_the_comparisons_in_brief_and_the_rep
     full report is; each comparison in full is in table.md, not on the screen."""
     import experiments.processes.workers
 
-    monkeypatch.setattr(experiments.processes.workers, "cores", lambda: 1)  # as in the study test above
+    # as in the study test above
+    monkeypatch.setattr(experiments.processes.workers, "cores", lambda: 1)
     cfg = tmp_path / "pair.yaml"
     cfg.write_text(SMALL + "".join(
         f"  - {{kind: pgnn, training: simultaneous, lambda: {lam}, hidden: 4, seeds: 2, "

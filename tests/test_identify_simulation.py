@@ -1,6 +1,6 @@
 """``clm-sim identify --criterion simulation``: a physical model fitted by the open-loop
-simulation error of the measured position, from several starts (experiments.records.output_error), on
-a record of the independent reference simulator with an effect the force fit's structure does
+simulation error of the measured position, from several starts (experiments.records.output_error),
+on a record of the independent reference simulator with an effect the force fit's structure does
 not have, and on EMPS from ../shared where present."""
 
 from __future__ import annotations

@@ -498,7 +498,8 @@ def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
     """Five records on two workers would leave one worker idle for the last record: the draws
     of a record are then split over tasks, and merged back they are what one task computes,
     bit for bit (a record's two draws, split in two)."""
-    from experiments.studies.mechanism.study import cells, load_mechanism, merged, parts_for, run_cell
+    from experiments.studies.mechanism.study import (cells, load_mechanism, merged, parts_for,
+                                                     run_cell)
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism(records=3, draws=2, cases=(

@@ -1,7 +1,8 @@
-"""Converged profiles (experiments/studies/profiles/identifiability.py, experiments/studies/profiles/study.py): the
-warm-started continuation reports a known flat direction flat and closes on a determined one,
-records every point's stop reason, never rises along a flat direction, the Gauss-Newton matrix
-names the flat direction, and the study's config is read strictly and run by ``study``."""
+"""Converged profiles (experiments/studies/profiles/identifiability.py,
+experiments/studies/profiles/study.py): the warm-started continuation reports a known flat direction
+flat and closes on a determined one, records every point's stop reason, never rises along a flat
+direction, the Gauss-Newton matrix names the flat direction, and the study's config is read strictly
+and run by ``study``."""
 
 from __future__ import annotations
 

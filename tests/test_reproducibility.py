@@ -1,6 +1,7 @@
 """Reproducibility: threads pinned whatever the BLAS and shared by threads of one process, CPU
 kernels pinned before the libraries load, the environment recorded, and the cross-machine
-tolerance with which a published table is compared to a fresh run (``experiments.stats.agreement``)."""
+tolerance with which a published table is compared to a fresh run
+(``experiments.stats.agreement``)."""
 
 from __future__ import annotations
 

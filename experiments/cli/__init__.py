@@ -4,9 +4,9 @@ feedforward to C or ONNX, ``compare`` a fresh table with a published one.
 
 This module only parses the command line and calls the library; how the process ends (user
 mistakes: one line, exit 2; Ctrl-C 130, SIGTERM 143; an internal error: one line, exit 1, the
-traceback with ``--debug``) is :mod:`experiments.processes.process`. ``sweep`` exits with 1 when some tasks
-failed (the table is still written and lists them). Data that look wrong but may be right give
-one warning line each. docs/cli.md states it all.
+traceback with ``--debug``) is :mod:`experiments.processes.process`. ``sweep`` exits with 1 when
+some tasks failed (the table is still written and lists them). Data that look wrong but may be right
+give one warning line each. docs/cli.md states it all.
 """
 
 from __future__ import annotations

@@ -71,8 +71,8 @@ def record(p: argparse.ArgumentParser) -> None:
 
 def protocol(p: argparse.ArgumentParser) -> None:
     """``identify``'s published-protocol options on the argparse parser ``p``, read by
-    :func:`experiments.cli.identify.protocol_from_options` (controllers.idim.IDIMProtocol; the EMPS procedure of Janot et
-    al. is in docs/results/emps_benchmark.md)."""
+    :func:`experiments.cli.identify.protocol_from_options` (controllers.idim.IDIMProtocol; the EMPS
+    procedure of Janot et al. is in docs/results/emps_benchmark.md)."""
     g = p.add_argument_group("protocol (IDIM-LS) options")
     g.add_argument("--position-lowpass-hz", type=float, metavar="HZ",
                    help="Butterworth low-pass on the position before differencing (default none)")

@@ -21,8 +21,8 @@ def model_for(path, ts: float) -> SimulationModel:
 
 
 def warnings_for(record, model, settings: DiagnosisSettings, source) -> list[str]:
-    """:func:`experiments.records.suspicions.record_warnings` of a record against a diagnosis model, and
-    :func:`experiments.records.guards.fit_warnings` of its LIP at the diagnosis's band."""
+    """:func:`experiments.records.suspicions.record_warnings` of a record against a diagnosis model,
+    and :func:`experiments.records.guards.fit_warnings` of its LIP at the diagnosis's band."""
     try:
         lip = LIPFeedforward().fit(y=record.y, u=record.u, ts=record.ts)
     except UserError:  # the diagnosis says why the record cannot be fitted

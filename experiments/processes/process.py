@@ -16,8 +16,8 @@ A signal the process was started with ignored (:data:`IGNORED`) stays ignored.
 A real process (``program=True``) receives its signals in a thread of its own
 (:func:`receive_signals`) and ends without the interpreter's shutdown: after an interruption at
 once (:func:`_exit_now`), after its command once the exit handlers have run
-(:func:`_exit_done`). The modules it stops on the way, :mod:`experiments.processes.worker_life` (worker
-processes, the fork server), :mod:`experiments.processes.workers` (the PGNN fit pool) and
+(:func:`_exit_done`). The modules it stops on the way, :mod:`experiments.processes.worker_life`
+(worker processes, the fork server), :mod:`experiments.processes.workers` (the PGNN fit pool) and
 :mod:`clm_sim.outdir` (temporary folders, locks), are imported here by name: all are light
 (standard library only).
 """
@@ -75,8 +75,8 @@ _SAYING = threading.Lock()  # held while the interruption's line is written (:fu
 def _end_now(signum, frame):
     """A second Ctrl-C or SIGTERM while the first is being handled: end at once, whatever the
     clean-up was doing; the workers and the fork server are killed (with no lock taken:
-    :func:`experiments.processes.worker_life.kill_now`), the temporary folder and lock removed first.
-    Does nothing if the process is already being ended (:func:`_exit_now`)."""
+    :func:`experiments.processes.worker_life.kill_now`), the temporary folder and lock removed
+    first. Does nothing if the process is already being ended (:func:`_exit_now`)."""
     if not _ENDING.acquire(blocking=False):
         return
     try:
@@ -124,9 +124,9 @@ def _signalled(signum, frame):
 def receive_signals() -> None:
     """A real process takes Ctrl-C and SIGTERM in a thread of its own: they are blocked in every
     other thread (blocked here before any library starts one), so none is lost to a library's
-    thread or while workers start (:data:`experiments.processes.worker_life.SPAWNING`). The first is passed
-    to the main thread as if it had come there (it unwinds the command); if the main thread has
-    not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
+    thread or while workers start (:data:`experiments.processes.worker_life.SPAWNING`). The first is
+    passed to the main thread as if it had come there (it unwinds the command); if the main thread
+    has not taken it within ``ANSWER_S`` (inside a long computation), or on a second signal, or one
     after the command ended, this thread ends the process at once (:func:`_end_now`), as the
     main thread does if Python drops the signal in a finalizer (:func:`_end_on_dropped_signal`).
     Does nothing where the platform has no thread-directed signals."""

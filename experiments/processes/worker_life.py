@@ -45,8 +45,8 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
-# The signals that stop a command (experiments.processes.process.CODES): Ctrl-C, SIGTERM, and where the
-# platform has them SIGHUP (a closed terminal, a dropped ssh connection) and SIGQUIT (Ctrl-\\).
+# The signals that stop a command (experiments.processes.process.CODES): Ctrl-C, SIGTERM, and where
+# the platform has them SIGHUP (a closed terminal, a dropped ssh connection) and SIGQUIT (Ctrl-\\).
 _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM,
                  *(getattr(signal, name) for name in ("SIGHUP", "SIGQUIT")
                    if hasattr(signal, name))}
@@ -90,8 +90,8 @@ def _starting():
     """Child processes started within the block start single-threaded, with Ctrl-C and SIGTERM
     blocked (a new process inherits the signal mask, through ``exec`` too) and, where they were
     not blocked here already, ignored. A command line process has them blocked and receives
-    them in a thread of its own (:func:`experiments.processes.process.receive_signals`), which waits for
-    :data:`SPAWNING` before it passes one on, so none is lost; their handlers are then left as
+    them in a thread of its own (:func:`experiments.processes.process.receive_signals`), which waits
+    for :data:`SPAWNING` before it passes one on, so none is lost; their handlers are then left as
     they are: setting "ignore" discards a signal that is pending, one the signal thread has not
     yet taken (a sweep's SIGTERM was lost so, when it came as the next task was submitted)."""
     main = threading.current_thread() is threading.main_thread()
@@ -144,12 +144,14 @@ def _start_resource_tracker() -> None:
 # clm-sim process, not once per worker.
 PRELOAD = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.signal", "control", "torch",
            "clm_sim.loop", "controllers.pgnn", "controllers.pgnn.model",
-           "experiments.processes.worker_life", "experiments.processes.workers", "experiments.runner",
-           "experiments.testbed")
-# A pool of PGNN fits (experiments.processes.workers.map_fits) needs only torch and the fit's modules: the
-# server then imports in 3 s of CPU what PRELOAD takes 5 s for, and the first fit waits for it.
+           "experiments.processes.worker_life", "experiments.processes.workers",
+           "experiments.runner", "experiments.testbed")
+# A pool of PGNN fits (experiments.processes.workers.map_fits) needs only torch and the fit's
+# modules: the server then imports in 3 s of CPU what PRELOAD takes 5 s for, and the first fit
+# waits for it.
 FIT_PRELOAD = ("numpy", "scipy.linalg", "threadpoolctl", "torch", "controllers.pgnn",
-               "controllers.pgnn.model", "experiments.processes.worker_life", "experiments.processes.workers")
+               "controllers.pgnn.model", "experiments.processes.worker_life",
+               "experiments.processes.workers")
 
 
 def context() -> multiprocessing.context.BaseContext:

@@ -3,7 +3,8 @@
 Two users: :func:`run_local` maps a function over task payloads in completion order (sweeps, the
 studies; a study of several phases maps them on one :func:`local_pool`), and :func:`map_fits`
 runs the PGNN fits of one table row on a pool kept for the process. How the workers start and
-end (a fork server, one thread each, Ctrl-C left to the owner) is :mod:`experiments.processes.worker_life`.
+end (a fork server, one thread each, Ctrl-C left to the owner) is
+:mod:`experiments.processes.worker_life`.
 
 The fits of one table row differ only in their seed, so they run in a pool of worker processes
 (one per available core). Every fit pins torch and BLAS to one thread itself

@@ -1,5 +1,5 @@
-"""The extrapolation study's figures, beside it (:mod:`experiments.studies.extrapolation.study`): they
-draw its summary, the fitted models' histories and the force split it predicted once
+"""The extrapolation study's figures, beside it (:mod:`experiments.studies.extrapolation.study`):
+they draw its summary, the fitted models' histories and the force split it predicted once
 (:class:`experiments.results.ForceSplit`), in the house style of :mod:`experiments.plots`, and
 run no model."""
 

@@ -1,8 +1,8 @@
 """The extrapolation study's result as typed values, and the one mapping to and from
 ``study.json``.
 
-:func:`experiments.studies.extrapolation.study._summarize` builds an :class:`ExtrapolationResult`; the
-report and the figures (:mod:`experiments.studies.extrapolation.figures`) read its fields. The
+:func:`experiments.studies.extrapolation.study._summarize` builds an :class:`ExtrapolationResult`;
+the report and the figures (:mod:`experiments.studies.extrapolation.figures`) read its fields. The
 file's names of the variants (``"lambda=0.01"``, ``"sequential"``, ``"LIP"``,
 ``"feedback only"``) are made only by :func:`variant_key` and the constants here, and its other
 keys appear only in the ``to_json``/``from_json`` methods.

@@ -36,8 +36,8 @@ def _ratio_axis(ax, which: str) -> None:
 
 def plot_failure_ratios(result: FailureMapResult, direction: str, ax=None):
     """MAE(λ = 0)/MAE(λ) on the reference that leaves the training range in ``direction``, per
-    case (rows) and n_l (colours), with the paired interval (``experiments.studies.failure_map.study``); log
-    axis, 1 marked (right of it: λ = 0 loses)."""
+    case (rows) and n_l (colours), with the paired interval
+    (``experiments.studies.failure_map.study``); log axis, 1 marked (right of it: λ = 0 loses)."""
     ax = _ax(ax)
     st = result.settings
     cases, hidden = list(st.cases), st.hidden

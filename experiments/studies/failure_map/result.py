@@ -1,7 +1,7 @@
 """The failure map's result as typed values, and the one mapping to and from ``failure_map.json``.
 
-:func:`experiments.studies.failure_map.study.summarize` builds a :class:`FailureMapResult`; the report
-and the figures (:mod:`experiments.studies.failure_map.figures`) read its fields. The file's
+:func:`experiments.studies.failure_map.study.summarize` builds a :class:`FailureMapResult`; the
+report and the figures (:mod:`experiments.studies.failure_map.figures`) read its fields. The file's
 names for the two fits of a cell ("lam0": lambda = 0, "reg": the regularized fit) live only in
 :data:`_JSON_KEYS`, used by ``to_json``/``from_json`` here.
 """

@@ -1,5 +1,5 @@
-"""The ``failure_map:`` section of a study config (:mod:`experiments.studies.failure_map.study`): the
-cases, directions, network sizes, lambda and seeds of the map, strictly typed."""
+"""The ``failure_map:`` section of a study config (:mod:`experiments.studies.failure_map.study`):
+the cases, directions, network sizes, lambda and seeds of the map, strictly typed."""
 
 from __future__ import annotations
 

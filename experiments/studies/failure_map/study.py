@@ -20,8 +20,8 @@ claim is about, and the log makes it symmetric), transformed back to a ratio. A 
 
 ``clm-sim study CONFIG`` dispatches here when the config has a ``failure_map:`` section
 (:class:`~experiments.studies.failure_map.settings.FailureMapSettings`); the cells (case x n_l
-x seed) are independent and run on a process pool (``experiments.processes.workers.map_in_order``, one
-thread per worker). The result is a typed
+x seed) are independent and run on a process pool (``experiments.processes.workers.map_in_order``,
+one thread per worker). The result is a typed
 :class:`~experiments.studies.failure_map.result.FailureMapResult`; the output folder holds
 ``failure_map.json`` (its ``to_json``), ``report.md``, ``config.resolved.yaml`` and
 ``figures/*.png``.

@@ -79,12 +79,12 @@ class MechanismSettings:
     (``lambda0_diag:`` in a config): per-parameter pulls toward theta_LIP given to the lambda = 0
     row only, e.g. ``{stiffness: 0.01}``: that row then holds those parameters and leaves the rest
     free, a control that acts on one parameter's drift and keeps the plant (None: none);
-    near_linear: the unit-by-unit view and its intervention (:mod:`experiments.studies.mechanism.units`):
-    a hidden unit whose pre-activation stays within +-near_linear on the training samples is
-    near-linear (None: no view); prediction: per case, the numbers written before the run
-    (:mod:`experiments.studies.mechanism.prediction`: ``mae_diff_um``, ``error_beyond_lambda0_n``,
-    ``error_beyond_lambda_n``, and ``factor``, how far the measured amount may lie from the
-    predicted one), which the report sets beside the outcome.
+    near_linear: the unit-by-unit view and its intervention
+    (:mod:`experiments.studies.mechanism.units`): a hidden unit whose pre-activation stays within
+    +-near_linear on the training samples is near-linear (None: no view); prediction: per case, the
+    numbers written before the run (:mod:`experiments.studies.mechanism.prediction`:
+    ``mae_diff_um``, ``error_beyond_lambda0_n``, ``error_beyond_lambda_n``, and ``factor``, how far
+    the measured amount may lie from the predicted one), which the report sets beside the outcome.
     """
 
     cases: dict[str, tuple[Effect, ...]] = field(default_factory=_default_cases)

@@ -12,10 +12,10 @@ not reach the search bound): a profile that rises is found within a few points, 
 flat is followed out to the search bound. A direction ends at the first point that rises above
 ``V_start + delta`` (``rises``) or at the search bound (``bound``: flat all the way).
 
-Convergence, two tests per point (:class:`experiments.studies.profiles.result.Point`): the optimizer's
-own, relative (the Gauss-Newton model predicts a relative decrease ``first_order <= ftol``), and
-the profile's resolution (it predicts an absolute decrease ``data_cost * first_order`` of at
-most ``resolution * delta``, and the cost fell by no more than that over the last ``TAIL``
+Convergence, two tests per point (:class:`experiments.studies.profiles.result.Point`): the
+optimizer's own, relative (the Gauss-Newton model predicts a relative decrease ``first_order <=
+ftol``), and the profile's resolution (it predicts an absolute decrease ``data_cost * first_order``
+of at most ``resolution * delta``, and the cost fell by no more than that over the last ``TAIL``
 iterations: the point's value is then known to a stated fraction of the threshold it is
 compared with). A point stops at the first that holds (``converged`` or
 ``resolved``) or at its iteration cap; a point that passes neither is an upper bound on the

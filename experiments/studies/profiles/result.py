@@ -1,11 +1,11 @@
 """The profiles study's record as typed values, and the one mapping to and from
 ``identifiability.json``'s ``"sizes"``.
 
-:mod:`experiments.studies.profiles.identifiability` builds the pieces (:class:`Point`, :class:`ValleyRange`,
-:class:`ParameterProfile`, :class:`SloppyDirections`, :class:`LipIntervals`),
-:func:`experiments.studies.profiles.study.summarize` assembles a :class:`SizeRecord` per network size;
-the report and :func:`experiments.studies.profiles.figures.identifiability_figure` read their fields. The file's
-keys are written and read only here, in each type's ``to_json``/``from_json``
+:mod:`experiments.studies.profiles.identifiability` builds the pieces (:class:`Point`,
+:class:`ValleyRange`, :class:`ParameterProfile`, :class:`SloppyDirections`, :class:`LipIntervals`),
+:func:`experiments.studies.profiles.study.summarize` assembles a :class:`SizeRecord` per network
+size; the report and :func:`experiments.studies.profiles.figures.identifiability_figure` read their
+fields. The file's keys are written and read only here, in each type's ``to_json``/``from_json``
 (``tests/test_profiles.py`` scans the other modules for them).
 """
 
@@ -215,9 +215,9 @@ class ThetaDirection:
 
 @dataclass(frozen=True)
 class SloppyDirections:
-    """The sloppy directions of one fit (:func:`experiments.studies.profiles.identifiability.sloppy_directions`):
-    the largest eigenvalue (N**2), the smallest eigenpairs and the theta directions (smallest
-    eigenvalue first)."""
+    """The sloppy directions of one fit
+    (:func:`experiments.studies.profiles.identifiability.sloppy_directions`): the largest eigenvalue
+    (N**2), the smallest eigenpairs and the theta directions (smallest eigenvalue first)."""
 
     largest: float
     smallest: tuple[SmallDirection, ...]

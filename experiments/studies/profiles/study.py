@@ -7,13 +7,14 @@ Per network size (``identifiability.hidden``) and on the config's plant:
    ``draws`` PGNN fits on the profiled cost (``pgnn:``; default the paper's: mean squared error,
    no network weight decay, no continuation start); the best data cost of each record gives the
    threshold ``delta`` (its standard deviation over the records), and the Gauss-Newton matrix of
-   each fit its sloppy directions (:func:`experiments.studies.profiles.identifiability.sloppy_directions`);
+   each fit its sloppy directions
+   (:func:`experiments.studies.profiles.identifiability.sloppy_directions`);
 2. on the first record, from its best fit, the warm-started continuation of the data cost's
    profile over each physical parameter, in both directions
-   (:func:`experiments.studies.profiles.identifiability.walk`: ``points`` points per direction at most, each of
-   ``max_iter`` Levenberg-Marquardt iterations at most, steps ``step * scale_k`` doubling, out to
-   ``span * scale_k`` beyond the hull of theta* and theta_LIP); a point stops when converged
-   (the optimizer's relative test) or resolved (predicted decrease and last fall within
+   (:func:`experiments.studies.profiles.identifiability.walk`: ``points`` points per direction at
+   most, each of ``max_iter`` Levenberg-Marquardt iterations at most, steps ``step * scale_k``
+   doubling, out to ``span * scale_k`` beyond the hull of theta* and theta_LIP); a point stops when
+   converged (the optimizer's relative test) or resolved (predicted decrease and last fall within
    ``resolution * delta``), and a point above delta is continued ``check_iter`` iterations
    before the rise counts;
 3. the check of the resolution: the ``check`` resolved points with the largest predicted
