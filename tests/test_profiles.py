@@ -405,10 +405,10 @@ _RECORD_KEYS = {
     "wall_time_s", "down", "up"}
 
 
-def test_the_record_keys_are_read_and_written_only_in_profiles_result():
+def test_the_record_keys_are_read_and_written_only_in_the_result_module():
     """The study, its report, the walk and the figure read typed fields: no string constant
     (docstrings aside) in them is one of the file's keys; the scan finds them in
-    profiles_result (so it can find a use)."""
+    the result module (so it can find a use)."""
     import ast
 
     def uses(path):
