@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from pathlib import Path
 
 import clm_sim
@@ -232,6 +231,3 @@ def main(argv=None) -> int:
     return process.run(lambda: args.func(args), program=program, name=args.command,
                        source=source, debug=args.debug)
 
-
-if __name__ == "__main__":
-    sys.exit(main())
