@@ -115,8 +115,8 @@ def main(argv=None) -> int:
     from controllers import optim
     from controllers.pgnn import PGNNFeedforward
     from experiments import plots, runner, table
-    from experiments.processes import workers
     from experiments.config import load_config
+    from experiments.processes import workers
     from clm_sim import features
     clock.spent["start-up and imports"] = startup + time.process_time() - t0
     clock._t = time.process_time()

@@ -222,8 +222,8 @@ def test_tiny_grid_does_not_depend_on_the_worker_count(tiny, tmp_path):
 
 @pytest.mark.slow
 def test_tiny_json_reads_back_into_the_same_result_and_figures(tiny, tmp_path):
-    from experiments.studies.failure_map.study import draw, report
     from experiments.studies.failure_map.result import FailureMapResult
+    from experiments.studies.failure_map.study import draw, report
 
     _, out, s, text, path = tiny
     result = FailureMapResult.from_json(s)

@@ -20,8 +20,8 @@ from controllers.pgnn import PGNNFeedforward, TrainingData
 from controllers.pgnn.model import theta_movement
 from controllers.pgnn_settings import decimation_for
 from small_config import tiny_mechanism
-from experiments.studies.profiles import identifiability as ident
 from experiments.config import ExperimentConfig, load_config
+from experiments.studies.profiles import identifiability as ident
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "experiments" / "configs" / "paper_table.yaml"
@@ -521,8 +521,8 @@ def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
     """emps_pgnn.yaml's rows as record_fit compares them: only rows differing in one setting
     (plus each PGNN row against the LIP), each with the Wilcoxon p, the median difference, the
     wins and a log ratio; one exploded seed moves the mean difference but not the median."""
-    from experiments.records import fit as record_fit
     from experiments import table
+    from experiments.records import fit as record_fit
     config = load_config(EMPS_CONFIG)
     rng = np.random.default_rng(0)
     rows = []

@@ -327,8 +327,8 @@ def drift():
     """A stage whose viscous friction is 15 % above the nominal model's on the training record
     and 30 % above on the test record (another day), with a 3 N offset on both: the training
     record names the mismatch, and the test record needs another viscous coefficient."""
-    from experiments.studies.emps.drift import explain_drift
     from experiments.studies.emps.benchmark import split
+    from experiments.studies.emps.drift import explain_drift
 
     r = ref.trapezoid_reference(TS, moves=[(0.05, 0.1), (0.0, 0.05), (0.08, 0.15), (0.02, 0.02)]
                                 * 2, accel=1.0, dwell=0.1)

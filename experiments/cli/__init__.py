@@ -22,8 +22,8 @@ from experiments.processes import process
 def _cmd_run(args) -> int:
     from clm_sim.schema import load_yaml
     from experiments.config import load_config, refuse_other_commands
-    from experiments.runner import run_experiment
     from experiments.records.suspicions import config_warnings
+    from experiments.runner import run_experiment
 
     data = load_yaml(args.config)
     refuse_other_commands(data, args.config)

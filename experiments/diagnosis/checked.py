@@ -8,9 +8,9 @@ from clm_sim.features import FeatureMap
 from clm_sim.outdir import check_output_folder
 from controllers.lip import LIPFeedforward
 from experiments.diagnosis.diagnose import Diagnosis, diagnose
-from experiments.model_files import SimulationModel, load_model
 from experiments.diagnosis.report import write
 from experiments.diagnosis.residual import DiagnosisSettings
+from experiments.model_files import SimulationModel, load_model
 from experiments.records.guards import fit_warnings, refuse_unidentifiable
 from experiments.records.suspicions import record_warnings
 

@@ -25,8 +25,8 @@ from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
 from experiments import table
 from experiments.config import ExperimentConfig
-from experiments.stats.paired import Paired, holm
 from experiments.results import SeedFit
+from experiments.stats.paired import Paired, holm
 
 
 @dataclasses.dataclass(frozen=True)

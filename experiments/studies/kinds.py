@@ -114,8 +114,8 @@ def run_checked(config_path, out, load, run, *, workers: int | None = None,
     ``results/<config stem>``); prints the report's findings and where the report is, and
     returns the run's result."""
     from clm_sim.outdir import check_writable
-    from experiments.runner import preflight
     from experiments.report.screen import report_summary
+    from experiments.runner import preflight
 
     config, settings = load(config_path)
     try:

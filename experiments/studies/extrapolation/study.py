@@ -28,10 +28,10 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 from experiments import plots
-from experiments.studies.extrapolation import figures
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.results import BeyondRange, ForceSplit
 from experiments.runner import preflight
+from experiments.studies.extrapolation import figures
 from experiments.studies.extrapolation.result import (
     FEEDBACK, LIP, SEQUENTIAL, Costs, ExtrapolationResult, NetworkParts, Spread, Trained,
     Variant, variant_key, variant_label)

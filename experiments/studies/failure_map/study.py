@@ -45,17 +45,17 @@ from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
 from experiments.config import ExperimentConfig, resolved
-from experiments.studies.kinds import load_case_study, run_checked
-from experiments.sweeps.store import code_version
-from experiments.stats.paired import LogRatio, Paired, holm
+from experiments.processes.workers import cores
 from experiments.results import BeyondRange, error_beyond_rms
+from experiments.stats.paired import LogRatio, Paired, holm
 from experiments.studies.failure_map.result import (BothFits, CellFailure, CellStats, Drift,
                                                     FailureMapResult, FitRow, Interval, Mechanism,
                                                     NetworkBeyond, ThetaDrift)
 from experiments.studies.failure_map.settings import FailureMapSettings
+from experiments.studies.kinds import load_case_study, run_checked
+from experiments.sweeps.store import code_version
 from experiments.table import THETA_UNITS
 from experiments.testbed import Progress, Testbed
-from experiments.processes.workers import cores
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord

@@ -55,10 +55,10 @@ from clm_sim.plant import THETA_UNITS
 from clm_sim.schema import to_plain
 from controllers.pgnn_settings import LAMBDA_KEYS, PerParameter, PGNNSettings
 from experiments.config import ExperimentConfig, resolved
+from experiments.processes.workers import cores
 from experiments.studies.kinds import load_case_study, run_checked
 from experiments.table import holm
 from experiments.testbed import Progress, Testbed
-from experiments.processes.workers import cores
 
 
 def _default_cases() -> dict[str, tuple[Effect, ...]]:

@@ -46,15 +46,15 @@ from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn.fit_record import FitRecord
 from controllers.pgnn_settings import PGNNSettings
-from experiments.studies.profiles import identifiability as ident
 from experiments.config import ExperimentConfig, resolved
+from experiments.processes.workers import cores
+from experiments.studies.kinds import refuse_unread, run_checked, take_kind
+from experiments.studies.profiles import identifiability as ident
+from experiments.studies.profiles.report import to_markdown
 from experiments.studies.profiles.result import (Check, FirstStop, LipIntervals, MarkedFit, Point,
                                          RecordFit, SizeRecord, Walk, WalkSettings,
                                          study_to_json)
-from experiments.studies.kinds import refuse_unread, run_checked, take_kind
-from experiments.studies.profiles.report import to_markdown
 from experiments.testbed import STREAM_NETWORK, Progress, Testbed, stream
-from experiments.processes.workers import cores
 
 
 _LOW, _GT_ZERO = "integer at least", "number above zero"  # a setting's constraint
