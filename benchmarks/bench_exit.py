@@ -8,7 +8,7 @@ libraries and end in one of three ways (interleaved):
 - ``collected``: as Python ends a process;
 - ``frozen``: the heap frozen first (``gc.freeze``), so those collections skip it;
 - ``ended``: the exit handlers run, then ``os._exit``: no shutdown at all, as a ``clm-sim``
-  command ends (:func:`experiments.process.run`: the shutdown writes nothing of clm-sim's,
+  command ends (:func:`experiments.processes.process.run`: the shutdown writes nothing of clm-sim's,
   and a signal that came during it would be lost);
 
 and prints for each way the time from the process's last exit handler to its end as its parent

@@ -102,7 +102,7 @@ def main(argv=None) -> int:
                     help="the fits on the worker pool, as clm-sim run (default: in this process)")
     args = ap.parse_args(argv)
     if not args.pool:
-        try:  # one core: the fits run in this process (experiments.workers.map_fits)
+        try:  # one core: the fits run in this process (experiments.processes.workers.map_fits)
             os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
         except (AttributeError, OSError):
             pass
@@ -114,8 +114,9 @@ def main(argv=None) -> int:
     import experiments.testbed as testbed
     from controllers import optim
     from controllers.pgnn import PGNNFeedforward
-    from experiments import plots, runner, table, workers
+    from experiments import plots, runner, table
     from experiments.config import load_config
+    from experiments.processes import workers
     from clm_sim import features
     clock.spent["start-up and imports"] = startup + time.process_time() - t0
     clock._t = time.process_time()

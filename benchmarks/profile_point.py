@@ -34,9 +34,8 @@ def main() -> None:
     from controllers import optim
     from controllers.pgnn import PGNNFeedforward
     from controllers.pgnn.cost import SeparableCost
-    from experiments import identifiability as ident
-    from experiments.studies import profiles
-
+    from experiments.studies.profiles import identifiability as ident
+    from experiments.studies.profiles import study as profiles
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hidden", type=int, default=16)
     ap.add_argument("--name", choices=THETA_NAMES, default="mass")

@@ -46,7 +46,7 @@ _EXPORTS = {
     "LIPFeedforward": "controllers.lip",
     "PGNNFeedforward": "controllers.pgnn",
     "diagnose": "experiments.diagnosis",
-    "load_model": "experiments.diagnosis",
+    "load_model": "experiments.model_files",
     "DiagnosisSettings": "experiments.diagnosis",
 }
 

@@ -137,7 +137,7 @@ def check_writable(out, inputs=()) -> None:
 
 # Signals held with Ctrl-C and SIGTERM by :func:`_signals_held`. A command line process receives
 # those two in a thread of its own and passes them to the main thread as another signal
-# (experiments.process.receive_signals), which registers it here with :func:`hold_also`:
+# (experiments.processes.process.receive_signals), which registers it here with :func:`hold_also`:
 # otherwise it would interrupt the main thread inside a block meant to be whole.
 _HELD_ALSO: set[int] = set()
 # Held by every block of :func:`_signals_held` and by :func:`abandon`: a process ended from

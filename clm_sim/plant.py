@@ -38,8 +38,8 @@ def _substep_matrices(mass, viscous, stiffness, substeps, ts):
     ad.flags.writeable = bd.flags.writeable = False
     return h, ad, bd
 # Hard bounds, far beyond any machine (the plausible range is a warning:
-# experiments.suspicions.MASS_RANGE_KG): a value past them is a mistake of units or a typo, and
-# overflows the simulation (a mass of 1e308 kg times an acceleration is inf).
+# experiments.records.suspicions.MASS_RANGE_KG): a value past them is a mistake of units or a typo,
+# and overflows the simulation (a mass of 1e308 kg times an acceleration is inf).
 PHYSICAL_BOUND = {"mass": 1e6, "viscous": 1e9, "coulomb": 1e9, "stiffness": 1e12}
 UNITS = {"mass": "kg", "viscous": "N s/m", "coulomb": "N", "stiffness": "N/m"}
 MIN_MASS_KG = 1e-6

@@ -169,7 +169,8 @@ class TableRow:
 @dataclass(frozen=True)
 class ForceSplit:
     """A feedforward's force on one reference, split as the models computed it (for
-    :func:`experiments.studies.extrapolation_figures.split_figure`, which draws it and predicts nothing).
+    :func:`experiments.studies.extrapolation.figures.split_figure`, which draws it and predicts
+    nothing).
 
     reference: its name; ts: sample time (s); r: the reference (m); lip_force: the LIP's force
     (N); parts: variant key -> (physical part theta_phy . filt(T), network part) (N) of one

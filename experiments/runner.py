@@ -110,10 +110,9 @@ def preflight(config: ExperimentConfig) -> None:
 
 
 def _run_records(config: ExperimentConfig, out: Path | None, progress) -> list[dict]:
-    """The rows of a config with a ``data:`` section (:mod:`experiments.record_fit`); with
+    """The rows of a config with a ``data:`` section (:mod:`experiments.records.fit`); with
     ``out`` also table.json, table.md and the fitted models."""
-    from experiments import record_fit
-
+    from experiments.records import fit as record_fit
     result = record_fit.compute(config, progress)
     if out is not None:
         for row, models in zip(result["rows"], result["models"]):
@@ -162,7 +161,7 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
         (out / "params" / "lip.json").write_text(json.dumps(lip.to_json(), indent=1))
 
     if tb.warnings and out is not None:  # (a sweep's task keeps them in its rows)
-        from experiments.suspicions import warn
+        from experiments.records.suspicions import warn
         warn(config_path or "config", tb.warnings)
     rows, shown = [], {}
     for spec in config.feedforwards:

@@ -189,10 +189,10 @@ class Testbed:
 
     def fit_lip(self, run: Run) -> LIPFeedforward:
         """The LIP feedforward identified from a logged run (the config's feature map), behind
-        the guards of every fit (:func:`experiments.record_guards.simulated_fit_checks`): a fit
+        the guards of every fit (:func:`experiments.records.guards.simulated_fit_checks`): a fit
         the run cannot carry is refused; a suspect one is said through ``progress`` and kept in
         :attr:`warnings` (the runner writes them with the results)."""
-        from experiments.record_guards import simulated_fit_checks
+        from experiments.records.guards import simulated_fit_checks
 
         features = self.config.features
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -232,8 +232,7 @@ class Testbed:
         progress line per finished fit."""
         from controllers.pgnn import training_data  # torch is imported only for a PGNN
         from controllers.pgnn.starts import StartCache
-        from experiments import workers as parallel
-
+        from experiments.processes import workers as parallel
         run_seed = run.meta.get("seed", self.config.seed)
         data = training_data(self.config.features, y=run.y, u=run.u, ts=run.ts,
                              decimation=spec.pgnn.decimation)

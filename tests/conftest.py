@@ -248,8 +248,8 @@ def pytest_unconfigure(config):
 @pytest.fixture(scope="session", autouse=True)
 def fits_in_the_tests_process():
     """With pytest-xdist (``-n``) every core already runs a test: a test's PGNN fits run in its
-    own process rather than on the fit pool (:func:`experiments.workers.map_fits`), whose fork
-    server imports torch again and whose fits travel pickled. The pool gives the same bits
+    own process rather than on the fit pool (:func:`experiments.processes.workers.map_fits`), whose
+    fork server imports torch again and whose fits travel pickled. The pool gives the same bits
     (``test_pgnn.py::test_worker_pool_gives_the_same_bits`` and, for rows that reuse starts,
     ``test_testbed.py::test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool``, which
     ask for it: :func:`fit_pool`), and the tests of real ``clm-sim`` processes still run theirs on it. Measured on the 2-core machine: 35 s of
@@ -257,21 +257,20 @@ def fits_in_the_tests_process():
     if not os.environ.get("PYTEST_XDIST_WORKER"):
         yield
         return
-    import experiments.workers
+    import experiments.processes.workers
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(experiments.workers, "cores", lambda: 1)
+        patch.setattr(experiments.processes.workers, "cores", lambda: 1)
         yield
 
 
 @pytest.fixture
 def fit_pool(monkeypatch) -> list:
     """For a test about the PGNN fit pool (the others fit in their own process under ``-n``,
-    above): :func:`experiments.workers.map_fits` uses the pool whatever the cores, and the
+    above): :func:`experiments.processes.workers.map_fits` uses the pool whatever the cores, and the
     returned list gets an entry each time it does. The pool and its fork server end with the
     test: the fit pool's server imports less than a sweep's, so later pools start their own."""
-    from experiments import worker_life, workers
-
+    from experiments.processes import worker_life, workers
     used, pool = [], workers._pool
     monkeypatch.setattr(workers, "cores", lambda: 2)
     monkeypatch.setattr(workers, "_pool", lambda: used.append(1) or pool())

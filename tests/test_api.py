@@ -252,7 +252,8 @@ def test_diagnosis_model_carries_its_rate(tmp_path, lip):
     """A model file's ts sets its controller's rate (no record needed); a file without one takes
     the rate it is given (the record's); the diagnosis refuses a record at another rate."""
     from clm_sim.record import Run
-    from experiments.diagnosis import diagnose, load_model
+    from experiments.diagnosis import diagnose
+    from experiments.model_files import load_model
 
     path = tmp_path / "m.yaml"
     path.write_text("ts: 0.001\nplant: {mass: 18.8, viscous: 172.0}\n"

@@ -21,7 +21,7 @@ from small_config import SMALL_CONFIG
 from clm_sim.record import load_record, save_npz
 from experiments.cli import main
 from experiments.config import load_config
-from experiments.studies.extrapolation_result import ExtrapolationResult
+from experiments.studies.extrapolation.result import ExtrapolationResult
 
 ROOT = Path(__file__).resolve().parents[1]
 BASELINE = ROOT / "experiments" / "configs" / "lip_baseline.yaml"
@@ -351,12 +351,12 @@ def test_study_refuses_a_config_without_study_section(tmp_path, capsys):
 
 
 def test_study_trains_every_seed_it_reports(tmp_path, capsys, monkeypatch):
-    import experiments.workers
+    import experiments.processes.workers
 
     # The fits in this process, not on a pool of spawned workers that each import torch (two
     # processes, seconds of CPU apiece): the pool gives the same bits (test_pgnn.py::
     # test_worker_pool_gives_the_same_bits) and is not what this test is about.
-    monkeypatch.setattr(experiments.workers, "cores", lambda: 1)
+    monkeypatch.setattr(experiments.processes.workers, "cores", lambda: 1)
     cfg = tmp_path / "study.yaml"
     # Five LM iterations: the test is about which seeds the summary reports, not the fits.
     # SMALL without its feedforwards: a study trains its own models and refuses them.
@@ -382,9 +382,10 @@ def test_run_ends_its_output_with_the_table_the_comparisons_in_brief_and_the_rep
         tmp_path, capsys, monkeypatch):
     """stdout is the results table, one line per compared quantity and setting, and where the
     full report is; each comparison in full is in table.md, not on the screen."""
-    import experiments.workers
+    import experiments.processes.workers
 
-    monkeypatch.setattr(experiments.workers, "cores", lambda: 1)  # as in the study test above
+    # as in the study test above
+    monkeypatch.setattr(experiments.processes.workers, "cores", lambda: 1)
     cfg = tmp_path / "pair.yaml"
     cfg.write_text(SMALL + "".join(
         f"  - {{kind: pgnn, training: simultaneous, lambda: {lam}, hidden: 4, seeds: 2, "
@@ -629,8 +630,7 @@ def _script(tmp_path: Path, text: str, *args: str) -> subprocess.Popen:
 
 FORKED_UNKNOWN = """\
 import sys, time
-from experiments import worker_life
-
+from experiments.processes import worker_life
 if __name__ == "__main__":
     with worker_life.spawning(("time",)):
         # forked by the server, known to no pool: as a worker is while it is being started
@@ -672,8 +672,7 @@ def test_stopping_the_fork_server_ends_a_worker_no_pool_knows_yet(stopping, tmp_
 
 SERVER_BEING_STOPPED = """\
 import pathlib, sys, time
-from experiments import process, worker_life
-
+from experiments.processes import process, worker_life
 stop = worker_life._wait_stopped
 
 def slow_stop(pid, timeout_s=0.5):  # the server stopped (SIGSTOP), not yet killed: for 3 s
@@ -719,8 +718,7 @@ def test_a_command_that_ends_while_it_stops_its_fork_server_leaves_it_killed(tmp
 
 BUSY_WITH_STDERR_GONE = """\
 import pathlib, signal, sys, time
-from experiments import process
-
+from experiments.processes import process
 def command():
     # As inside a long library call: the main thread does not take the signal thread's poke,
     # which then ends the process itself.
@@ -760,8 +758,7 @@ def test_a_command_whose_stderr_is_gone_still_ends_on_a_signal(tmp_path):
 
 DISPOSITIONS_WHILE_STARTING = """\
 import signal
-from experiments import process, worker_life
-
+from experiments.processes import process, worker_life
 if __name__ == "__main__":
     process.receive_signals()
     before = [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)]
@@ -783,8 +780,7 @@ def test_starting_workers_leaves_a_commands_signal_handlers_alone(tmp_path):
 
 WORKER_CPU = """\
 import resource, time
-from experiments import worker_life
-
+from experiments.processes import worker_life
 def burn():
     start = time.process_time()
     while time.process_time() - start < 0.5:
@@ -816,8 +812,7 @@ def test_a_stopped_pools_cpu_counts_in_its_owners_children(tmp_path):
 
 SWALLOWED = """\
 import pathlib, sys, time
-from experiments import process
-
+from experiments.processes import process
 class Slow:
     def __del__(self):  # a finalizer: what Python's garbage collection runs anywhere
         pathlib.Path("in finalizer").write_text("")
@@ -853,8 +848,7 @@ def test_a_signal_that_lands_in_a_finalizer_still_ends_the_command(sig, tmp_path
 
 AFTER_THE_COMMAND = """\
 import atexit, pathlib, sys, time, types
-from experiments import process
-
+from experiments.processes import process
 def busy(marker, open=open, monotonic=time.monotonic):  # (modules are gone at the end)
     open(marker, "w").close()
     start = monotonic()
@@ -971,7 +965,7 @@ def test_a_mass_far_from_the_records_is_a_warning(scale, model_mass, warned,
                                                   small_training_run):
     from clm_sim.record import Run
     from controllers.lip import LIPFeedforward
-    from experiments.suspicions import record_warnings
+    from experiments.records.suspicions import record_warnings
 
     run = Run(**_variant(small_training_run, u=lambda s: s["u"] * scale))
     lip = LIPFeedforward().fit(y=run.y, u=run.u, ts=run.ts)
@@ -994,7 +988,7 @@ def test_identify_names_the_file_and_option_of_a_filter_above_nyquist(small_trai
 
 def test_a_plant_mass_outside_any_carriage_is_a_warning():
     from clm_sim.plant import Plant
-    from experiments.suspicions import plant_warnings
+    from experiments.records.suspicions import plant_warnings
 
     assert plant_warnings(Plant(), "plant") == []
     (line,) = plant_warnings(Plant(mass=18800.0), "plant")

@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments.diagnosis import diagnose, load_model
+from experiments.diagnosis import diagnose
 from experiments.diagnosis.emulate import measure
+from experiments.model_files import load_model
 from clm_sim.effects import (CableSlab, Cogging, ForceOffset, ForceRipple, FrictionAsymmetry,
                              Stribeck)
 from clm_sim.errors import UserError

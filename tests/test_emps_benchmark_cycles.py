@@ -12,7 +12,7 @@ from clm_sim.effects import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 from clm_sim.record import Run
-from experiments.studies.emps_cycles import cycle_edges, left_out
+from experiments.studies.emps.cycles import cycle_edges, left_out
 
 TS = 1e-3
 MOVES = [(0.05, 0.05), (0.1, 0.1), (0.05, 0.08), (0.0, 0.04)]  # one cycle: two speeds up, two down
@@ -65,15 +65,14 @@ def test_leaving_a_cycle_out_keeps_it_out_of_the_estimation_part(record):
 
 
 def _fit(statuses, rmses):
-    from experiments import output_error as oe
-
+    from experiments.records import output_error as oe
     stops = tuple(oe.Stop(f"s{i}", {"mass": 1.0}, {"mass": 1.0}, 1.0, r, st, "", 10, 0.0, 0.0)
                   for i, (st, r) in enumerate(zip(statuses, rmses)))
     return oe.SimulationFit(Plant(effects=()), ("mass",), {}, stops)
 
 
 def _row(name, cycles, fit=None, candidate=True):
-    from experiments.studies.emps_benchmark import Row
+    from experiments.studies.emps.benchmark import Row
 
     plant = Plant(mass=18.8, viscous=172.0, coulomb=7.21, effects=(ForceOffset(1.0),))
     return Row(name, "record", plant, 1e-3, 2e-3, candidate, fit, cycles, (2e-3,))
@@ -83,7 +82,7 @@ def test_the_rule_picks_the_lowest_mean_among_measured_fits():
     """The lowest mean over the left-out cycles wins, but only among candidates whose fit is a
     measurement: 'lowest' ends at a step-size stop (status 3) that no second start reached,
     so 'next' is chosen; the reference row (not a candidate) is never chosen."""
-    from experiments.studies.emps_benchmark import choose
+    from experiments.studies.emps.benchmark import choose
 
     measured = _fit([2, 1, 3], [1.0, 1.005, 1.3])
     assert measured.measured and measured.agree
@@ -103,7 +102,7 @@ def test_the_report_names_the_choice_and_the_band(tmp_path):
     first row) and gives the band over every end point; benchmark.json's row says chosen."""
     import json
 
-    from experiments.studies.emps_benchmark import BenchmarkSettings, choose, table, verdict
+    from experiments.studies.emps.benchmark import BenchmarkSettings, choose, table, verdict
 
     measured = _fit([2, 1], [1.0, 1.001])
     rows = choose([_row("published", (3e-3, 3e-3), candidate=False),
@@ -120,7 +119,7 @@ def test_the_report_names_the_choice_and_the_band(tmp_path):
 
 
 def test_a_cycles_setting_of_one_is_one_line(tmp_path):
-    from experiments.studies.emps_benchmark import load_benchmark
+    from experiments.studies.emps.benchmark import load_benchmark
 
     path = tmp_path / "b.yaml"
     path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, cycles: 1}\n")
@@ -132,8 +131,8 @@ def test_the_plateau_friction_follows_a_drift_within_the_record():
     """Model-free: two cycles of one program, the stage's viscous friction 172 N·s/m in the
     first and 190 in the second (two runs joined at rest): the plateau lines give each cycle's
     value, symmetric, and the Coulomb friction in the intercepts."""
-    from experiments.studies.emps_cycles import joined
-    from experiments.studies.emps_plateaus import cycle_friction, plateaus
+    from experiments.studies.emps.cycles import joined
+    from experiments.studies.emps.plateaus import cycle_friction, plateaus
 
     # Three speeds each way, so that a line through them can miss one.
     moves = [(0.04, 0.04), (0.08, 0.08), (0.14, 0.12), (0.10, 0.06), (0.06, 0.1), (0.0, 0.03)]
@@ -172,8 +171,7 @@ def _benchmark_without_work(record, tmp_path, monkeypatch, stub: str, setting: s
     """A benchmark config on ``record`` in ``tmp_path`` (the current folder), with
     ``emps_benchmark.<stub>`` replaced by a function that fails the test if the work starts."""
     from clm_sim.record import save_npz
-    from experiments.studies import emps_benchmark
-
+    from experiments.studies.emps import benchmark as emps_benchmark
     def no_work(*args, **kwargs):
         raise AssertionError(f"the benchmark's work ({stub}) started before its checks")
 

@@ -37,8 +37,8 @@ from controllers.export.options import safe_text
 from controllers.export.window import filtfilt_kernel, from_lip, from_pgnn
 from controllers.lip import LIPFeedforward
 from experiments.cli import main
+from experiments.cli.export_ff import export, load_feedforward
 from experiments.config import ExperimentConfig, Training
-from experiments.export_ff import export, load_feedforward
 from experiments.testbed import Testbed
 
 TS = 1e-4

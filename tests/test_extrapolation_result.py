@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 
 from clm_sim.features import TrainingRange
-from experiments.studies.extrapolation_result import (
+from experiments.studies.extrapolation.result import (
     FEEDBACK, LIP, SEQUENTIAL, Costs, ExtrapolationResult, NetworkParts, Spread, Trained,
     Variant, variant_key, variant_label)
 
 ROOT = Path(__file__).resolve().parents[1]
-STUDIES = ROOT / "experiments" / "studies"
+STUDIES = ROOT / "experiments" / "studies" / "extrapolation"
 
 # Keys of study.json that only a typed field would otherwise carry between modules.
 JSON_KEYS = {"variants", "theta_lip", "lip_residual_rms_n", "ranges", "theta_phy",
@@ -80,7 +80,7 @@ def _string_constants(path: Path) -> set[tuple[str, int]]:
             and id(node) not in docstrings}
 
 
-@pytest.mark.parametrize("module", ["extrapolation.py", "extrapolation_figures.py"])
+@pytest.mark.parametrize("module", ["study.py", "figures.py"])
 def test_study_and_figures_use_no_json_key(module):
     hits = {(s, line) for s, line in _string_constants(STUDIES / module)
             if s in JSON_KEYS or s.startswith("lambda=")}
@@ -88,5 +88,5 @@ def test_study_and_figures_use_no_json_key(module):
 
 
 def test_the_scan_sees_the_keys_in_the_result_module():
-    found = {s for s, _ in _string_constants(STUDIES / "extrapolation_result.py")}
+    found = {s for s, _ in _string_constants(STUDIES / "result.py")}
     assert JSON_KEYS <= found and "lambda=" in found

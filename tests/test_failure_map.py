@@ -15,8 +15,8 @@ from scipy import stats
 
 from clm_sim.errors import UserError
 from experiments.cli import main as cli
-from experiments.paired import LogRatio, holm
-from experiments.studies.failure_map import load_failure_map, verdict
+from experiments.stats.paired import LogRatio, holm
+from experiments.studies.failure_map.study import load_failure_map, verdict
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "experiments" / "configs" / "failure_map.yaml"
@@ -75,12 +75,12 @@ def _json_key_uses() -> set[tuple[str, int]]:
 def test_lam0_and_reg_appear_only_in_the_json_mapping():
     import ast
 
-    module = ROOT / "experiments" / "studies" / "failure_map_result.py"
+    module = ROOT / "experiments" / "studies" / "failure_map" / "result.py"
     mapping = next(node.lineno for node in ast.parse(module.read_text()).body
                    if isinstance(node, ast.Assign) and node.targets[0].id == "_JSON_KEYS")
     # The scan finds the mapping itself (so it can find a use), and nothing else: the report,
     # the figures and the study read typed fields, never the file's keys.
-    assert _json_key_uses() == {("experiments/studies/failure_map_result.py", mapping)}
+    assert _json_key_uses() == {("experiments/studies/failure_map/result.py", mapping)}
 
 
 # --------------------------------------------------------------------------------------------
@@ -210,7 +210,7 @@ def test_tiny_fits_record_how_they_stopped(tiny):
 
 @pytest.mark.slow
 def test_tiny_grid_does_not_depend_on_the_worker_count(tiny, tmp_path):
-    from experiments.studies.failure_map import compute, summarize
+    from experiments.studies.failure_map.study import compute, summarize
 
     _, _, s, _, path = tiny
     config, settings = load_failure_map(path)
@@ -222,8 +222,8 @@ def test_tiny_grid_does_not_depend_on_the_worker_count(tiny, tmp_path):
 
 @pytest.mark.slow
 def test_tiny_json_reads_back_into_the_same_result_and_figures(tiny, tmp_path):
-    from experiments.studies.failure_map import draw, report
-    from experiments.studies.failure_map_result import FailureMapResult
+    from experiments.studies.failure_map.result import FailureMapResult
+    from experiments.studies.failure_map.study import draw, report
 
     _, out, s, text, path = tiny
     result = FailureMapResult.from_json(s)

@@ -65,7 +65,7 @@ def test_a_good_fit_carries_no_warning(tmp_path, capsys):
 
 def test_a_record_fit_whose_force_is_far_beyond_the_records_is_warned():
     from clm_sim.features import FeatureMap
-    from experiments.record_guards import fit_warnings
+    from experiments.records.guards import fit_warnings
 
     t = np.arange(20000) * 1e-4
     r = 0.01 * np.sin(2 * np.pi * t)
@@ -79,7 +79,7 @@ def test_a_record_fit_whose_force_is_far_beyond_the_records_is_warned():
 
 def test_simulated_fit_checks_refuse_a_mass_not_above_zero():
     from clm_sim.features import FeatureMap
-    from experiments.record_guards import simulated_fit_checks
+    from experiments.records.guards import simulated_fit_checks
 
     t = np.arange(5000) * 1e-4
     run = Run(t=t, r=0.01 * np.sin(t), y=0.01 * np.sin(t), u=np.cos(t))

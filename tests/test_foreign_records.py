@@ -48,7 +48,7 @@ from clm_sim.effects import CableSlab, Stribeck
 from clm_sim.plant import Plant
 from clm_sim.record import Run
 from experiments.diagnosis import diagnose
-from experiments.diagnosis.model import Controller, SimulationModel
+from experiments.model_files import Controller, SimulationModel
 
 SHORT = [(0.01, 0.02), (0.03, 0.2), (0.03, 0.1), (0.03, 0.05), (0.01, 0.02)]
 LONG = SHORT * 2 + [(0.04, 0.15), (0.015, 0.03), (0.03, 0.08), (0.01, 0.01)]

@@ -1,7 +1,7 @@
 """Hostile model files, generated: a LIP parameter file (``lip.json``) or a model YAML
 (``plant:``, effects, controller) with keys mutated by hypothesis, given to ``simulate`` the way
 a user would (``diagnose --model`` and ``export-ff`` read a model file through the same
-loaders: :func:`experiments.diagnosis.model.load_model`, :mod:`clm_sim.modelfile`).
+loaders: :func:`experiments.model_files.load_model`, :mod:`clm_sim.modelfile`).
 
 Every generated file must end in one of three outcomes: success (exit 0), success with warnings
 (stderr holds only warning lines), or exit 2 with one ``clm-sim: error:`` line (after the

@@ -1,6 +1,6 @@
 """``clm-sim identify --criterion simulation``: a physical model fitted by the open-loop
-simulation error of the measured position, from several starts (experiments.output_error), on
-a record of the independent reference simulator with an effect the force fit's structure does
+simulation error of the measured position, from several starts (experiments.records.output_error),
+on a record of the independent reference simulator with an effect the force fit's structure does
 not have, and on EMPS from ../shared where present."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import pytest
 import reference_sim as ref
 from clm_sim.record import Run
 from experiments.cli import main
-from experiments.diagnosis.model import load_model
-from experiments.output_error import training_rmse
+from experiments.model_files import load_model
+from experiments.records.output_error import training_rmse
 
 TS = 1e-3
 RES = 1e-7
@@ -134,7 +134,7 @@ def test_the_benchmark_page_rows_reproduce_from_their_model_files():
     (docs/results/emps_models/<row>.json); simulated on PULSES from it, each gives the page's
     test RMSE to its printed two decimals (half a unit of the last digit, 0.005 mm)."""
     from clm_sim.record import load_record
-    from experiments.studies.emps_benchmark import slug
+    from experiments.studies.emps.benchmark import slug
 
     docs = Path(__file__).resolve().parents[1] / "docs" / "results"
     test = load_record(EMPS / "DATA_EMPS_PULSES.mat", columns={"y": "qm", "r": "qg", "u": "vir"},

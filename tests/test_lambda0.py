@@ -20,8 +20,8 @@ from controllers.pgnn import PGNNFeedforward, TrainingData
 from controllers.pgnn.model import theta_movement
 from controllers.pgnn_settings import decimation_for
 from small_config import tiny_mechanism
-from experiments import identifiability as ident
 from experiments.config import ExperimentConfig, load_config
+from experiments.studies.profiles import identifiability as ident
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "experiments" / "configs" / "paper_table.yaml"
@@ -240,8 +240,7 @@ def test_record_lip_has_an_offset_column():
     """The LIP of a measured record carries a constant force offset: on data with an offset and
     a position range that does not straddle zero, it returns the true stiffness and offset (an
     LIP without the column would put the offset into the stiffness)."""
-    from experiments import record_fit
-
+    from experiments.records import fit as record_fit
     data = synthetic()
     phi = data.phi.copy()
     phi[:, 3] += 0.1  # positions 0 to 0.2 m: the mean position is not zero
@@ -371,7 +370,7 @@ def test_holm_adjusts_step_down():
 def test_cluster_bootstrap_covers_the_spread_between_records():
     """The two-level bootstrap's interval widens with the spread between records, which a
     bootstrap over draws alone would miss; its mean is the mean of the record means."""
-    from experiments.studies.mechanism import cluster_bootstrap
+    from experiments.studies.mechanism.study import cluster_bootstrap
 
     rng = np.random.default_rng(1)
     tight = [[0.0 + 0.01 * rng.standard_normal() for _ in range(3)] for _ in range(6)]
@@ -388,7 +387,7 @@ def test_the_record_t_interval_is_scipys_and_wider_than_the_bootstrap_over_five_
     means (scipy's, computed another way), and over five records the percentile bootstrap is the
     narrower of the two: why the report prints both."""
     import scipy.stats
-    from experiments.studies.mechanism import cluster_bootstrap, record_t_interval
+    from experiments.studies.mechanism.study import cluster_bootstrap, record_t_interval
 
     rng = np.random.default_rng(3)
     values = [[0.2 + 0.1 * k + 0.02 * rng.standard_normal() for _ in range(2)] for k in range(5)]
@@ -402,7 +401,7 @@ def test_the_record_t_interval_is_scipys_and_wider_than_the_bootstrap_over_five_
 
 
 def test_cubic_recovers_the_cable_term():
-    from experiments.studies.mechanism import cubic
+    from experiments.studies.mechanism.study import cubic
 
     y = np.linspace(-0.1, 0.1, 41)
     assert cubic(y, 10 * y + 2000 * y ** 3 + 1.0) == pytest.approx(2000.0, rel=1e-9)
@@ -410,7 +409,7 @@ def test_cubic_recovers_the_cable_term():
 
 
 def test_mechanism_config_loads_and_errors_name_the_key(tmp_path):
-    from experiments.studies.mechanism import load_mechanism
+    from experiments.studies.mechanism.study import load_mechanism
 
     config, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism.yaml")
     assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lam == 0
@@ -426,7 +425,7 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     """A tiny design (two records, one draw, a 3-neuron network, 5 iterations): every cell has
     both lambdas per draw, the report prints the finding and the mechanism table, and the truth's
     cubic is the cable's 2000 N/m^3 (a cubic through a cubic) and 0 for the control."""
-    from experiments.studies.mechanism import load_mechanism, run_mechanism
+    from experiments.studies.mechanism.study import load_mechanism, run_mechanism
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism())
@@ -453,7 +452,7 @@ def test_lambda0_diag_holds_the_named_parameter_of_the_lambda0_row_only(tmp_path
     lambda = 0 row's stiffness stays at theta_LIP while its mass and friction still move, the
     lambda = 0.01 row is the fit without the setting bit for bit, and the report names the row
     by what it holds. A bad value is refused naming the key."""
-    from experiments.studies.mechanism import load_mechanism, run_cell, cells
+    from experiments.studies.mechanism.study import load_mechanism, run_cell, cells
 
     one_case = ("  cases:\n    cable_cubic:\n"
                 "      - {type: cable_slab, coefficients: [0.0, 10.0, 0.0, 2000.0]}\n")
@@ -469,7 +468,7 @@ def test_lambda0_diag_holds_the_named_parameter_of_the_lambda0_row_only(tmp_path
     assert held0["theta"]["viscous"] != pytest.approx(lip["viscous"], rel=1e-6)
     assert [f["theta"] for f in a["fits"] if f["lambda"] > 0] == \
         [f["theta"] for f in b["fits"] if f["lambda"] > 0]
-    from experiments.studies.mechanism import report, summarize
+    from experiments.studies.mechanism.study import report, summarize
     text = report(summarize(sh, [b, run_cell(cells(ch, sh)[1])]))
     assert "| cable_cubic | λ = 0, stiffness held |" in text
     assert "λ = 0.01 − λ = 0, stiffness held" in text
@@ -483,7 +482,7 @@ def test_one_exploded_pair_moves_the_mean_force_error_but_not_its_median():
     """Fifty paired force errors near +1.5 N and one of +3300 N (a network that explodes
     beyond the range, as one fit of lambda0_iii_ten_draws.yaml does): the mean moves by some
     65 N, the median and the count of pairs above zero do not."""
-    from experiments.studies.mechanism import paired_median
+    from experiments.studies.mechanism.study import paired_median
 
     calm = [[1.5 + 0.01 * (k - d) for d in range(10)] for k in range(5)]
     wild = [row[:] for row in calm]
@@ -499,7 +498,8 @@ def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
     """Five records on two workers would leave one worker idle for the last record: the draws
     of a record are then split over tasks, and merged back they are what one task computes,
     bit for bit (a record's two draws, split in two)."""
-    from experiments.studies.mechanism import cells, load_mechanism, merged, parts_for, run_cell
+    from experiments.studies.mechanism.study import (cells, load_mechanism, merged, parts_for,
+                                                     run_cell)
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism(records=3, draws=2, cases=(
@@ -521,8 +521,8 @@ def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
     """emps_pgnn.yaml's rows as record_fit compares them: only rows differing in one setting
     (plus each PGNN row against the LIP), each with the Wilcoxon p, the median difference, the
     wins and a log ratio; one exploded seed moves the mean difference but not the median."""
-    from experiments import record_fit, table
-
+    from experiments import table
+    from experiments.records import fit as record_fit
     config = load_config(EMPS_CONFIG)
     rng = np.random.default_rng(0)
     rows = []
@@ -558,7 +558,7 @@ def test_newey_west_widens_with_autocorrelated_residuals():
     """On AR(1) residuals with rho = 0.8 the Newey-West standard error of a mean is about
     sqrt((1 + rho) / (1 - rho)) = 3 times the white-noise one, and the white-noise one is right
     (ratio about 1) on white residuals."""
-    from experiments.hac import newey_west
+    from experiments.stats.hac import newey_west
 
     rng = np.random.default_rng(0)
     n = 20000
@@ -576,7 +576,7 @@ def test_newey_west_widens_with_autocorrelated_residuals():
 
 
 def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():
-    """The LIP's intervals printed beside the profiles (experiments/studies/profiles.py): the
+    """The LIP's intervals printed beside the profiles (experiments/studies/profiles/study.py): the
     Newey-West one is the wider on a record whose residual is autocorrelated."""
     rng = np.random.default_rng(0)
     data = synthetic(n=3000)
@@ -589,13 +589,12 @@ def test_lips_robust_intervals_are_wider_on_an_autocorrelated_record():
 
 
 def test_the_page_table_is_what_the_report_prints_for_the_stored_run():
-    """lambda0.md's table is ``experiments.lambda0_report``'s comparisons of the paper table's
+    """lambda0.md's table is ``experiments.cli.lambda0_report``'s comparisons of the paper table's
     stored run (the run behind paper_table.md), line for line: no hand-copied number; the
     report's rows table is printed from the same run."""
     import json
 
-    from experiments import lambda0_report
-
+    from experiments.cli import lambda0_report
     doc = json.loads((ROOT / "docs/results/paper_table.json").read_text(encoding="utf-8"))
     page = (ROOT / "docs/results/lambda0.md").read_text(encoding="utf-8")
     section = page[:page.index("## Method")]
@@ -614,8 +613,7 @@ def test_the_page_table_is_what_the_report_prints_for_the_stored_run():
     ('{"rows": [{"kind": "pgnn"}]}', "not a paper-table run's table.json"),
 ])
 def test_the_report_refuses_what_it_cannot_read_in_one_line(content, expected, tmp_path, capsys):
-    from experiments import lambda0_report
-
+    from experiments.cli import lambda0_report
     path = tmp_path / "table.json"
     if content is not None:
         path.write_text(content, encoding="utf-8")
@@ -630,9 +628,9 @@ def test_every_shipped_lambda_comparison_varies_lambda_alone():
     settings. The mechanism studies and the paper table's rows say it row by row; a mechanism
     config named ``*_optimum`` compares the rows at the best start instead."""
     from experiments.config import load_config
-    from experiments.studies.extrapolation import load_study
-    from experiments.studies.failure_map import load_failure_map
-    from experiments.studies.mechanism import load_mechanism
+    from experiments.studies.extrapolation.study import load_study
+    from experiments.studies.failure_map.study import load_failure_map
+    from experiments.studies.mechanism.study import load_mechanism
     from experiments.sweeps.grid import load_sweep
 
     configs = ROOT / "experiments" / "configs"
@@ -671,7 +669,7 @@ def test_lambda0_diag_that_would_change_a_second_setting_or_nothing_is_refused(e
                                                                               tmp_path):
     """A hold of zero holds nothing (and the report would call it a pull); with a continuation
     start on, a hold also turns the start off (it runs only without a pull): two settings."""
-    from experiments.studies.mechanism import load_mechanism
+    from experiments.studies.mechanism.study import load_mechanism
 
     path = tmp_path / "m.yaml"
     config = tiny_mechanism()

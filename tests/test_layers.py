@@ -1,11 +1,14 @@
-"""The import graph points down and has no cycle.
+"""The import graph points down and has no cycle, and ``experiments/`` is sorted by kind.
 
 Layers, bottom to top: ``clm_sim`` (physics, data) -> ``controllers`` (feedback, feedforwards,
-their identification) -> ``experiments`` -> ``experiments.cli``. Inside ``experiments`` the library
-(config, testbed, table, plots, agreement, workers, diagnosis) is below the runner, and the runner
-below the studies (``experiments.studies``) and sweeps (``experiments.sweeps``) built on it. The package facade ``clm_sim/__init__.py`` is the public API: it resolves its
-names lazily (PEP 562) and is the only place allowed to name a higher layer. Every import counts,
-function-local ones too: a local import that hides a cycle is still a cycle.
+their identification) -> ``experiments`` -> the commands (the ``experiments.cli`` package).
+Inside ``experiments`` the library (the pipeline at its root: config, testbed, results, table,
+plots, the model-file reader; ``stats``, ``records``, ``processes``, ``report`` and
+``diagnosis``) is below the runner, and the runner below the studies (``experiments.studies``)
+and sweeps (``experiments.sweeps``) built on it. The package facade ``clm_sim/__init__.py`` is
+the public API: it resolves its names lazily (PEP 562) and is the only place allowed to name a
+higher layer. Every import counts, function-local ones too: a local import that hides a cycle is
+still a cycle.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("clm_sim", "controllers", "experiments")
-TOP = {"experiments.cli": 3}
+TOP = ("experiments.cli", 3)  # the commands: this package and its modules
 
 
 def _modules() -> dict[str, Path]:
@@ -36,9 +39,13 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+def _within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
 def layer(module: str) -> int:
-    if module in TOP:
-        return TOP[module]
+    if _within(module, TOP[0]):
+        return TOP[1]
     return PACKAGES.index(module.split(".")[0])
 
 
@@ -94,16 +101,16 @@ EXPERIMENT_TIERS = (("experiments.studies", "experiments.sweeps"), ("experiments
 def _tier(module: str) -> int:
     """0: the experiments library; 1: the runner; 2: studies and sweeps."""
     for level, prefixes in ((2, EXPERIMENT_TIERS[0]), (1, EXPERIMENT_TIERS[1])):
-        if any(module == p or module.startswith(p + ".") for p in prefixes):
+        if any(_within(module, p) for p in prefixes):
             return level
     return 0
 
 
 @pytest.mark.parametrize("module", sorted(m for m in MODULES if m.startswith("experiments.")
-                                          and m != "experiments.cli"))
+                                          and not _within(m, TOP[0])))
 def test_the_experiments_library_does_not_import_the_studies_sweeps_or_runner(module):
-    upward = sorted(t for t in GRAPH[module] if t.startswith("experiments.") and t != "experiments.cli"
-                    and _tier(t) > _tier(module))
+    upward = sorted(t for t in GRAPH[module] if t.startswith("experiments.")
+                    and not _within(t, TOP[0]) and _tier(t) > _tier(module))
     assert not upward, f"{module} imports {upward}, which are built on it"
 
 
@@ -131,11 +138,20 @@ def test_the_process_lifecycle_is_a_module_the_graph_sees():
     """The signal and exit handling stops the workers and removes temporary folders: it names
     those modules in imports (an edge of this graph), never reaches them through sys.modules,
     and the command line only dispatches to it."""
-    assert {"experiments.workers", "clm_sim.outdir"} <= GRAPH["experiments.process"]
-    assert "experiments.process" in GRAPH["experiments.cli"]
+    assert ({"experiments.processes.workers", "clm_sim.outdir"}
+            <= GRAPH["experiments.processes.process"])
+    assert "experiments.processes.process" in GRAPH["experiments.cli"]
     hidden = re.compile(r"sys\.modules(\.get\(|\[)\s*['\"](clm_sim|controllers|experiments)")
     reached = [m for m, path in MODULES.items() if hidden.search(path.read_text("utf-8"))]
     assert not reached, f"{reached} reach project modules through sys.modules"
+
+
+def test_the_experiments_root_holds_the_pipeline_only():
+    """At most eight modules (``__init__.py`` included) at the root of ``experiments/``: the
+    commands, the statistics, the records, the process plumbing and each study live in packages
+    named for what they hold."""
+    root = sorted(p.name for p in (ROOT / "experiments").glob("*.py"))
+    assert len(root) <= 8, root
 
 
 def test_the_command_line_only_parses_and_dispatches():
@@ -164,7 +180,8 @@ def test_physics_import_loads_no_higher_layer_nor_heavy_library():
      ("torch", "control", "matplotlib", "numba", "scipy.signal", "scipy.stats",
       "scipy.special")),
     # what a run imports to prepare its PGNN fits before it starts their worker pool
-    ("controllers.pgnn, controllers.pgnn.data, controllers.pgnn.starts, experiments.workers",
+    ("controllers.pgnn, controllers.pgnn.data, controllers.pgnn.starts, "
+     "experiments.processes.workers",
      ("torch", "control", "matplotlib", "scipy.signal", "scipy.stats")),
 ])
 def test_start_up_imports_load_no_library_they_do_not_use(modules, absent):

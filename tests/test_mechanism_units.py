@@ -10,8 +10,8 @@ import torch
 
 from clm_sim.effects import CableSlab, CableTaut
 from clm_sim.errors import UserError
-from experiments.studies import mechanism_prediction as mp
-from experiments.studies import units
+from experiments.studies.mechanism import prediction as mp
+from experiments.studies.mechanism import units
 from small_config import tiny_mechanism
 
 
@@ -64,7 +64,7 @@ def test_the_view_names_units_that_stay_near_linear_and_the_intervention_removes
 
 
 def test_the_outcome_holds_an_amount_within_its_factor_and_a_sign_beside_its_interval():
-    from experiments.studies.mechanism import outcome
+    from experiments.studies.mechanism.study import outcome
 
     pred = {"mae_diff_um": -0.4, "mae_diff_calibrated_um": -0.1, "error_beyond_lambda0_n": 2.0,
             "error_beyond_lambda_n": 0.5, "factor": 2.0}
@@ -79,7 +79,7 @@ def test_the_outcome_holds_an_amount_within_its_factor_and_a_sign_beside_its_int
 
 
 def test_a_prediction_names_a_case_and_its_keys(tmp_path):
-    from experiments.studies.mechanism import load_mechanism
+    from experiments.studies.mechanism.study import load_mechanism
 
     path = tmp_path / "p.yaml"
     path.write_text(tiny_mechanism() + "  prediction:\n    cable_cubic: {mae_diff_um: 0.1}\n")
@@ -95,7 +95,7 @@ def test_a_prediction_names_a_case_and_its_keys(tmp_path):
 
 @pytest.mark.slow
 def test_a_study_with_the_view_reports_units_effects_and_the_prediction(tmp_path):
-    from experiments.studies.mechanism import load_mechanism, run_mechanism
+    from experiments.studies.mechanism.study import load_mechanism, run_mechanism
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism() + "  near_linear: 1.0\n  prediction:\n    cable_cubic: "

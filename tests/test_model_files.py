@@ -205,7 +205,7 @@ CONTROLLER_CASES = {
 @pytest.mark.parametrize("case", list(CONTROLLER_CASES))
 def test_a_bad_controller_is_named_by_its_key(case, tmp_path, capsys):
     """The model file alone (load_model) and through diagnose --model: the same one line."""
-    from experiments.diagnosis.model import load_model
+    from experiments.model_files import load_model
 
     text, expected = CONTROLLER_CASES[case]
     path = tmp_path / "model.yaml"
@@ -248,7 +248,7 @@ def _diagnosis_json(path, ts=1e-3):
 def test_diagnose_takes_a_diagnosis_json_as_its_model(tmp_path, capsys):
     """As simulate does: a diagnosis.json as --model is its extended model (diagnosing again
     against it), not a model YAML with an unknown key 'findings'."""
-    from experiments.diagnosis.model import load_model
+    from experiments.model_files import load_model
 
     model = _diagnosis_json(tmp_path / "diagnosis.json")
     loaded = load_model(model)
@@ -290,7 +290,7 @@ def test_a_record_given_as_the_model_is_named_a_record(tmp_path, capsys, suffix,
 def test_export_refuses_a_sample_time_that_is_no_number_even_beside_the_files(saved, tmp_path,
                                                                               ts):
     """A NaN ts contradicts no stored one: it was ignored silently where the model has its own."""
-    from experiments.export_ff import export
+    from experiments.cli.export_ff import export
 
     with pytest.raises(UserError, match="ts: expected a sample time"):
         export(saved / "lip.json", "c", tmp_path / "out", ts=ts)

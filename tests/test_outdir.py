@@ -19,7 +19,7 @@ from clm_sim.errors import UserError
 # terminal's Ctrl-C hit, now and then, in tests/test_cli.py's signal tests. ``signal``: the
 # signal reaches the main thread itself; ``poke``: as in a command line process, a thread of
 # its own receives it and passes it on to the main thread as another signal
-# (experiments.process.receive_signals), which SIGTERM hit in a run of the suite.
+# (experiments.processes.process.receive_signals), which SIGTERM hit in a run of the suite.
 # ``commit``: between moving the earlier result aside and moving the new one into place.
 RACE = """
 import json, os, signal, sys, tempfile, time
@@ -29,7 +29,7 @@ from clm_sim import outdir
 where, which, mode = Path(sys.argv[1]), sys.argv[2], sys.argv[3]
 real_mkdtemp, real_open, real_rename = tempfile.mkdtemp, os.open, os.rename
 if mode == "poke":
-    from experiments import process
+    from experiments.processes import process
     process.receive_signals()
 
 def ctrl_c():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from experiments.paired import LogRatio, Paired, holm
+from experiments.stats.paired import LogRatio, Paired, holm
 
 
 def test_paired_difference_matches_scipy_ttest_rel_and_wilcoxon():

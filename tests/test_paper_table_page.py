@@ -22,8 +22,9 @@ from pathlib import Path
 import pytest
 
 from clm_sim.numerics import environment
-from experiments import agreement, table
+from experiments import table
 from experiments.config import load_config
+from experiments.stats import agreement
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "results" / "paper_table.md"

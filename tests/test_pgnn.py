@@ -416,8 +416,7 @@ def test_result_does_not_depend_on_the_callers_thread_count(data):
 def test_worker_pool_gives_the_same_bits(data, fit_pool):
     """Fits on the process pool equal fits in this process (the pool asked for, whatever the
     cores: under pytest-xdist the other tests fit in their own process, conftest.py)."""
-    from experiments import workers as parallel
-
+    from experiments.processes import workers as parallel
     theta = as_dict(lip_theta(data))
     small = TrainingData(data.phi[:600], data.target[:600])
     payloads = [({"hidden": 4, "max_iter": 10}, FeatureMap(), small, theta,
@@ -551,7 +550,7 @@ def test_study_config_loads_and_refuses_unknown_keys(tmp_path):
     from pathlib import Path
 
     from clm_sim.errors import UserError
-    from experiments.studies.extrapolation import load_study
+    from experiments.studies.extrapolation.study import load_study
 
     root = Path(__file__).resolve().parents[1]
     _, study = load_study(root / "experiments/configs/extrapolation_study.yaml")
@@ -567,8 +566,7 @@ def test_workers_are_spawned_where_the_fork_server_cannot_start(monkeypatch):
     workers are spawn processes and the work is done all the same."""
     import multiprocessing.forkserver
 
-    from experiments import worker_life, workers
-
+    from experiments.processes import worker_life, workers
     def fails():
         raise OSError(30, "Read-only file system")
     monkeypatch.setattr(worker_life, "_SERVER_FAILED", False)

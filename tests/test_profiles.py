@@ -1,7 +1,8 @@
-"""Converged profiles (experiments/identifiability.py, experiments/studies/profiles.py): the
-warm-started continuation reports a known flat direction flat and closes on a determined one,
-records every point's stop reason, never rises along a flat direction, the Gauss-Newton matrix
-names the flat direction, and the study's config is read strictly and run by ``study``."""
+"""Converged profiles (experiments/studies/profiles/identifiability.py,
+experiments/studies/profiles/study.py): the warm-started continuation reports a known flat direction
+flat and closes on a determined one, records every point's stop reason, never rises along a flat
+direction, the Gauss-Newton matrix names the flat direction, and the study's config is read strictly
+and run by ``study``."""
 
 from __future__ import annotations
 
@@ -13,8 +14,7 @@ import pytest
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
 from controllers.pgnn import PGNNFeedforward, TrainingData
-from experiments import identifiability as ident
-
+from experiments.studies.profiles import identifiability as ident
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "experiments" / "configs" / "identifiability.yaml"
 OPTIMIZER_STOPS = {"converged", "resolved", "max_iter", "stalled", "theta_moving"}
@@ -166,7 +166,7 @@ def test_valley_range_centres_on_the_start():
 # ----------------------------------------------------------------------------- the study config
 
 def test_shipped_config_loads():
-    from experiments.studies.profiles import load_profiles
+    from experiments.studies.profiles.study import load_profiles
 
     config, settings = load_profiles(CONFIG)
     assert settings.records >= 5 and settings.hidden == (16, 8)
@@ -180,7 +180,7 @@ def test_shipped_config_loads():
     ("identifiability:\n  step: -1\n", "step"),
 ])
 def test_bad_settings_name_the_file_and_key(tmp_path, section, key):
-    from experiments.studies.profiles import load_profiles
+    from experiments.studies.profiles.study import load_profiles
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("kind: identifiability\n" + section)
@@ -212,7 +212,7 @@ def test_study_runs_end_to_end(tmp_path):
     import json
 
     from experiments.cli import main
-    from experiments.profiles_result import sizes_from_json, sizes_to_json
+    from experiments.studies.profiles.result import sizes_from_json, sizes_to_json
 
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text("name: tiny\nkind: identifiability\nseed: 1\ntraining: {repeats: 1}\n"
@@ -254,7 +254,7 @@ def test_study_runs_end_to_end(tmp_path):
 
 def _size_record(theta: dict, costs: tuple, stops: tuple, delta: float = 0.1):
     """A hand-made record: per parameter three points at 1.1, 0.9 and 1 times its value."""
-    from experiments.profiles_result import (FirstStop, LipIntervals, MarkedFit, Point,
+    from experiments.studies.profiles.result import (FirstStop, LipIntervals, MarkedFit, Point,
                                              RecordFit, Sides, SizeRecord, ValleyRange,
                                              WalkSettings)
 
@@ -277,7 +277,7 @@ def _size_record(theta: dict, costs: tuple, stops: tuple, delta: float = 0.1):
 def test_the_figure_reads_the_typed_record():
     """The figure draws the record's fields: the profile sorted by value, above the best data
     cost, points that passed a test filled and the others hollow, and the fits at their θ."""
-    from experiments.plots import identifiability_figure
+    from experiments.studies.profiles.figures import identifiability_figure
 
     theta = {"mass": 2.0, "viscous": 40.0, "coulomb": 5.0, "stiffness": 100.0}
     rec = _size_record(theta, (1.5, 1.2, 1.0), ("max_iter", "max_iter", "converged"))
@@ -390,7 +390,7 @@ def test_pinned_fit_stops_resolved_within_its_tolerance():
 # ----------------------------------------------------------------------------- the record's keys
 
 # identifiability.json's keys (theta names, the LIP-interval names that
-# experiments.hac.NeweyWest names, and "bound", also a walk's end reason, aside): none is a
+# experiments.stats.hac.NeweyWest names, and "bound", also a walk's end reason, aside): none is a
 # contract between modules.
 _RECORD_KEYS = {
     "range", "open", "inside", "profile", "start", "ends", "monotone", "why_open",
@@ -405,10 +405,10 @@ _RECORD_KEYS = {
     "wall_time_s", "down", "up"}
 
 
-def test_the_record_keys_are_read_and_written_only_in_profiles_result():
+def test_the_record_keys_are_read_and_written_only_in_the_result_module():
     """The study, its report, the walk and the figure read typed fields: no string constant
     (docstrings aside) in them is one of the file's keys; the scan finds them in
-    profiles_result (so it can find a use)."""
+    the result module (so it can find a use)."""
     import ast
 
     def uses(path):
@@ -421,14 +421,13 @@ def test_the_record_keys_are_read_and_written_only_in_profiles_result():
                 if isinstance(node, ast.Constant) and isinstance(node.value, str)
                 and id(node) not in docstrings and node.value in _RECORD_KEYS}
 
-    for module in ("experiments/identifiability.py", "experiments/studies/profiles.py",
-                   "experiments/studies/profiles_report.py"):
-        assert uses(ROOT / module) == set(), module
-    plots = ROOT / "experiments" / "plots.py"
-    src = plots.read_text()
+    study = ROOT / "experiments" / "studies" / "profiles"
+    for module in ("identifiability.py", "study.py", "report.py"):
+        assert uses(study / module) == set(), module
+    src = (study / "figures.py").read_text()
     figure = src[src.index("def plot_profile("):src.index("def identifiability_figure(")]
     assert not any(f'"{k}"' in figure for k in _RECORD_KEYS)
-    assert uses(ROOT / "experiments" / "profiles_result.py") == _RECORD_KEYS
+    assert uses(study / "result.py") == _RECORD_KEYS
     assert f'"{ident.ENDS[1]}"' not in figure
 
 

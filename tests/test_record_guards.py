@@ -188,12 +188,12 @@ def test_run_with_data_warns_where_the_result_is_suspect(record, tmp_path, capsy
 def test_an_internal_error_is_one_line_exit_1(monkeypatch, tmp_path, capsys):
     """A bug (here: an injected ZeroDivisionError) names the command, the input and the error,
     exit 1, no traceback; with --debug the traceback too."""
-    import experiments.identify
+    import experiments.cli.identify
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("injected")
 
-    monkeypatch.setattr(experiments.identify, "identify", broken)
+    monkeypatch.setattr(experiments.cli.identify, "identify", broken)
     data = tmp_path / "x.csv"
     data.write_text("t,r,y,u\n")
     code, out, err = _cli(["identify", data], capsys)
@@ -218,7 +218,7 @@ def test_an_internal_error_in_a_real_process_is_one_line_exit_1(tmp_path):
 
     t = np.arange(300) * 1e-3
     save_npz(Run(t=t, r=np.sin(t), y=np.sin(t), u=np.cos(t)), tmp_path / "ok.npz")
-    code = ("import sys, experiments.identify as m\n"
+    code = ("import sys, experiments.cli.identify as m\n"
             "def boom(*a, **k): raise KeyError('injected')\n"
             "m.identify = boom\n"
             "from experiments.cli import main\n"
@@ -241,7 +241,7 @@ def test_a_fit_that_is_not_finite_is_refused_in_one_line(record):
 
     from clm_sim.errors import UserError
     from controllers.idim import IDIMProtocol
-    from experiments.identify import identify
+    from experiments.cli.identify import identify
 
     tiny = Run(t=record.t, r=record.r, y=record.y, u=record.u * 1e-200)
     with warnings.catch_warnings():

@@ -1,6 +1,7 @@
 """Reproducibility: threads pinned whatever the BLAS and shared by threads of one process, CPU
 kernels pinned before the libraries load, the environment recorded, and the cross-machine
-tolerance with which a published table is compared to a fresh run (``experiments.agreement``)."""
+tolerance with which a published table is compared to a fresh run
+(``experiments.stats.agreement``)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ import torch
 from clm_sim import numerics
 from clm_sim.plant import THETA_NAMES
 from controllers.pgnn import PGNNFeedforward, TrainingData
-from experiments import agreement
+from experiments.stats import agreement
 from experiments.table import to_markdown
 
 ROOT = Path(__file__).resolve().parents[1]

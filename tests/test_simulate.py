@@ -15,8 +15,8 @@ from clm_sim.open_loop import initial_state, score, simulate_input
 from clm_sim.plant import Plant
 from clm_sim.record import Run
 from experiments.cli import main
-from experiments.diagnosis.model import SimulationModel
-from experiments.simulation import simulate_record
+from experiments.model_files import SimulationModel
+from experiments.records.simulation import simulate_record
 
 TS = 1e-3
 RES = 1e-7  # m, the foreign encoder's count
@@ -183,7 +183,7 @@ def test_the_published_emps_model_scores_as_published():
     sample (zero-order hold) and takes the state from a parabola through 20 samples; the
     published figures come from another integration: measured +2.0 % and +0.6 %, hence 3 %."""
     from clm_sim.record import load_record
-    from experiments.diagnosis.model import load_model
+    from experiments.model_files import load_model
 
     model = load_model(Path(__file__).resolve().parents[1] / "experiments" /
                                   "configs" / "emps_model.yaml")
@@ -254,8 +254,7 @@ def test_simulation_error_returns_the_truth_from_wrong_starts(record):
     perturbations of that, the fit on the simulation error of a record of the truth ends at
     the truth from every start (the reference simulator's record: another integrator, a
     truncating encoder), converged by the stated test, the starts agreeing."""
-    from experiments import output_error as oe
-
+    from experiments.records import output_error as oe
     start = {"mass": STAGE.mass * 1.1, "viscous": STAGE.viscous * 0.8,
              "coulomb": STAGE.coulomb * 1.2}
     rng = np.random.default_rng(0)
@@ -273,7 +272,7 @@ def test_simulation_error_returns_the_truth_from_wrong_starts(record):
 
 def test_a_benchmark_config_with_a_typo_is_one_line(tmp_path):
     from clm_sim.errors import UserError
-    from experiments.studies.emps_benchmark import load_benchmark
+    from experiments.studies.emps.benchmark import load_benchmark
 
     path = tmp_path / "b.yaml"
     path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, init_sample: 20}\n")
@@ -285,7 +284,7 @@ def test_a_benchmark_config_with_a_typo_is_one_line(tmp_path):
 
 def test_the_split_is_in_time_and_refuses_parts_shorter_than_the_window(record):
     from clm_sim.errors import UserError
-    from experiments.studies.emps_benchmark import split
+    from experiments.studies.emps.benchmark import split
 
     est, held = split(record, 2 / 3, 20)
     assert len(est) == round(2 / 3 * len(record)) and len(est) + len(held) == len(record)
@@ -299,7 +298,7 @@ def test_a_candidate_made_on_a_part_sees_only_that_part():
     """A candidate is made (equation-error fit, starts, simulation-error fit) from the record it
     is given alone: replace the rest of the record by another experiment and the fit on the
     part does not move; the whole record gives another (the test can fail)."""
-    from experiments.studies.emps_benchmark import (BenchmarkSettings, Candidate,
+    from experiments.studies.emps.benchmark import (BenchmarkSettings, Candidate,
                                                     make_candidate, split)
 
     moves = [(0.1, 0.1), (0.0, 0.05), (0.1, 0.15), (0.0, 0.08)] * 3
@@ -328,8 +327,8 @@ def drift():
     """A stage whose viscous friction is 15 % above the nominal model's on the training record
     and 30 % above on the test record (another day), with a 3 N offset on both: the training
     record names the mismatch, and the test record needs another viscous coefficient."""
-    from experiments.studies.emps_drift import explain_drift
-    from experiments.studies.emps_benchmark import split
+    from experiments.studies.emps.benchmark import split
+    from experiments.studies.emps.drift import explain_drift
 
     r = ref.trapezoid_reference(TS, moves=[(0.05, 0.1), (0.0, 0.05), (0.08, 0.15), (0.02, 0.02)]
                                 * 2, accel=1.0, dwell=0.1)
@@ -365,7 +364,7 @@ def test_the_drift_analysis_points_to_the_parameter_that_changed(drift):
 
 
 def test_the_drift_page_prints_every_view(drift):
-    from experiments.studies.emps_drift import plot_drift
+    from experiments.studies.emps.drift import plot_drift
 
     page = "\n".join(drift.to_markdown(1e-3))
     ax = plot_drift(drift)
@@ -393,5 +392,5 @@ def test_a_shipped_config_without_ts_runs_at_the_records_rate(record, tmp_path, 
     if mode == "open loop":
         assert scores["plant"]["mass"] == 18.8  # the config's plant:, not its truth:
     else:
-        from experiments.diagnosis.model import load_model
+        from experiments.model_files import load_model
         assert load_model(config, TS).controller.ts == TS

@@ -16,10 +16,10 @@ from experiments.cli import main
 CONFIGS = Path(__file__).resolve().parents[1] / "experiments" / "configs"
 # kind -> (shipped config, module, the function its main() runs, the loader)
 STUDIES = {
-    "mechanism": ("lambda0_mechanism.yaml", "mechanism", "run_mechanism", "load_mechanism"),
-    "failure_map": ("failure_map.yaml", "failure_map", "run_failure_map", "load_failure_map"),
-    "identifiability": ("identifiability.yaml", "profiles", "run_profiles", "load_profiles"),
-    "extrapolation": ("extrapolation_study.yaml", "extrapolation", "run_study", "load_study"),
+    "mechanism": ("lambda0_mechanism.yaml", "mechanism.study", "run_mechanism", "load_mechanism"),
+    "failure_map": ("failure_map.yaml", "failure_map.study", "run_failure_map", "load_failure_map"),
+    "identifiability": ("identifiability.yaml", "profiles.study", "run_profiles", "load_profiles"),
+    "extrapolation": ("extrapolation_study.yaml", "extrapolation.study", "run_study", "load_study"),
 }
 
 

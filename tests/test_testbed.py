@@ -205,8 +205,7 @@ def test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool(monkeypatch, 
     replaces the testbed's: a continuation row after its lambda = 0 and lambda = 0.01 rows gives
     the same models, fit records and caches as in this process (under pytest-xdist the other
     tests fit in their own process, conftest.py; this one asks for the pool)."""
-    from experiments import workers as parallel
-
+    from experiments.processes import workers as parallel
     rows = continuation_rows(seeds=2)
     beds, models = {}, {}
     for cores in (1, 2):  # in this process, then on the pool

@@ -105,7 +105,7 @@ def test_a_bad_parameter_in_a_config_names_the_file_and_exits_2(tmp_path, capsys
 
 
 def test_the_variant_config_loads():
-    from experiments.studies.mechanism import load_mechanism
+    from experiments.studies.mechanism.study import load_mechanism
 
     _, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism_track_end.yaml")
     assert any(isinstance(e, TrackEnd) for e in st.cases["track_end"])
@@ -117,7 +117,7 @@ def test_mechanism_study_runs_on_the_track_end_variant(tmp_path):
     """A tiny design (two records, one draw, a 3-neuron network, 5 iterations) on a plant whose
     track ends 12 mm out, with r2 reaching 20 mm: the study runs, reports the case, and its true
     dwell force is the motor command, 10 y / g(y), not the first-order 10 y (2 - g)."""
-    from experiments.studies.mechanism import load_mechanism, run_mechanism
+    from experiments.studies.mechanism.study import load_mechanism, run_mechanism
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism(cases=(

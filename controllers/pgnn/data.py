@@ -1,9 +1,9 @@
 """The data a PGNN is fitted on: the filtered, aligned and decimated columns of a record.
 
 Plain numpy (no torch), so that a process prepares the data of its fits and hands them to the
-fit workers (:func:`experiments.workers.map_fits`) before it loads torch itself: the workers
-start while it would otherwise still be importing. Why the columns are filtered and decimated:
-:mod:`controllers.pgnn.model`.
+fit workers (:func:`experiments.processes.workers.map_fits`) before it loads torch itself: the
+workers start while it would otherwise still be importing. Why the columns are filtered and
+decimated: :mod:`controllers.pgnn.model`.
 """
 
 from __future__ import annotations

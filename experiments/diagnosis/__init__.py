@@ -2,7 +2,6 @@
 from the effect library, extend the model and measure the out-of-sample gain."""
 
 from experiments.diagnosis.diagnose import Diagnosis, diagnose
-from experiments.diagnosis.model import SimulationModel, load_model
 from experiments.diagnosis.residual import DiagnosisSettings
 
-__all__ = ["Diagnosis", "DiagnosisSettings", "SimulationModel", "diagnose", "load_model"]
+__all__ = ["Diagnosis", "DiagnosisSettings", "diagnose"]

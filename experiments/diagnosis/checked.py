@@ -8,11 +8,11 @@ from clm_sim.features import FeatureMap
 from clm_sim.outdir import check_output_folder
 from controllers.lip import LIPFeedforward
 from experiments.diagnosis.diagnose import Diagnosis, diagnose
-from experiments.diagnosis.model import SimulationModel, load_model
 from experiments.diagnosis.report import write
 from experiments.diagnosis.residual import DiagnosisSettings
-from experiments.record_guards import fit_warnings, refuse_unidentifiable
-from experiments.suspicions import record_warnings
+from experiments.model_files import SimulationModel, load_model
+from experiments.records.guards import fit_warnings, refuse_unidentifiable
+from experiments.records.suspicions import record_warnings
 
 
 def model_for(path, ts: float) -> SimulationModel:
@@ -21,8 +21,8 @@ def model_for(path, ts: float) -> SimulationModel:
 
 
 def warnings_for(record, model, settings: DiagnosisSettings, source) -> list[str]:
-    """:func:`experiments.suspicions.record_warnings` of a record against a diagnosis model, and
-    :func:`experiments.record_guards.fit_warnings` of its LIP at the diagnosis's band."""
+    """:func:`experiments.records.suspicions.record_warnings` of a record against a diagnosis model,
+    and :func:`experiments.records.guards.fit_warnings` of its LIP at the diagnosis's band."""
     try:
         lip = LIPFeedforward().fit(y=record.y, u=record.u, ts=record.ts)
     except UserError:  # the diagnosis says why the record cannot be fitted

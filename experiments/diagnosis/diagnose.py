@@ -6,12 +6,12 @@ from dataclasses import dataclass
 
 from experiments.diagnosis.extend import extended_plant, gains, joint_fit
 from experiments.diagnosis.finding import Finding, Unexplained
-from experiments.diagnosis.model import SimulationModel
 from experiments.diagnosis.outcome import (DiagnosisInfo, Gain, GainSignals, RecordInfo,
                                            SignificanceRule)
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
 from experiments.diagnosis.search import forward_select
-from experiments.record_guards import refuse_other_rate
+from experiments.model_files import SimulationModel
+from experiments.records.guards import refuse_other_rate
 from clm_sim.effects import Effect
 from clm_sim.errors import UserError, check_ts
 from clm_sim.numerics import single_threaded

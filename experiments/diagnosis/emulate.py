@@ -17,9 +17,9 @@ from controllers.pid import PIDDesign
 from experiments.config import ExperimentConfig, Training
 from experiments.diagnosis.diagnose import diagnose
 from experiments.diagnosis.extend import fit_lip
-from experiments.diagnosis.model import Controller, SimulationModel
 from experiments.diagnosis.outcome import FeedforwardGain
 from experiments.diagnosis.report import write
+from experiments.model_files import Controller, SimulationModel
 from experiments.testbed import Testbed
 
 

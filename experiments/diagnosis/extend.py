@@ -11,13 +11,13 @@ import dataclasses
 
 import numpy as np
 
-from experiments.diagnosis.model import Controller
-from experiments.diagnosis.origin import registered_gain
-from experiments.diagnosis.outcome import Gain, GainSignals
-from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.families import REGISTRY
 from experiments.diagnosis.finding import Finding
 from experiments.diagnosis.fitting import coefficient_std, cv_of, fit_cv
+from experiments.diagnosis.origin import registered_gain
+from experiments.diagnosis.outcome import Gain, GainSignals
+from experiments.diagnosis.residual import DiagnosisSettings, Residual
+from experiments.model_files import Controller
 from clm_sim.effects import Effect, Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force

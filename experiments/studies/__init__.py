@@ -1,1 +1,3 @@
-"""Studies built on the testbed: the extrapolation (lambda) study and the failure map of lambda = 0."""
+"""Studies built on the testbed, one package each (its settings, compute, result types, report
+and figures): extrapolation, failure_map, emps, mechanism, profiles; ``kinds`` reads which
+one a study config is."""

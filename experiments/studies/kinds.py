@@ -20,9 +20,9 @@ from clm_sim.schema import build, load_yaml
 KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
          "emps_benchmark": "benchmark", "mechanism": "mechanism",
          "identifiability": "identifiability"}
-MODULES = {"extrapolation": "extrapolation", "failure_map": "failure_map",  # kind -> its module
-           "emps_benchmark": "emps_benchmark", "mechanism": "mechanism",  # (experiments.studies)
-           "identifiability": "profiles"}
+MODULES = {"extrapolation": "extrapolation.study", "failure_map": "failure_map.study",  # kind ->
+           "emps_benchmark": "emps.benchmark", "mechanism": "mechanism.study",  # its module in
+           "identifiability": "profiles.study"}  # experiments.studies
 POOLED = {"failure_map", "mechanism", "identifiability", "emps_benchmark"}  # kinds whose main() takes workers=
 
 
@@ -114,8 +114,8 @@ def run_checked(config_path, out, load, run, *, workers: int | None = None,
     ``results/<config stem>``); prints the report's findings and where the report is, and
     returns the run's result."""
     from clm_sim.outdir import check_writable
+    from experiments.report.screen import report_summary
     from experiments.runner import preflight
-    from experiments.screen import report_summary
 
     config, settings = load(config_path)
     try:

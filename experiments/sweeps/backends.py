@@ -17,7 +17,7 @@ import contextlib
 from collections.abc import Callable, Iterator, Sequence
 
 from clm_sim.errors import UserError
-from experiments.workers import run_local
+from experiments.processes.workers import run_local
 
 
 def run_dask(fn: Callable, payloads: Sequence, workers: int,

@@ -27,11 +27,11 @@ from clm_sim.outdir import (MANIFEST, atomic_write, check_writable, entries, man
 from clm_sim.schema import build
 from experiments import table
 from experiments.config import ExperimentConfig
-from experiments.sweeps.grid import Sweep
+from experiments.processes.workers import cores
 from experiments.runner import run_task, slug
+from experiments.sweeps.grid import Sweep
 from experiments.sweeps.store import ResultStore
 from experiments.testbed import Progress
-from experiments.workers import cores
 
 
 @dataclass

@@ -26,8 +26,8 @@ _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 # config into table rows (testbed, fits on records, identifiability). Sweep, CLI, figure and
 # diagnosis code do not change a task's numbers.
 _RESULT_SOURCES = ("clm_sim", "controllers", "experiments/config.py", "experiments/runner.py",
-                   "experiments/table.py", "experiments/testbed.py", "experiments/record_fit.py",
-                   "experiments/identifiability.py")
+                   "experiments/table.py", "experiments/testbed.py", "experiments/records/fit.py",
+                   "experiments/studies/profiles/identifiability.py")
 _NOT_RESULT_SOURCES = ("experiments/diagnosis",)
 
 

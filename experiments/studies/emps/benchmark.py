@@ -1,0 +1,687 @@
+"""The EMPS benchmark on the field's protocol: physical models fitted by simulation error, one
+chosen by the training record's own cycles.
+
+Protocol (nonlinearbenchmark.org, the ``nonlinear_benchmarks`` EMPS loader): train on
+``DATA_EMPS.mat``, test on ``DATA_EMPS_PULSES.mat``; input ``u = gtau*vir`` (N), output ``qm``
+(m); a model may use the test input and the first 20 test output samples (its initial state: a
+parabola through them), nothing else of the test record; score: RMSE (mm) of the open-loop
+simulated position over the remaining samples (``clm_sim.open_loop``).
+
+Reference rows (not candidates): the published model, the published procedure (IDIM-LS) rerun,
+the diagnosis-extended model fitted by force residual. Candidates (``benchmark.candidates``):
+structures fitted by simulation error from several starts (:mod:`experiments.records.output_error`).
+
+Selection (``benchmark.selection``, written in the config before its first result): every
+candidate made again by its whole procedure on all cycles of the training record's program but
+one and simulated open loop on the left-out one; the candidate with the lowest mean left-out
+RMSE among those whose whole-record fit is a measurement. No fit on a fold starts from or keeps
+a number identified on the whole record; the leak of a rule that does is sized
+(:func:`leak`). Beside it: the band of test scores over every end point, each candidate's
+sensitivity of the test score to its parameters (:func:`sensitivity`), the initial-state
+method's effect, and why the force-residual extension drifts
+(:mod:`experiments.studies.emps.drift`).
+
+``clm-sim study experiments/configs/emps_benchmark.yaml`` writes ``benchmark.json``,
+``report.md``, ``models/`` (one model file per row) and ``figures/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from clm_sim.errors import UserError
+from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, simulate_input
+from clm_sim.outdir import atomic_folder, check_output_folder
+from clm_sim.plant import Plant
+from clm_sim.record import Run, load_record
+from clm_sim.schema import build, load_yaml
+from controllers.idim import IDIMProtocol
+from experiments.records import output_error as oe
+from experiments.model_files import SimulationModel, load_model
+from experiments.records.simulation import simulate_record
+from experiments.studies.emps.cycles import cycle_edges, left_out
+from experiments.studies.emps.drift import Drift, explain_drift, plot_drift
+from experiments.studies.emps.plateaus import cycle_friction, plateaus
+from experiments.studies.kinds import take_kind
+from experiments.processes.workers import map_in_order
+
+STRUCTURES = ("equation_error", "diagnosis")
+ADDABLE = ("friction_asymmetry",)
+SELECTIONS = ("minimum_mean",)
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """A published score on the same protocol: ``name``, test RMSE (mm), ``source``."""
+
+    name: str
+    test_rmse_mm: float
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A structure fitted by simulation error: from the equation-error fit on the data at hand
+    (``offset``: with its constant force) with effects ``add``-ed at 0, or the structure the
+    diagnosis names there; ``hold``: parameters kept at the equation-error fit's values."""
+
+    name: str
+    structure: str = "equation_error"
+    offset: bool = True
+    add: tuple[str, ...] = ()
+    hold: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class BenchmarkSettings:
+    """The ``benchmark:`` section (the config file says what each key means)."""
+
+    training: str
+    test: str
+    columns: dict[str, str] = field(default_factory=dict)
+    scale: dict[str, str | float] = field(default_factory=dict)
+    init_samples: int = 20
+    published_model: str = "experiments/configs/emps_model.yaml"
+    published_procedure: IDIMProtocol = field(default_factory=IDIMProtocol)
+    candidates: tuple[Candidate, ...] = ()
+    perturbed_starts: int = 3
+    seed: int = 0
+    selection: str = "minimum_mean"
+    cycles: int = 4
+    baselines: tuple[Baseline, ...] = ()
+    max_nfev: int = oe.MAX_NFEV
+
+
+def load_benchmark(path) -> tuple[str, BenchmarkSettings]:
+    data = take_kind(load_yaml(path), path, "emps_benchmark")
+    unknown = set(data) - {"name", "benchmark"}
+    if unknown or "benchmark" not in data:
+        raise UserError(f"{path}: a benchmark config has 'name' and 'benchmark:' only"
+                        + (f" (unknown: {', '.join(sorted(unknown))})" if unknown else ""))
+    try:
+        s = build(BenchmarkSettings, data["benchmark"], "benchmark")
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    if s.cycles < 2:
+        raise UserError(f"{path}: benchmark.cycles: expected at least 2 repetitions of the "
+                        f"training record's program, got {s.cycles}")
+    if s.selection not in SELECTIONS:
+        raise UserError(f"{path}: benchmark.selection: expected one of {', '.join(SELECTIONS)}, "
+                        f"got {s.selection!r}")
+    if not s.candidates:
+        raise UserError(f"{path}: benchmark.candidates: expected at least one candidate")
+    if s.perturbed_starts < 0:
+        raise UserError(f"{path}: benchmark.perturbed_starts: expected >= 0, got "
+                        f"{s.perturbed_starts}")
+    for i, c in enumerate(s.candidates):
+        where = f"{path}: benchmark.candidates[{i}]"
+        if c.structure not in STRUCTURES:
+            raise UserError(f"{where}.structure: expected one of {', '.join(STRUCTURES)}, got "
+                            f"{c.structure!r}")
+        bad = [a for a in c.add if a not in ADDABLE]
+        if bad:
+            raise UserError(f"{where}.add: expected among {', '.join(ADDABLE)}, got {bad[0]!r}")
+        bad = [h for h in c.hold if h not in oe.UNITS]
+        if bad:
+            raise UserError(f"{where}.hold: expected among {', '.join(oe.UNITS)}, got "
+                            f"{bad[0]!r}")
+    names = [c.name for c in s.candidates]
+    if len(set(names)) != len(names):
+        raise UserError(f"{path}: benchmark.candidates: two candidates named alike")
+    return str(data.get("name", Path(path).stem)), s
+
+
+def split(run: Run, fraction: float, init_samples: int) -> tuple[Run, Run]:
+    """``run`` cut in time: the first ``fraction`` of its samples and the rest (simulated from
+    its own first ``init_samples`` outputs like a test record)."""
+    cut = int(round(fraction * len(run)))
+    need = init_samples + MIN_SCORED_SAMPLES
+    if not (need <= cut <= len(run) - need):
+        raise UserError(f"split: {fraction} leaves {cut} and {len(run) - cut} samples; each "
+                        f"part needs the {init_samples} initialization samples and "
+                        f"{MIN_SCORED_SAMPLES} more to score")
+    return run.slice(0, cut), run.slice(cut)
+
+
+# ----------------------------------------------------------------------------- making models
+
+def equation_error(record: Run, protocol: IDIMProtocol, like: Plant) -> Plant:
+    """The IDIM-LS fit of ``protocol`` on ``record`` as a plant (``like``'s encoder and
+    sub-steps)."""
+    from controllers.idim import fit as idim_fit
+
+    f = idim_fit(y=record.y, u=record.u, ts=record.ts, protocol=protocol)
+    return dataclasses.replace(like, **f.model.theta_, effects=f.model.effects_)
+
+
+def diagnosed(record: Run, base: Plant) -> tuple[Plant, str]:
+    """The diagnosis of ``base`` on ``record`` (causes selected and fitted on the whole of it):
+    the extended plant and the causes it names."""
+    from experiments.diagnosis import DiagnosisSettings, diagnose
+
+    cut = int(round(0.75 * len(record)))  # its own gain report only; not used here
+    d = diagnose(record, SimulationModel(base, None, "model", record.ts),
+                 validation=record.slice(cut), settings=DiagnosisSettings())
+    return d.extended, "; ".join(f.effect for f in d.findings)
+
+
+@dataclass(frozen=True)
+class Made:
+    """A candidate made on one record: its structure's equation-error start, the names the
+    diagnosis gave (if any) and the simulation-error fit."""
+
+    name: str
+    fit: oe.SimulationFit
+    start: Plant
+    note: str = ""
+
+
+def make_candidate(c: Candidate, record: Run, settings: BenchmarkSettings, like: Plant,
+                   rng: np.random.Generator, published: Plant | None = None) -> Made:
+    """``c`` made on ``record`` alone: the equation-error fit there, the structure, the starts
+    (that fit, ``settings.perturbed_starts`` draws of ``rng`` around it, and ``published``'s
+    values where given) and the simulation-error fit."""
+    from clm_sim.effects import FrictionAsymmetry
+
+    protocol = dataclasses.replace(settings.published_procedure, offset=c.offset)
+    eq = equation_error(record, protocol, like)
+    note = ""
+    if c.structure == "diagnosis":
+        structure, note = diagnosed(record, eq)
+    else:
+        added = tuple(FrictionAsymmetry() for a in c.add if a == "friction_asymmetry")
+        structure = dataclasses.replace(eq, effects=(*eq.effects, *added))
+    structure = oe.merge_offsets(structure)
+    names = oe.structure_parameters(structure)
+    hold = {k: oe.value(structure, k) for k in c.hold}
+    free = [k for k in names if k not in hold]
+    first = {k: oe.value(structure, k) for k in free}
+    starts = [("equation-error fit", first)]
+    starts += [(f"perturbed {i + 1}", oe.perturbed(first, rng))
+               for i in range(settings.perturbed_starts)]
+    if published is not None:
+        theirs = oe.structure_parameters(oe.merge_offsets(published))
+        starts.append(("published model", {k: oe.value(oe.merge_offsets(published), k)
+                                           for k in free if k in theirs}))
+    fit = oe.fit(structure, record, starts, hold=hold, init_samples=settings.init_samples,
+                 max_nfev=settings.max_nfev)
+    return Made(c.name, fit, structure, note)
+
+
+# ----------------------------------------------------------------------------- results
+
+@dataclass(frozen=True)
+class Row:
+    """One model on the benchmark: how it was made, its plant, its scores (m), and for a
+    candidate its fit, its left-out-cycle RMSEs and the test RMSE of every start's end."""
+
+    name: str
+    made_from: str
+    plant: Plant
+    train_rmse_m: float
+    test_rmse_m: float
+    candidate: bool = False
+    fit: oe.SimulationFit | None = None
+    cycles_m: tuple[float, ...] = ()
+    end_tests_m: tuple[float, ...] = ()
+    note: str = ""
+    chosen: bool = False
+
+    @property
+    def mean_m(self) -> float:
+        return float(np.mean(self.cycles_m)) if self.cycles_m else float("nan")
+
+    @property
+    def se_m(self) -> float:
+        c = np.asarray(self.cycles_m)
+        return float(c.std(ddof=1) / np.sqrt(len(c))) if len(c) > 1 else float("nan")
+
+    @property
+    def measured(self) -> bool:
+        return self.fit is None or self.fit.measured
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "made_from": self.made_from, "candidate": self.candidate,
+                "chosen": self.chosen, "measured": self.measured,
+                "train_rmse_m": self.train_rmse_m, "test_rmse_m": self.test_rmse_m,
+                "left_one_cycle_out_rmse_m": list(self.cycles_m),
+                "left_one_cycle_out_mean_m": self.mean_m if self.cycles_m else None,
+                "end_points_test_rmse_m": list(self.end_tests_m), "note": self.note,
+                "fit": None if self.fit is None else self.fit.to_json(),
+                "model_file": f"models/{slug(self.name)}.json",
+                "parameters": {k: oe.value(self.plant, k) for k in
+                               oe.structure_parameters(self.plant)}}
+
+
+def slug(name: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+
+
+@dataclass(frozen=True)
+class Sensitivity:
+    """For one model: per parameter its value, ``d(test RMSE)/d(theta)`` (m per unit), the
+    range it takes over the training blocks and the test RMSE (m) at each end of that range
+    (the others kept)."""
+
+    model: str
+    blocks: str
+    rows: tuple[tuple[str, float, float, float, float, float, float], ...]
+
+    def to_json(self) -> dict:
+        return {"model": self.model, "blocks": self.blocks, "parameters": [
+            dict(zip(("name", "value", "d_test_rmse_m_per_unit", "block_low", "block_high",
+                      "test_rmse_at_low_m", "test_rmse_at_high_m"), r)) for r in self.rows]}
+
+
+def rmse_on(test: Run, n0: int):
+    def f(plant: Plant) -> float:
+        try:
+            return oe.training_rmse(plant, test, n0)
+        except UserError:
+            return float("nan")
+    return f
+
+
+def sensitivity(name: str, plant: Plant, blocks: dict[str, tuple[float, ...]], rmse, *,
+                what: str) -> Sensitivity:
+    """:class:`Sensitivity` of ``plant`` by central differences (a step of 1e-3 of each
+    parameter's size) and at the ends of its ``blocks`` values."""
+    out = []
+    for k in oe.structure_parameters(plant):
+        v = oe.value(plant, k)
+        h = 1e-3 * max(abs(v), oe._FLOOR[k])
+        grad = (rmse(oe.with_values(plant, {k: v + h})) -
+                rmse(oe.with_values(plant, {k: v - h}))) / (2 * h)
+        b = blocks.get(k)
+        if b:
+            lo, hi = min(b), max(b)
+            at = [rmse(_safe(plant, k, x)) for x in (lo, hi)]
+        else:
+            lo = hi = float("nan")
+            at = [float("nan")] * 2
+        out.append((k, v, grad, lo, hi, *at))
+    return Sensitivity(name, what, tuple(out))
+
+
+def _safe(plant: Plant, k: str, x: float) -> Plant:
+    try:
+        return oe.with_values(plant, {k: x})
+    except UserError:
+        return plant
+
+
+_DRIFT_NAMES = {"force_offset: offset": "offset", "stribeck: stribeck": "stribeck",
+                "presliding: presliding": "presliding",
+                "friction_asymmetry: asym_viscous": "asym_viscous",
+                "parameter_mismatch: mass": "mass", "parameter_mismatch: viscous": "viscous",
+                "parameter_mismatch: coulomb": "coulomb",
+                "parameter_mismatch: stiffness": "stiffness"}
+
+
+def drift_blocks(plant: Plant, drift: Drift) -> dict[str, tuple[float, ...]]:
+    """The force-residual extension's parameters per contiguous training block: its value
+    moved by each block's coefficient minus the whole record's (the drift analysis's joint
+    fit); the cogging amplitude from each block's sine and cosine coefficients."""
+    by = {c.name: c for c in drift.coefficients}
+    out = {}
+    for key, k in _DRIFT_NAMES.items():
+        if key in by and k in oe.structure_parameters(oe.merge_offsets(plant)):
+            c = by[key]
+            out[k] = tuple(oe.value(oe.merge_offsets(plant), k) + b - c.value for b in c.blocks)
+    if "cogging: cogging_sin" in by and "cogging: cogging_cos" in by:
+        s, co = by["cogging: cogging_sin"], by["cogging: cogging_cos"]
+        out["cogging"] = tuple(float(np.hypot(a, b)) for a, b in zip(s.blocks, co.blocks))
+    return out
+
+
+def initial_state_effect(plant: Plant, test: Run, n0: int) -> dict[str, float]:
+    """The test RMSE (m) of ``plant`` with its initial velocity from the parabola through the
+    first ``n0`` positions (the protocol here), from a backward difference over the last 5 of
+    them, and over the last 2."""
+    y, ts = test.y, test.ts
+    out = {"parabola through the first samples": oe.training_rmse(plant, test, n0)}
+    base = initial_state(y, ts, plant, n0)
+    for k in (5, 2):
+        v = (y[n0 - 1] - y[n0 - k]) / ((k - 1) * ts)
+        state = InitialState(n0 - 1, float(y[n0 - 1]), float(v), base.bristles)
+        x, _ = simulate_input(plant, test.u, ts, state)
+        out[f"backward difference over the last {k} samples"] = float(
+            np.sqrt(np.mean((x - y)[n0:] ** 2)))
+    return out
+
+
+def choose(rows: list[Row], selection: str = "minimum_mean") -> list[Row]:
+    """``rows`` with ``chosen`` set on the one the rule ``selection`` picks: the candidate with
+    the lowest mean left-out-cycle RMSE among those whose whole-record fit is a measurement
+    (none where no candidate's fit is one)."""
+    if selection != "minimum_mean":
+        raise UserError(f"benchmark.selection: expected minimum_mean, got {selection!r}")
+    eligible = [r for r in rows if r.candidate and r.measured and r.cycles_m]
+    pick = min(eligible, key=lambda r: r.mean_m) if eligible else None
+    return [dataclasses.replace(r, chosen=r is pick) for r in rows]
+
+
+# ----------------------------------------------------------------------------- the study
+
+def _make_task(payload) -> Made:
+    """:func:`make_candidate` on a worker: ``(candidate, record, settings, like, seed
+    sequence, published or None)``."""
+    c, record, settings, like, seed, published = payload
+    return make_candidate(c, record, settings, like, np.random.default_rng(seed), published)
+
+
+def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1) -> dict:
+    """Every row made from the training record and scored on both records; every candidate
+    made again without each cycle and scored on it; the choice by the config's rule; the
+    leak, the sensitivities, the initial-state effect and the drift analysis."""
+
+    def path(key):
+        p = Path(getattr(settings, key))
+        if not p.exists():
+            raise UserError(f"benchmark.{key}: file not found: {p} (paths are relative to the "
+                            f"current folder {Path.cwd()})")
+        return p
+
+    train, test = (load_record(path(k), columns=settings.columns, scale=settings.scale)
+                   for k in ("training", "test"))
+    published = load_model(path("published_model")).plant
+    n0 = settings.init_samples
+    edges = cycle_edges(train.r, settings.cycles)  # before minutes of fits
+    shortest = int(min(np.diff(edges)))
+    if n0 + MIN_SCORED_SAMPLES > min(shortest, len(test)):
+        raise UserError(f"benchmark.init_samples: {n0} initialization samples leave the "
+                        f"shortest cycle ({shortest} samples) or the test record fewer than "
+                        f"{MIN_SCORED_SAMPLES} to score")
+    on_test = rmse_on(test, n0)
+    on_train = rmse_on(train, n0)
+    # One child stream per candidate and data set (whole record, then each fold), fixed order.
+    seeds = np.random.SeedSequence(settings.seed).spawn(len(settings.candidates))
+    streams = [s.spawn(settings.cycles + 1) for s in seeds]
+
+    progress(f"whole training record ({len(train)} samples): reference rows")
+    cpu = time.process_time()
+    procedure = equation_error(train, settings.published_procedure, published)
+    extended, ext_note = diagnosed(train, published)
+    rows = [Row("published model", "nothing (the published parameters)", published,
+                on_train(published), on_test(published)),
+            Row("published procedure (IDIM-LS)", "training record (equation error)", procedure,
+                on_train(procedure), on_test(procedure)),
+            Row("diagnosis-extended (force residual)", "training record (force residual)",
+                extended, on_train(extended), on_test(extended), note=ext_note)]
+    # Every (data set, candidate) fit is a task of its own, in ``workers`` processes: each
+    # draws from its own stream, so the result does not depend on the number of workers.
+    sets = [train] + [left_out(train, edges, k)[0] for k in range(settings.cycles)]
+    tasks = [(j, i) for i in reversed(range(len(settings.candidates)))  # the longest first
+             for j in range(len(sets))]
+    payloads = [(settings.candidates[i], sets[j], settings, published, streams[i][j],
+                 published if j == 0 else None) for j, i in tasks]
+    progress(f"{len(tasks)} fits: every candidate on the whole record and without each of its "
+             f"{settings.cycles} cycles ({workers} worker{'s' if workers > 1 else ''})")
+    where = lambda j: "whole record" if j == 0 else f"without cycle {j}"  # noqa: E731
+    done = {}
+    for (j, i), m in zip(tasks, map_in_order(
+            _make_task, payloads, workers,
+            done=lambda n, k, m: progress(f"{n}/{len(tasks)} {m.name}, {where(tasks[k][0])}: "
+                                          f"{m.fit.verdict()}"))):
+        done[j, i] = m
+    made = [done[0, i] for i in range(len(settings.candidates))]
+    folds = []
+    for k in range(settings.cycles):
+        rest, cycle = left_out(train, edges, k)
+        fold = {"procedure": equation_error(rest, settings.published_procedure, published)}
+        fold.update({c.name: done[k + 1, i] for i, c in enumerate(settings.candidates)})
+        folds.append((cycle, fold))
+    for c, m in zip(settings.candidates, made):
+        scores = tuple(rmse_on(cy, n0)(f[c.name].fit.plant) for cy, f in folds)
+        ends = tuple(on_test(oe.with_values(m.fit.plant, s.end)) for s in m.fit.stops)
+        rows.append(Row(c.name, "training record (simulation error)", m.fit.plant,
+                        m.fit.rmse_m, on_test(m.fit.plant), True, m.fit, scores, ends,
+                        m.note))
+        progress(f"{c.name}: left-out cycles "
+                 + ", ".join(f"{x * 1e3:.2f}" for x in scores) + f" mm; test "
+                 f"{rows[-1].test_rmse_m * 1e3:.2f} mm")
+    pub_cycles = tuple(rmse_on(cy, n0)(published) for cy, _ in folds)
+    proc_cycles = tuple(rmse_on(cy, n0)(f["procedure"]) for cy, f in folds)
+    rows[0] = dataclasses.replace(rows[0], cycles_m=pub_cycles)
+    rows[1] = dataclasses.replace(rows[1], cycles_m=proc_cycles)
+
+    rows = choose(rows, settings.selection)
+    pick = next((r for r in rows if r.chosen), None)
+
+    progress("the leak of parameters identified on the whole record")
+    estimation, held_out = split(train, 2 / 3, n0)
+    part_proc = equation_error(estimation, settings.published_procedure, published)
+    part_ext_old, _ = diagnosed(estimation, published)
+    part_ext_new, _ = diagnosed(estimation, part_proc)
+    on_held = rmse_on(held_out, n0)
+    leak = {"held_out_samples": len(held_out),
+            "published_model_on_held_out_m": on_held(published),
+            "procedure_remade_on_held_out_m": on_held(part_proc),
+            "published_model_cycles_mean_m": float(np.mean(pub_cycles)),
+            "procedure_remade_cycles_mean_m": float(np.mean(proc_cycles)),
+            "extension_from_published_on_held_out_m": on_held(part_ext_old),
+            "extension_from_part_on_held_out_m": on_held(part_ext_new),
+            "extension_from_published_theta": part_ext_old.theta(),
+            "extension_from_part_theta": part_ext_new.theta()}
+
+    progress("why the force-residual extension drifts; sensitivities")
+    sim = lambda plant, run, source=None: simulate_record(  # noqa: E731
+        SimulationModel(plant, None, "model", train.ts), run, init_samples=n0, source=source)
+    drift = explain_drift(train, test, published, sim, estimation=estimation, held_out=held_out)
+    drift = dataclasses.replace(drift, steady=tuple(cycle_friction(plateaus(train, edges))))
+    sens = []
+    for r in rows:
+        if r.candidate and (r.chosen or r is rows[-1]):
+            i = [c.name for c in settings.candidates].index(r.name)
+            blocks = {}
+            for _, f in folds:
+                p = f[r.name].fit.plant
+                for k in oe.structure_parameters(p):
+                    blocks.setdefault(k, []).append(oe.value(p, k))
+            sens.append(sensitivity(r.name, r.plant, {k: tuple(v) for k, v in blocks.items()
+                                                      if len(v) == len(folds)}, on_test,
+                                    what=f"its {len(folds)} fits without one cycle "
+                                    f"(candidate {i + 1})"))
+    sens.append(sensitivity(rows[2].name, oe.merge_offsets(extended),
+                            drift_blocks(extended, drift), on_test,
+                            what="the force-residual fit on 5 contiguous blocks"))
+    init = initial_state_effect(published, test, n0)
+    return {"rows": rows, "pick": pick, "leak": leak, "drift": drift, "sensitivity": sens,
+            "initial_state": init, "cpu_s": time.process_time() - cpu,
+            "folds": [{k: (v.fit.to_json() if isinstance(v, Made) else v.theta())
+                       for k, v in f.items()} for _, f in folds]}
+
+
+# ----------------------------------------------------------------------------- the report
+
+def _mm(x: float) -> str:
+    return "–" if x is None or not np.isfinite(x) else f"{x * 1e3:.2f}"
+
+
+def _params(plant: Plant) -> str:
+    p = oe.merge_offsets(plant)
+    out = [f"{k} {oe.value(p, k):.6g}" for k in oe.structure_parameters(p)]
+    return ", ".join(out)
+
+
+def table(rows: list[Row], settings: BenchmarkSettings) -> list[str]:
+    k = settings.cycles
+    lines = ["| model | made from | test RMSE (mm) | training RMSE (mm) | "
+             + " | ".join(f"without cycle {j + 1} (mm)" for j in range(k))
+             + " | left-out mean ± se (mm) | fit | chosen |",
+             "|---" * (k + 7) + "|"]
+    for r in rows:
+        cyc = " | ".join(_mm(x) for x in r.cycles_m) if r.cycles_m else " | ".join("–" * k)
+        mean = (f"{r.mean_m * 1e3:.2f} ± {r.se_m * 1e3:.2f}" if r.cycles_m else "–")
+        fit = ("–" if r.fit is None else
+               ("measured" if r.fit.measured else "not a measurement")
+               + f", {len(r.fit.reached())}/{len(r.fit.stops)} starts")
+        lines.append(f"| {r.name} | {r.made_from} | {_mm(r.test_rmse_m)} | "
+                     f"{_mm(r.train_rmse_m)} | {cyc} | {mean} | {fit} | "
+                     f"{'**yes**' if r.chosen else ('no' if r.candidate else '(reference)')} |")
+    for b in settings.baselines:
+        lines.append(f"| {b.name} (black box; {b.source}) | – | {b.test_rmse_mm:.1f} | – | "
+                     + " | ".join("–" * k) + " | – | – | – |")
+    return lines
+
+
+def verdict(result: dict, settings: BenchmarkSettings) -> list[str]:
+    """The choice by the config's rule against the published model, and the band of test
+    scores over every end point."""
+    rows, pick = result["rows"], result["pick"]
+    pub = rows[0]
+    ends = [x for r in rows if r.candidate for x in r.end_tests_m if np.isfinite(x)]
+    if pick is None:
+        head = "No candidate's whole-record fit is a measurement: the rule chooses none."
+    else:
+        rel = 100 * (pick.test_rmse_m / pub.test_rmse_m - 1)
+        head = (f"Chosen by the rule in the config ({settings.selection}: the lowest mean "
+                f"left-out-cycle RMSE among the candidates whose whole-record fit is a "
+                f"measurement): **{pick.name}**, {pick.mean_m * 1e3:.2f} ± "
+                f"{pick.se_m * 1e3:.2f} mm over the cycles; test RMSE "
+                f"{pick.test_rmse_m * 1e3:.2f} mm against the published model's "
+                f"{pub.test_rmse_m * 1e3:.2f} mm ({rel:+.1f} %).")
+    return [head, "", f"Test RMSE over every end point of every candidate's starts (whole "
+            f"training record, {len(ends)} end points): {min(ends) * 1e3:.2f} to "
+            f"{max(ends) * 1e3:.2f} mm."]
+
+
+def to_markdown(result: dict, settings: BenchmarkSettings, command: str) -> str:
+    rows, leak = result["rows"], result["leak"]
+    pub = rows[0]
+    cands = [r for r in rows if r.candidate]
+    out = [f"<!-- generated by: {command} -->", "", "# EMPS benchmark: the study's report", "",
+           *table(rows, settings), ""]
+    out += [*verdict(result, settings), ""]
+    out += ["## Every start's stop (whole training record)", ""]
+    for r in cands:
+        out += [f"**{r.name}** ({r.fit.verdict()}; structure: {_params(r.plant)}"
+                + (f"; diagnosis named {r.note}" if r.note else "") + ")", ""]
+        out += [f"- {s.line()}; test RMSE {t * 1e3:.2f} mm; "
+                + ", ".join(f"{k} {v:.6g}" for k, v in s.end.items())
+                for s, t in zip(r.fit.stops, r.end_tests_m)]
+        if r.fit.held:
+            out.append("- held: " + ", ".join(f"{k} {v:.6g}" for k, v in r.fit.held.items()))
+        out.append("")
+    out += ["## Each fold's fits (made without one cycle; no start from the whole record)", ""]
+    for j, f in enumerate(result["folds"]):
+        for name, v in f.items():
+            if name == "procedure":
+                out.append(f"- without cycle {j + 1}, published procedure: "
+                           + ", ".join(f"{k} {x:.6g}" for k, x in v.items()))
+                continue
+            best = min(v["stops"], key=lambda s: s["rmse_m"])
+            out.append(f"- without cycle {j + 1}, {name}: "
+                       f"{'measured' if v['measured'] else 'not a measurement'}, "
+                       f"{sum(s['converged'] for s in v['stops'])}/{len(v['stops'])} converged, "
+                       f"training {v['rmse_m'] * 1e3:.3f} mm; "
+                       + ", ".join(f"{k} {x:.6g}" for k, x in best["end"].items()))
+    out += ["", "## The leak of parameters identified on the whole record", "",
+            f"- the last third of the training record ({leak['held_out_samples']} samples): "
+            f"the published parameters (identified on the whole record) simulate it to "
+            f"{_mm(leak['published_model_on_held_out_m'])} mm; the same procedure made on the "
+            f"first two thirds alone to {_mm(leak['procedure_remade_on_held_out_m'])} mm",
+            f"- the left-out cycles: published parameters "
+            f"{_mm(leak['published_model_cycles_mean_m'])} mm mean; the procedure remade "
+            f"without each cycle {_mm(leak['procedure_remade_cycles_mean_m'])} mm",
+            f"- the diagnosis on the first two thirds, started from the published model (keeps "
+            f"M {leak['extension_from_published_theta']['mass']:.2f}, Fv "
+            f"{leak['extension_from_published_theta']['viscous']:.1f}): "
+            f"{_mm(leak['extension_from_published_on_held_out_m'])} mm on the last third; "
+            f"started from the procedure's fit on that part (M "
+            f"{leak['extension_from_part_theta']['mass']:.2f}, Fv "
+            f"{leak['extension_from_part_theta']['viscous']:.1f}): "
+            f"{_mm(leak['extension_from_part_on_held_out_m'])} mm", ""]
+    out += ["## Sensitivity of the test score", ""]
+    for s in result["sensitivity"]:
+        out += [f"**{s.model}** (blocks: {s.blocks})", "",
+                "| parameter | value | d(test RMSE)/dθ (mm per unit) | block range | "
+                "test RMSE at its low end (mm) | at its high end (mm) |", "|---|---|---|---|---|---|"]
+        for k, v, g, lo, hi, a, b in s.rows:
+            rng = "–" if not np.isfinite(lo) else f"{lo:.4g} to {hi:.4g}"
+            out.append(f"| {k} ({oe.UNITS[k]}) | {v:.6g} | {g * 1e3:.4g} | {rng} | {_mm(a)} | "
+                       f"{_mm(b)} |")
+        out.append("")
+    out += ["## The initial state (the published model on the test record)", ""]
+    out += [f"- {k}: {v * 1e3:.3f} mm" for k, v in result["initial_state"].items()]
+    out += ["", "## Why the force-residual extension drifts (test columns after the fact)", "",
+            *result["drift"].to_markdown(pub.test_rmse_m), ""]
+    return "\n".join(out) + "\n"
+
+
+def plot_errors(traces, ax=None):
+    """Measured minus simulated position (mm against s) of each ``(label, Simulation)``."""
+    from experiments import plots
+
+    if ax is None:
+        ax = plots._figure(10.0, 4.0).subplots()
+    for i, (label, s) in enumerate(traces):
+        ax.plot(s.t, (s.y_measured - s.y_simulated) * 1e3, color=plots.PALETTE[i], lw=1.0,
+                label=f"{label}: RMSE {s.score.rmse * 1e3:.3g} mm")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("measured − simulated (mm)")
+    plots._legend_right(ax)
+    return ax
+
+
+def main(config_path, out=None, *, quiet: bool = False, workers: int | None = None) -> int:
+    """``clm-sim study CONFIG [--workers N]`` for a config with a ``benchmark:`` section (the
+    fits in ``workers`` processes, default 1; the result does not depend on it)."""
+    from experiments import plots
+
+    name, settings = load_benchmark(config_path)
+    out = Path(out) if out else Path("results") / Path(config_path).stem
+    inputs = (config_path, settings.training, settings.test, settings.published_model)
+    check_output_folder(out, what="a benchmark", inputs=inputs)
+    progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
+    try:
+        result = run_benchmark(settings, progress, workers or 1)
+    except UserError as exc:
+        text = str(exc)
+        raise UserError(text if text.startswith(str(config_path)) else
+                        f"{config_path}: {text}") from None
+    command = f"clm-sim study {config_path}"
+    report = to_markdown(result, settings, command)
+    rows, pick = result["rows"], result["pick"]
+    test = load_record(settings.test, columns=settings.columns, scale=settings.scale)
+    ts = test.ts
+
+    def sim(plant):
+        return simulate_record(SimulationModel(plant, None, "model", ts), test,
+                               init_samples=settings.init_samples)
+
+    with atomic_folder(out, what="a benchmark", inputs=inputs) as tmp:
+        (tmp / "benchmark.json").write_text(json.dumps(
+            {"name": name, "command": command, "selection": settings.selection,
+             "rule": "the lowest mean left-out-cycle RMSE among the candidates whose "
+                     "whole-record fit is a measurement (benchmark.selection in the config, "
+                     "with its reason)",
+             "chosen": None if pick is None else pick.name,
+             "rows": [r.to_json() for r in rows],
+             "baselines": [dataclasses.asdict(b) for b in settings.baselines],
+             "init_samples": settings.init_samples, "cycles": settings.cycles,
+             "leak": result["leak"], "initial_state_test_rmse_m": result["initial_state"],
+             "sensitivity": [s.to_json() for s in result["sensitivity"]],
+             "cpu_s": result["cpu_s"], "drift": result["drift"].to_json()}, indent=1))
+        (tmp / "report.md").write_text(report)
+        for r in rows:
+            info = oe.model_file(r.plant, ts, name=r.name, description=f"EMPS: {r.made_from}")
+            path = tmp / "models" / f"{slug(r.name)}.json"
+            path.parent.mkdir(exist_ok=True)
+            path.write_text(json.dumps(info, indent=1))
+        traces = [("published model", sim(rows[0].plant))]
+        if pick is not None:
+            traces.append((f"chosen: {pick.name}", sim(pick.plant)))
+        traces.append((rows[2].name, sim(rows[2].plant)))
+        plots.save(plot_errors(traces).figure, tmp / "figures" / "test_errors.png")
+        if result["drift"].traces:
+            plots.save(plot_drift(result["drift"]).figure, tmp / "figures" / "drift.png")
+    print("\n".join([*table(rows, settings), "", *verdict(result, settings)]))
+    return 0

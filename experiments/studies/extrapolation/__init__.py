@@ -1,0 +1,1 @@
+"""The extrapolation (lambda) study: its settings, result type and figures."""
