@@ -47,7 +47,7 @@ import torch
 from clm_sim.numerics import single_threaded
 from controllers import optim
 from controllers.pgnn import PGNNFeedforward, TrainingData, training_data
-from controllers.pgnn.model import _as_theta
+from controllers.pgnn.training import as_theta
 from experiments.testbed import STREAM_NETWORK, Testbed, stream
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,7 +113,7 @@ def start(data, theta_lip, seq):
     """The product's cost object and the full parameter vector ``(x, beta)`` of its start."""
     model = PGNNFeedforward(**SETTINGS)
     net = model.new_network(data, np.random.default_rng(seq))
-    cost = model.training_cost(data, _as_theta(theta_lip), net)
+    cost = model.training_cost(data, as_theta(theta_lip), net)
     beta = net.get_nonlinear()
     return model, net, cost, np.concatenate([cost._solve(beta)["x"], beta])
 
@@ -157,7 +157,7 @@ def torch_to(data, theta_lip, seq, target, budget, kind):
     phi = torch.from_numpy(data.phi)
     target_t = torch.from_numpy(data.target)
     lam = torch.from_numpy(model.lam_matrix_diag())
-    th_lip = torch.from_numpy(_as_theta(theta_lip))
+    th_lip = torch.from_numpy(as_theta(theta_lip))
     weights = [p for n, p in net.mlp.named_parameters() if n.endswith("weight")]
 
     def loss():

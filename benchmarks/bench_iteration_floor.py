@@ -57,7 +57,7 @@ from clm_sim.numerics import single_threaded  # noqa: E402
 from controllers import optim  # noqa: E402
 from controllers.pgnn import PGNNFeedforward, TrainingData, training_data  # noqa: E402
 from controllers.pgnn.cost import Range  # noqa: E402
-from controllers.pgnn.model import _as_theta  # noqa: E402
+from controllers.pgnn.training import as_theta  # noqa: E402
 from experiments.testbed import STREAM_NETWORK, Testbed, stream  # noqa: E402
 
 BLOCK = 512  # samples per block of the restructured normal matrix (fits in L2 at n_l = 16)
@@ -69,7 +69,7 @@ def cost_at_start(data, theta_lip, hidden, seed):
     model = PGNNFeedforward(hidden=hidden, lam=0.0, weight_decay=0.0, continuation_lam=0.0)
     seq = stream(seed, STREAM_NETWORK, 0)
     net = model.new_network(data, np.random.default_rng(seq))
-    cost = model.training_cost(data, _as_theta(theta_lip), net)
+    cost = model.training_cost(data, as_theta(theta_lip), net)
     return cost, net.get_nonlinear()
 
 

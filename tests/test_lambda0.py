@@ -17,7 +17,7 @@ from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build
 from controllers.pgnn import PGNNFeedforward, TrainingData
-from controllers.pgnn.model import theta_movement
+from controllers.pgnn.training import theta_movement
 from controllers.pgnn_settings import decimation_for
 from small_config import tiny_mechanism
 from experiments.config import ExperimentConfig, load_config

@@ -1,5 +1,6 @@
 """Physics-guided neural network feedforward: the model and its identification
-(:mod:`controllers.pgnn.model`; its settings are :class:`controllers.pgnn_settings.PGNNSettings`),
+(:mod:`controllers.pgnn.model`, fitted by :mod:`controllers.pgnn.training`, stored by
+:mod:`controllers.pgnn.storage`; its settings are :class:`controllers.pgnn_settings.PGNNSettings`),
 the data it is fitted on (:mod:`controllers.pgnn.data`), the torch module
 (:mod:`controllers.pgnn.network`), the training cost and its terms (:mod:`controllers.pgnn.cost`),
 how a fit went (:mod:`controllers.pgnn.fit_record`) and the optimizations that later fits reuse
@@ -17,7 +18,7 @@ _EXPORTS = {
     "FitRecord": "controllers.pgnn.fit_record",
     "PGNNFeedforward": "controllers.pgnn.model",
     "TrainingData": "controllers.pgnn.data",
-    "lemma_condition": "controllers.pgnn.model",
+    "lemma_condition": "controllers.pgnn.training",
     "training_data": "controllers.pgnn.data",
 }
 
