@@ -15,7 +15,7 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_folder
-from clm_sim.record import Run
+from clm_sim.run import Run
 from controllers.idim import CrossTest, IDIMFit, IDIMProtocol, cross_test, fit
 from experiments.table import THETA_UNITS
 

@@ -43,7 +43,7 @@ from clm_sim.effects import (Cogging, ForceOffset, ForceRipple, FrictionAsymmetr
 from clm_sim.errors import UserError
 from clm_sim.open_loop import INIT_SAMPLES, initial_state, simulate_input
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 
 # Every parameter a simulation-error fit can free, with its unit, in this order.
 UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m", "offset": "N",

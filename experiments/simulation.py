@@ -24,7 +24,7 @@ from clm_sim.open_loop import (INIT_SAMPLES, MIN_SCORED_SAMPLES, Score, initial_
                                simulate_input)
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.diagnosis.model import SimulationModel, load_model
 
 COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")

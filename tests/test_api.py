@@ -90,7 +90,7 @@ def test_lip_load_refuses_another_file(tmp_path):
 
 
 def test_reprs_are_short():
-    from clm_sim.record import Run
+    from clm_sim.run import Run
     from experiments.testbed import Testbed
 
     tb = Testbed()
@@ -251,7 +251,7 @@ def test_one_filter_setting_from_identify_to_the_diagnosis(tmp_path):
 def test_diagnosis_model_carries_its_rate(tmp_path, lip):
     """A model file's ts sets its controller's rate (no record needed); a file without one takes
     the rate it is given (the record's); the diagnosis refuses a record at another rate."""
-    from clm_sim.record import Run
+    from clm_sim.run import Run
     from experiments.diagnosis import diagnose, load_model
 
     path = tmp_path / "m.yaml"

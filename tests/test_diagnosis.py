@@ -22,7 +22,7 @@ from clm_sim.effects import (CableSlab, Cogging, ForceOffset, ForceRipple, Frict
                              Stribeck)
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
-from clm_sim.record import save_npz
+from clm_sim.records.write import save_npz
 
 NOMINAL = Plant(effects=())
 EMPS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "emps"

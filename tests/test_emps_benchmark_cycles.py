@@ -11,7 +11,7 @@ import reference_sim as ref
 from clm_sim.effects import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.studies.emps_cycles import cycle_edges, left_out
 
 TS = 1e-3
@@ -171,7 +171,7 @@ def test_the_plateau_friction_follows_a_drift_within_the_record():
 def _benchmark_without_work(record, tmp_path, monkeypatch, stub: str, setting: str = ""):
     """A benchmark config on ``record`` in ``tmp_path`` (the current folder), with
     ``emps_benchmark.<stub>`` replaced by a function that fails the test if the work starts."""
-    from clm_sim.record import save_npz
+    from clm_sim.records.write import save_npz
     from experiments.studies import emps_benchmark
 
     def no_work(*args, **kwargs):

@@ -660,7 +660,7 @@ def test_network_variants_export(variant, training_run, fitted, tmp_path):
 
 def test_identify_output_exports(training_run, tmp_path, capsys):
     """``clm-sim identify`` on a record, then ``export-ff`` of its lip.json (ts from the file)."""
-    from clm_sim.record import save_npz
+    from clm_sim.records.write import save_npz
     save_npz(training_run, tmp_path / "train.npz")
     assert main(["identify", str(tmp_path / "train.npz"), "--out", str(tmp_path / "id")]) == 0
     assert main(["export-ff", str(tmp_path / "id" / "lip.json"), "--to", "c", "--out",

@@ -46,7 +46,7 @@ import pytest
 import reference_sim as ref
 from clm_sim.effects import CableSlab, Stribeck
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.diagnosis import diagnose
 from experiments.diagnosis.model import Controller, SimulationModel
 

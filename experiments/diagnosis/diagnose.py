@@ -16,7 +16,7 @@ from clm_sim.effects import Effect
 from clm_sim.errors import UserError, check_ts
 from clm_sim.numerics import single_threaded
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 
 
 @dataclass

@@ -24,7 +24,7 @@ from clm_sim.features import FeatureMap, edge_force
 from clm_sim.loop import simulate
 from clm_sim.open_loop import INIT_SAMPLES, initial_state, score, simulate_input
 from clm_sim.plant import THETA_NAMES, Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from controllers.lip import LIPFeedforward
 
 

@@ -40,7 +40,8 @@ from clm_sim.errors import UserError
 from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, simulate_input
 from clm_sim.outdir import atomic_folder, check_output_folder
 from clm_sim.plant import Plant
-from clm_sim.record import Run, load_record
+from clm_sim.records.read import load_record
+from clm_sim.run import Run
 from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments import output_error as oe
