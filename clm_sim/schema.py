@@ -19,7 +19,8 @@ from pathlib import Path
 
 import yaml
 
-from clm_sim.effects import EFFECTS, Effect
+from clm_sim.effects import EFFECTS
+from clm_sim.effects.base import Effect
 from clm_sim.errors import UserError
 from clm_sim.records.files import RECORD_SUFFIXES
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-from clm_sim.effects import ForceOffset
+from clm_sim.effects.position import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, check_realisable, edge_force
 from clm_sim.plant import THETA_NAMES

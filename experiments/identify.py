@@ -148,7 +148,7 @@ def simulation_fit(result: Identified, *, model=None, model_source: str | None =
     :class:`~clm_sim.plant.Plant`) or else the force fit's; the starts are the force fit, the
     model, and ``starts`` perturbations of the force fit (seeded by ``seed``); ``hold`` names
     parameters kept at the force fit's value (the model's where the force fit has none)."""
-    from clm_sim.effects import ForceOffset
+    from clm_sim.effects.position import ForceOffset
     from clm_sim.plant import Plant
     from experiments import output_error as oe
 

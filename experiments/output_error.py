@@ -38,8 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
-from clm_sim.effects import (Cogging, ForceOffset, ForceRipple, FrictionAsymmetry, Presliding,
-                             Stribeck)
+from clm_sim.effects.friction import FrictionAsymmetry, Presliding, Stribeck
+from clm_sim.effects.position import Cogging, ForceOffset, ForceRipple
 from clm_sim.errors import UserError
 from clm_sim.open_loop import INIT_SAMPLES, initial_state, simulate_input
 from clm_sim.plant import Plant

@@ -18,8 +18,8 @@ import pytest
 
 from experiments.diagnosis import diagnose, load_model
 from experiments.diagnosis.emulate import measure
-from clm_sim.effects import (CableSlab, Cogging, ForceOffset, ForceRipple, FrictionAsymmetry,
-                             Stribeck)
+from clm_sim.effects.friction import FrictionAsymmetry, Stribeck
+from clm_sim.effects.position import CableSlab, Cogging, ForceOffset, ForceRipple
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 from clm_sim.records.write import save_npz

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import reference_sim as ref
-from clm_sim.effects import ForceOffset
+from clm_sim.effects.position import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 from clm_sim.run import Run

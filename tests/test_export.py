@@ -18,15 +18,8 @@ import numpy as np
 import pytest
 from build_once import build_once
 
-from clm_sim.effects import (
-    CableSlab,
-    Cogging,
-    ForceOffset,
-    ForceRipple,
-    FrictionAsymmetry,
-    Presliding,
-    Stribeck,
-)
+from clm_sim.effects.friction import FrictionAsymmetry, Presliding, Stribeck
+from clm_sim.effects.position import CableSlab, Cogging, ForceOffset, ForceRipple
 from clm_sim.errors import UserError
 from clm_sim.outdir import MANIFEST
 from clm_sim.loop import simulate

@@ -1,9 +1,9 @@
 """The C namespace of a force law (:mod:`clm_sim.namespace`): an effect's
-:meth:`~clm_sim.effects.Effect.law` evaluated on :class:`CExpr` values writes its C expression of
-``y`` (m), ``v`` (m/s) and ``base`` (N: the physical force), with the generated file's ``R()``
-literals and maths macros (``SIN``, ``EXP``, ``FABS``, ``SGN``, ``POW``). Parentheses follow C's
-precedence and keep the law's order of operations (the rounding of every operation is the
-numpy law's)."""
+:meth:`~clm_sim.effects.base.Effect.law` evaluated on :class:`CExpr` values writes its C
+expression of ``y`` (m), ``v`` (m/s) and ``base`` (N: the physical force), with the generated
+file's ``R()`` literals and maths macros (``SIN``, ``EXP``, ``FABS``, ``SGN``, ``POW``).
+Parentheses follow C's precedence and keep the law's order of operations (the rounding of every
+operation is the numpy law's)."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ from experiments.diagnosis.outcome import (DiagnosisInfo, Gain, GainSignals, Rec
 from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_of
 from experiments.diagnosis.search import forward_select
 from experiments.record_guards import refuse_other_rate
-from clm_sim.effects import Effect
+from clm_sim.effects.base import Effect
 from clm_sim.errors import UserError, check_ts
 from clm_sim.numerics import single_threaded
 from clm_sim.plant import Plant

@@ -18,7 +18,8 @@ from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.diagnosis.families import REGISTRY
 from experiments.diagnosis.finding import Finding
 from experiments.diagnosis.fitting import coefficient_std, cv_of, fit_cv
-from clm_sim.effects import Effect, Stribeck
+from clm_sim.effects.base import Effect
+from clm_sim.effects.friction import Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force
 from clm_sim.loop import simulate

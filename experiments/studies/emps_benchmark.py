@@ -189,7 +189,7 @@ def make_candidate(c: Candidate, record: Run, settings: BenchmarkSettings, like:
     """``c`` made on ``record`` alone: the equation-error fit there, the structure, the starts
     (that fit, ``settings.perturbed_starts`` draws of ``rng`` around it, and ``published``'s
     values where given) and the simulation-error fit."""
-    from clm_sim.effects import FrictionAsymmetry
+    from clm_sim.effects.friction import FrictionAsymmetry
 
     protocol = dataclasses.replace(settings.published_procedure, offset=c.offset)
     eq = equation_error(record, protocol, like)
