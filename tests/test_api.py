@@ -145,8 +145,8 @@ def test_pgnn_settings_declared_once():
     import inspect
 
     from controllers.pgnn import PGNNFeedforward
-    from controllers.pgnn.network import ACTIVATIONS
-    from controllers.pgnn_settings import ACTIVATION_NAMES, CONSTRAINTS, PGNNSettings
+    from controllers.activations import ACTIVATION_NAMES, ACTIVATIONS
+    from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings
     from experiments.config import FeedforwardSpec
 
     options = {f.name for f in dataclasses.fields(PGNNSettings)}

@@ -956,7 +956,7 @@ def test_strict_warnings_matrix(cc, effects_lip, tmp_path):
     -DCLM_FF_PORTABLE, -DCLM_FF_FLOAT). Syntax and semantic checks only (-fsyntax-only), plus
     one -O2 object per build (warnings that need the optimizer)."""
     import subprocess
-    from controllers.export.window import ACTIVATIONS
+    from controllers.activations import ACTIVATIONS
     shapes = {f"{a}_{len(h)}": _shape(h, a) for a in ACTIVATIONS
               for h in ((5,), (5, 3), (3, 5, 4))}
     shapes["raw"] = _shape((4, 4), "tanh", cutoff=None)

@@ -4,7 +4,7 @@ simulator terms) and the primitive terms of the compiled simulator (:class:`Kern
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -98,6 +98,9 @@ class Effect:
     path_dependent: ClassVar[bool] = False
     # True where no linear-in-parameters model has a column for it (the simulated plant only)
     plant_only: ClassVar[bool] = False
+    # (column, parameter) of an effect whose force is that parameter times a shape: its column
+    # is its law with the parameter at 1 (exact: 1.0*x is x), its coefficient that parameter
+    gain: ClassVar[tuple[str, str] | None] = None
 
     def law(self, y, v, u, xp):
         """The force (N) at position ``y`` (m), velocity ``v`` (m/s) and the rest of the force
@@ -109,10 +112,19 @@ class Effect:
         return self.law(np.asarray(y), np.asarray(v), np.asarray(u), NUMPY)
 
     def regressors(self, y: np.ndarray, v: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
-        raise NotImplementedError
+        """The columns it contributes to a linear-in-the-parameters model, by name."""
+        if self.gain is None:
+            raise NotImplementedError
+        column, parameter = self.gain
+        return {column: replace(self, **{parameter: 1.0}).force(y, v, u)}
 
     def from_coefficients(self, coef: dict[str, float]) -> "Effect":
-        raise NotImplementedError
+        """The effect whose linear parameters are the least-squares coefficients ``coef`` of
+        its columns (its nonlinear ones kept)."""
+        if self.gain is None:
+            raise NotImplementedError
+        column, parameter = self.gain
+        return replace(self, **{parameter: float(coef[column])})
 
     def lower(self, terms: KernelTerms) -> None:
         raise NotImplementedError

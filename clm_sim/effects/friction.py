@@ -29,24 +29,14 @@ class Stribeck(Effect):
     exponent: float = 2.0
     type: ClassVar[str] = "stribeck"
     nonlinear: ClassVar[tuple[str, ...]] = ("velocity",)
+    gain: ClassVar[tuple[str, str]] = ("stribeck", "peak")
 
     def __post_init__(self):
         check_finite("stribeck", peak=self.peak)
         check_positive("stribeck", velocity=self.velocity, exponent=self.exponent)
 
-    def _shape(self, v):
-        v = np.asarray(v)
-        return np.sign(v) * np.exp(-((np.abs(v) / self.velocity) ** self.exponent))
-
     def law(self, y, v, u, xp):
         return self.peak * xp.sign(v) * xp.exp(-((xp.abs(v) / self.velocity) ** self.exponent))
-
-    def regressors(self, y, v, u):
-        return {"stribeck": self._shape(v)}
-
-    def from_coefficients(self, coef):
-        return Stribeck(peak=float(coef["stribeck"]), velocity=self.velocity,
-                        exponent=self.exponent)
 
     def lower(self, terms):
         terms.stribeck_peak.append(self.peak)

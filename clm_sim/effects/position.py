@@ -4,7 +4,7 @@ cable carrier (a polynomial, or a pull that saturates once taut), and a constant
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -14,8 +14,37 @@ from clm_sim.errors import UserError
 from clm_sim.namespace import NUMPY
 
 
+class _Harmonic:
+    """The shape of a force periodic in the position: ``sin(angle + phase)`` with the angle
+    ``2*pi*y/period`` (rad) written once, for the law and for the columns ``<column>_sin`` and
+    ``<column>_cos`` of a linear fit (``carrier`` times ``sin(angle)`` and ``cos(angle)``), whose
+    coefficients give the amplitude and the phase back."""
+
+    column: ClassVar[str] = ""
+
+    def angle(self, y, xp=NUMPY):
+        """``2*pi*y/period`` (rad) at position ``y`` (m), in the array namespace ``xp``."""
+        return 2.0 * xp.pi * y / self.period
+
+    def wave(self, y, xp):
+        """``sin(angle + phase)``, the shape the law scales."""
+        return xp.sin(self.angle(y, xp) + self.phase)
+
+    def harmonic_columns(self, y, carrier=None) -> dict[str, np.ndarray]:
+        """``carrier*sin(angle)`` and ``carrier*cos(angle)`` (``carrier`` None: 1)."""
+        x = self.angle(np.asarray(y))
+        if carrier is None:
+            return {f"{self.column}_sin": np.sin(x), f"{self.column}_cos": np.cos(x)}
+        return {f"{self.column}_sin": carrier * np.sin(x),
+                f"{self.column}_cos": carrier * np.cos(x)}
+
+    def from_coefficients(self, coef):
+        amp, phase = amplitude_phase(coef[f"{self.column}_sin"], coef[f"{self.column}_cos"])
+        return replace(self, amplitude=amp, phase=phase)
+
+
 @dataclass(frozen=True)
-class Cogging(Effect):
+class Cogging(_Harmonic, Effect):
     """Position-periodic force from magnet/iron attraction: ``amplitude*sin(2*pi*y/period + phase)``.
 
     amplitude in N, period in m (the magnet pitch or a fraction of it), phase in rad.
@@ -26,24 +55,17 @@ class Cogging(Effect):
     phase: float = 0.0
     type: ClassVar[str] = "cogging"
     nonlinear: ClassVar[tuple[str, ...]] = ("period",)
+    column: ClassVar[str] = "cogging"
 
     def __post_init__(self):
         check_finite("cogging", amplitude=self.amplitude, phase=self.phase)
         check_positive("cogging", period=self.period)
 
-    def _arg(self, y):
-        return 2.0 * np.pi * np.asarray(y) / self.period
-
     def law(self, y, v, u, xp):
-        return self.amplitude * xp.sin(2.0 * xp.pi * y / self.period + self.phase)
+        return self.amplitude * self.wave(y, xp)
 
     def regressors(self, y, v, u):
-        x = self._arg(y)
-        return {"cogging_sin": np.sin(x), "cogging_cos": np.cos(x)}
-
-    def from_coefficients(self, coef):
-        amp, phase = amplitude_phase(coef["cogging_sin"], coef["cogging_cos"])
-        return Cogging(amplitude=amp, period=self.period, phase=phase)
+        return self.harmonic_columns(y)
 
     def lower(self, terms):
         terms.harmonic_amp.append(self.amplitude)
@@ -52,7 +74,7 @@ class Cogging(Effect):
 
 
 @dataclass(frozen=True)
-class ForceRipple(Effect):
+class ForceRipple(_Harmonic, Effect):
     """Commutation ripple: the motor delivers ``u*(1 + amplitude*sin(2*pi*y/period + phase))``.
 
     amplitude is a fraction of the commanded force (0.01 = 1 %), period in m, phase in rad. The
@@ -64,6 +86,7 @@ class ForceRipple(Effect):
     phase: float = 0.0
     type: ClassVar[str] = "force_ripple"
     nonlinear: ClassVar[tuple[str, ...]] = ("period",)
+    column: ClassVar[str] = "ripple"
 
     def __post_init__(self):
         check_finite("force_ripple", amplitude=self.amplitude, phase=self.phase)
@@ -72,20 +95,12 @@ class ForceRipple(Effect):
             raise UserError(f"force_ripple: amplitude is a fraction of the motor force and must be "
                             f"below 0.5, got {self.amplitude!r}")
 
-    def _arg(self, y):
-        return 2.0 * np.pi * np.asarray(y) / self.period
-
     def law(self, y, v, u, xp):
         # Exact inverse of u_motor = u*(1+rho): u = rest/(1+rho) = rest - rho*u.
-        return -xp.const(self.amplitude) * xp.sin(2.0 * xp.pi * y / self.period + self.phase) * u
+        return -xp.const(self.amplitude) * self.wave(y, xp) * u
 
     def regressors(self, y, v, u):
-        x = self._arg(y)
-        return {"ripple_sin": -np.asarray(u) * np.sin(x), "ripple_cos": -np.asarray(u) * np.cos(x)}
-
-    def from_coefficients(self, coef):
-        amp, phase = amplitude_phase(coef["ripple_sin"], coef["ripple_cos"])
-        return ForceRipple(amplitude=amp, period=self.period, phase=phase)
+        return self.harmonic_columns(y, carrier=-np.asarray(u))
 
     def lower(self, terms):
         terms.ripple_amp.append(self.amplitude)
@@ -212,6 +227,7 @@ class CableTaut(Effect):
     center: float = 0.0
     type: ClassVar[str] = "cable_taut"
     nonlinear: ClassVar[tuple[str, ...]] = ("reach",)
+    gain: ClassVar[tuple[str, str]] = ("cable_taut", "pull")
 
     def __post_init__(self):
         check_finite("cable_taut", pull=self.pull, center=self.center)
@@ -219,12 +235,6 @@ class CableTaut(Effect):
 
     def law(self, y, v, u, xp):
         return self.pull * xp.tanh(((y - self.center) / self.reach) ** 3)
-
-    def regressors(self, y, v, u):
-        return {"cable_taut": np.tanh(((np.asarray(y) - self.center) / self.reach) ** 3)}
-
-    def from_coefficients(self, coef):
-        return CableTaut(pull=float(coef["cable_taut"]), reach=self.reach, center=self.center)
 
     def lower(self, terms):
         terms.taut_force.append(self.pull)

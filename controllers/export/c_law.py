@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from clm_sim.errors import UserError
 from clm_sim.rigid_body import rigid_body
-from controllers.export.window import ACTIVATION_LAWS
+from controllers.activations import ACTIVATIONS
 from controllers.export.c_literals import c_real
 
 # precedence: 0 an operand (literal, name, call, parenthesised), 1 unary, 2 * /, 3 + -, 4 < >
@@ -114,7 +114,7 @@ def rigid_body_c(theta, a: str, v: str, s: str, y: str) -> str:
 
 def activation_c(name: str) -> str:
     """The C expression of the activation ``name`` (its law) of ``x``."""
-    return CExpr.of(ACTIVATION_LAWS[name](CExpr("x"), C)).text
+    return CExpr.of(ACTIVATIONS[name].law(CExpr("x"), C)).text
 
 
 def effect_c(effect) -> str:
