@@ -10,7 +10,9 @@ Each effect is a small frozen dataclass with named SI parameters. It knows three
   (``m*a = u - ... - sum(effect.force)``);
 * ``regressors(y, v, u)``: the columns it contributes to a linear-in-the-parameters model when its
   nonlinear parameters (periods, velocities) are held fixed, and ``from_coefficients`` to rebuild the
-  effect from the least-squares coefficients of those columns;
+  effect from the least-squares coefficients of those columns. The columns are the law's: a force
+  that is one parameter times a shape (``Effect.gain``) has the law at that parameter = 1 as its
+  column; the periodic forces share one angle and their sine and cosine columns;
 * ``lower(terms)``: how it appears in the compiled simulator, as primitive terms of
   :class:`KernelTerms` (position harmonics, motor-force ripple and the track end's motor-force
   factor, a position polynomial, Stribeck friction, direction-dependent friction, a constant
