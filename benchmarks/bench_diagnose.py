@@ -18,7 +18,8 @@ import time
 
 from experiments.diagnosis import diagnose
 from experiments.diagnosis.emulate import measure
-from clm_sim.effects import Cogging, Presliding, Stribeck
+from clm_sim.effects.friction import Presliding, Stribeck
+from clm_sim.effects.position import Cogging
 from clm_sim.plant import Plant
 
 N_SAMPLES = 400_000

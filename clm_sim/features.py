@@ -31,6 +31,7 @@ from typing import ClassVar
 import numpy as np
 
 from clm_sim.errors import UserError
+from clm_sim.rigid_body import rigid_body_columns
 
 LIP_COLUMNS = ("acceleration", "velocity", "sign_velocity", "position")
 
@@ -197,5 +198,6 @@ def held_force(p: np.ndarray) -> np.ndarray:
 
 
 def lip_regressors(y: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """The LIP feature matrix ``[a, v, sign(v), y]`` (columns as ``LIP_COLUMNS``), shape (N, 4)."""
-    return np.column_stack([a, v, np.sign(v), y])
+    """The LIP feature matrix ``[a, v, sign(v), y]`` (columns as ``LIP_COLUMNS``), shape (N, 4):
+    the columns of :func:`clm_sim.rigid_body.rigid_body_columns`."""
+    return np.column_stack(rigid_body_columns(a, v, np.sign(v), y))

@@ -9,7 +9,7 @@ import numpy as np
 
 from clm_sim.errors import UserError, check_ts
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 
 
 class DiscreteController(Protocol):

@@ -17,7 +17,7 @@ from pathlib import Path
 from clm_sim.errors import UserError
 
 MAX_BYTES = 64 * 2 ** 20  # a model's JSON is kilobytes (a PGNN's history: a few megabytes)
-MIN_TS = 1e-7  # s: as a record's (clm_sim.record.MIN_TS): no servo samples faster than 10 MHz
+MIN_TS = 1e-7  # s: as clm_sim.records.checks.MIN_TS: no servo samples faster than 10 MHz
 MAX_TS = 0.1  # s: no servo samples slower than 10 Hz
 
 

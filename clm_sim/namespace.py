@@ -1,6 +1,6 @@
 """Array namespaces a force law is written against (as scikit-learn's ``get_namespace``).
 
-An effect writes its force once, :meth:`clm_sim.effects.Effect.law` ``(y, v, u, xp)``, with
+An effect writes its force once, :meth:`clm_sim.effects.base.Effect.law` ``(y, v, u, xp)``, with
 Python's arithmetic operators and the few functions below from ``xp``. :data:`NUMPY` evaluates it
 on arrays (the simulator's models, the LIP, the diagnosis); the export writes the same law as C
 (``controllers.export.c_law``) and as ONNX nodes (``controllers.export.onnx_graph``) through

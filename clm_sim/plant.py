@@ -18,11 +18,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from clm_sim.effects import CableSlab, Effect, ForceRipple, Stribeck, lower_effects, total_force
+from clm_sim.effects import lower_effects, total_force
+from clm_sim.effects.base import Effect
+from clm_sim.effects.friction import Stribeck
+from clm_sim.effects.position import CableSlab, ForceRipple
 from clm_sim.errors import UserError
-from clm_sim.rigid_body import rigid_body
+from clm_sim.rigid_body import THETA_NAMES, rigid_body
 
-THETA_NAMES = ("mass", "viscous", "coulomb", "stiffness")
 THETA_UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m"}
 
 

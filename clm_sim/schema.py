@@ -19,9 +19,10 @@ from pathlib import Path
 
 import yaml
 
-from clm_sim.effects import EFFECTS, Effect
+from clm_sim.effects import EFFECTS
+from clm_sim.effects.base import Effect
 from clm_sim.errors import UserError
-from clm_sim.record import RECORD_SUFFIXES
+from clm_sim.records.files import RECORD_SUFFIXES
 
 
 MAX_DEPTH = 64  # nesting levels: a config has fewer than ten; deeper is a generated file

@@ -33,10 +33,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-from clm_sim.effects import ForceOffset
+from clm_sim.effects.position import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, check_realisable, edge_force
 from clm_sim.plant import THETA_NAMES
+from clm_sim.rigid_body import rigid_body_columns
 from controllers.lip import LIPFeedforward
 
 DIFFERENTIATIONS = ("second_difference", "central_twice")
@@ -139,9 +140,9 @@ class IDIMProtocol:
         """``(X, F, names)``: the regression's columns and force after filtering, edge removal
         and decimation, and the coefficient names (``THETA_NAMES`` order, then ``offset``)."""
         yf, v, a = self.motion(y, ts)
-        cols = {"mass": a, "viscous": v, "coulomb": np.sign(v)}
-        if self.stiffness:
-            cols["stiffness"] = yf
+        cols = dict(zip(THETA_NAMES, rigid_body_columns(a, v, np.sign(v), yf)))
+        if not self.stiffness:
+            del cols["stiffness"]
         if self.offset:
             cols["offset"] = np.ones_like(yf)
         x = np.column_stack(list(cols.values()))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clm_sim.effects import Effect
+from clm_sim.effects.base import Effect
 from clm_sim.errors import NotFittedError, UserError, check_ts
 from clm_sim.features import FeatureMap, edge_force, held_force, lip_regressors
 from clm_sim.modelfile import mapping, number, read_json, sample_time

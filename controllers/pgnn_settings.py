@@ -19,11 +19,11 @@ from typing import ClassVar
 
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
+from controllers.activations import ACTIVATION_NAMES
 
 TRAININGS = ("simultaneous", "sequential", "pinn")
 OPTIMIZERS = ("varpro", "lm", "adam")
 INITS = ("optimized", "random")
-ACTIVATION_NAMES = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
 # Where a fit's optimizations start (PGNNSettings.starts): its drawn hidden layers; the
 # sequential solution of that draw (theta_phy held at theta_LIP, the network fitted to the LIP's
 # residual: the lambda -> infinity end of the homotopy); at lambda = 0 the solution regularized

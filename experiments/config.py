@@ -299,7 +299,7 @@ class RecordData:
     def load(self, which: str = "training"):
         """The record ``which`` (training or validation), read with ``columns`` and ``scale``;
         a missing file is an error that names the key."""
-        from clm_sim.record import load_record
+        from clm_sim.records.read import load_record
 
         path = getattr(self, which)
         if not Path(path).exists():

@@ -30,7 +30,7 @@ import scipy.signal
 from clm_sim.errors import UserError, check_ts
 from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.plant import THETA_NAMES, Plant, default_effects
-from clm_sim.record import RECORD_SUFFIXES
+from clm_sim.records.files import RECORD_SUFFIXES
 from clm_sim.schema import build, load_yaml
 from controllers.pid import PIDDesign, design_pid
 from experiments.config import ExperimentConfig, in_file

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.config import FeedforwardSpec
 from experiments.table import regularizers, row_settings
 

@@ -20,7 +20,7 @@ import yaml
 from clm_sim.errors import UserError
 from clm_sim.numerics import environment, versions
 from clm_sim.outdir import atomic_folder
-from clm_sim.record import save_npz
+from clm_sim.records.write import save_npz
 from experiments import table
 from experiments.config import ExperimentConfig, resolved
 from experiments.results import TableRow

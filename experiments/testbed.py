@@ -23,7 +23,7 @@ from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange, held_force
 from clm_sim.loop import simulate
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from controllers.lip import LIPFeedforward
 from controllers.pid import PIDController, design_pid
 from experiments.config import ExperimentConfig, FeedforwardSpec, load_config, resolved

@@ -90,7 +90,7 @@ def test_lip_load_refuses_another_file(tmp_path):
 
 
 def test_reprs_are_short():
-    from clm_sim.record import Run
+    from clm_sim.run import Run
     from experiments.testbed import Testbed
 
     tb = Testbed()
@@ -145,8 +145,8 @@ def test_pgnn_settings_declared_once():
     import inspect
 
     from controllers.pgnn import PGNNFeedforward
-    from controllers.pgnn.network import ACTIVATIONS
-    from controllers.pgnn_settings import ACTIVATION_NAMES, CONSTRAINTS, PGNNSettings
+    from controllers.activations import ACTIVATION_NAMES, ACTIVATIONS
+    from controllers.pgnn_settings import CONSTRAINTS, PGNNSettings
     from experiments.config import FeedforwardSpec
 
     options = {f.name for f in dataclasses.fields(PGNNSettings)}
@@ -251,9 +251,9 @@ def test_one_filter_setting_from_identify_to_the_diagnosis(tmp_path):
 def test_diagnosis_model_carries_its_rate(tmp_path, lip):
     """A model file's ts sets its controller's rate (no record needed); a file without one takes
     the rate it is given (the record's); the diagnosis refuses a record at another rate."""
-    from clm_sim.record import Run
     from experiments.diagnosis import diagnose
     from experiments.model_files import load_model
+    from clm_sim.run import Run
 
     path = tmp_path / "m.yaml"
     path.write_text("ts: 0.001\nplant: {mass: 18.8, viscous: 172.0}\n"

@@ -21,7 +21,8 @@ import pytest
 import scipy.io
 import scipy.sparse
 
-from clm_sim.record import Run, save_npz
+from clm_sim.records.write import save_npz
+from clm_sim.run import Run
 from experiments.cli import main, parser
 
 ROOT = Path(__file__).resolve().parents[1]  # subprocesses run this checkout's code
@@ -461,7 +462,7 @@ def test_scale_by_a_variable_that_is_not_a_number_is_refused(variable, content, 
 ])
 def test_odd_but_valid_records_are_read(name, content, tmp_path):
     """Records that are unusual but hold what is needed are read, not refused."""
-    from clm_sim.record import load_record
+    from clm_sim.records.read import load_record
 
     path = tmp_path / name
     _write(path, content)
@@ -735,7 +736,7 @@ ROUNDED_STAMPS = {
 
 @pytest.mark.parametrize("case", list(ROUNDED_STAMPS))
 def test_time_stamps_rounded_by_their_type_are_read(case, tmp_path):
-    from clm_sim.record import load_record
+    from clm_sim.records.read import load_record
 
     step = 10 * TS if case.endswith("20 s") else TS
     run = load_record(_stamped(ROUNDED_STAMPS[case](np.arange(20000) * TS), tmp_path / "r.npz"))
@@ -774,7 +775,7 @@ def test_time_stamps_too_coarse_or_uneven_are_refused(case, tmp_path, capsys):
 def test_integer_epoch_nanoseconds_scaled_to_seconds_are_read(tmp_path):
     """int64 nanoseconds since 1970 (1.7e18, beyond float64's exact integers) scaled by 1e-9:
     uniform but for float64's rounding of them, and read (the review found them refused)."""
-    from clm_sim.record import load_record
+    from clm_sim.records.read import load_record
 
     ns = 1_700_000_000_000_000_000 + np.arange(20000, dtype=np.int64) * 100_000
     run = load_record(_stamped(ns, tmp_path / "r.npz"), scale={"t": 1e-9})

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clm_sim.effects import CableTaut
+from clm_sim.effects.position import CableTaut
 from clm_sim.errors import UserError
 from clm_sim.schema import build_effect
 

@@ -18,7 +18,8 @@ from build_once import build_once
 from sessions import session_processes, survivors
 from small_config import SMALL_CONFIG
 
-from clm_sim.record import load_record, save_npz
+from clm_sim.records.read import load_record
+from clm_sim.records.write import save_npz
 from experiments.cli import main
 from experiments.config import load_config
 from experiments.studies.extrapolation.result import ExtrapolationResult
@@ -944,7 +945,8 @@ def _variant(run, **changes) -> dict:
 ])
 def test_identify_warns_about_suspicious_records(case, changes, warning, small_training_run,
                                                  tmp_path, capsys):
-    from clm_sim.record import Run, save_csv
+    from clm_sim.records.write import save_csv
+    from clm_sim.run import Run
 
     data = tmp_path / "rec.csv"
     save_csv(Run(**_variant(small_training_run, **changes)), data)
@@ -963,7 +965,7 @@ def test_identify_warns_about_suspicious_records(case, changes, warning, small_t
                                                        (1.0, 18800.0, True)])  # grams
 def test_a_mass_far_from_the_records_is_a_warning(scale, model_mass, warned,
                                                   small_training_run):
-    from clm_sim.record import Run
+    from clm_sim.run import Run
     from controllers.lip import LIPFeedforward
     from experiments.records.suspicions import record_warnings
 
@@ -975,7 +977,7 @@ def test_a_mass_far_from_the_records_is_a_warning(scale, model_mass, warned,
 
 def test_identify_names_the_file_and_option_of_a_filter_above_nyquist(small_training_run,
                                                                      tmp_path, capsys):
-    from clm_sim.record import save_npz
+    from clm_sim.records.write import save_npz
 
     data = tmp_path / "rec.npz"
     save_npz(small_training_run, data)

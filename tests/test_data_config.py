@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from clm_sim.record import Run, save_npz
+from clm_sim.records.write import save_npz
+from clm_sim.run import Run
 from experiments.cli import main
 
 TS = 1e-4

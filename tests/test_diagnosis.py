@@ -19,11 +19,11 @@ import pytest
 from experiments.diagnosis import diagnose
 from experiments.diagnosis.emulate import measure
 from experiments.model_files import load_model
-from clm_sim.effects import (CableSlab, Cogging, ForceOffset, ForceRipple, FrictionAsymmetry,
-                             Stribeck)
+from clm_sim.effects.friction import FrictionAsymmetry, Stribeck
+from clm_sim.effects.position import CableSlab, Cogging, ForceOffset, ForceRipple
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
-from clm_sim.record import save_npz
+from clm_sim.records.write import save_npz
 
 NOMINAL = Plant(effects=())
 EMPS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "emps"

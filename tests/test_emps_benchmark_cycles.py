@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import reference_sim as ref
-from clm_sim.effects import ForceOffset
+from clm_sim.effects.position import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
-from clm_sim.record import Run
 from experiments.studies.emps.cycles import cycle_edges, left_out
+from clm_sim.run import Run
 
 TS = 1e-3
 MOVES = [(0.05, 0.05), (0.1, 0.1), (0.05, 0.08), (0.0, 0.04)]  # one cycle: two speeds up, two down
@@ -170,8 +170,9 @@ def test_the_plateau_friction_follows_a_drift_within_the_record():
 def _benchmark_without_work(record, tmp_path, monkeypatch, stub: str, setting: str = ""):
     """A benchmark config on ``record`` in ``tmp_path`` (the current folder), with
     ``emps_benchmark.<stub>`` replaced by a function that fails the test if the work starts."""
-    from clm_sim.record import save_npz
     from experiments.studies.emps import benchmark as emps_benchmark
+    from clm_sim.records.write import save_npz
+
     def no_work(*args, **kwargs):
         raise AssertionError(f"the benchmark's work ({stub}) started before its checks")
 

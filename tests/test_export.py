@@ -18,15 +18,8 @@ import numpy as np
 import pytest
 from build_once import build_once
 
-from clm_sim.effects import (
-    CableSlab,
-    Cogging,
-    ForceOffset,
-    ForceRipple,
-    FrictionAsymmetry,
-    Presliding,
-    Stribeck,
-)
+from clm_sim.effects.friction import FrictionAsymmetry, Presliding, Stribeck
+from clm_sim.effects.position import CableSlab, Cogging, ForceOffset, ForceRipple
 from clm_sim.errors import UserError
 from clm_sim.outdir import MANIFEST
 from clm_sim.loop import simulate
@@ -660,7 +653,7 @@ def test_network_variants_export(variant, training_run, fitted, tmp_path):
 
 def test_identify_output_exports(training_run, tmp_path, capsys):
     """``clm-sim identify`` on a record, then ``export-ff`` of its lip.json (ts from the file)."""
-    from clm_sim.record import save_npz
+    from clm_sim.records.write import save_npz
     save_npz(training_run, tmp_path / "train.npz")
     assert main(["identify", str(tmp_path / "train.npz"), "--out", str(tmp_path / "id")]) == 0
     assert main(["export-ff", str(tmp_path / "id" / "lip.json"), "--to", "c", "--out",
@@ -963,7 +956,7 @@ def test_strict_warnings_matrix(cc, effects_lip, tmp_path):
     -DCLM_FF_PORTABLE, -DCLM_FF_FLOAT). Syntax and semantic checks only (-fsyntax-only), plus
     one -O2 object per build (warnings that need the optimizer)."""
     import subprocess
-    from controllers.export.window import ACTIVATIONS
+    from controllers.activations import ACTIVATIONS
     shapes = {f"{a}_{len(h)}": _shape(h, a) for a in ACTIVATIONS
               for h in ((5,), (5, 3), (3, 5, 4))}
     shapes["raw"] = _shape((4, 4), "tanh", cutoff=None)

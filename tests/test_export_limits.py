@@ -29,7 +29,7 @@ from test_export import (  # noqa: F401  (fixtures)
     training_run,
 )
 
-from clm_sim.record import save_npz
+from clm_sim.records.write import save_npz
 from controllers.export import selftest
 from controllers.export.cbuild import CompiledFeedforward, compiler
 from controllers.export.envelope import MARGIN, Envelope

@@ -12,7 +12,7 @@ import yaml
 from small_config import SMALL_CONFIG
 
 from clm_sim.errors import UserError
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.cli import main
 
 
@@ -119,7 +119,8 @@ MISTAKES = {
 
 @pytest.fixture(scope="module")
 def record(tmp_path_factory):
-    from clm_sim.record import Run, save_npz
+    from clm_sim.records.write import save_npz
+    from clm_sim.run import Run
 
     t = np.arange(8000) * 1e-4
     r = 0.005 * np.sin(2 * np.pi * 2 * t)

@@ -44,9 +44,10 @@ import numpy as np
 import pytest
 
 import reference_sim as ref
-from clm_sim.effects import CableSlab, Stribeck
+from clm_sim.effects.friction import Stribeck
+from clm_sim.effects.position import CableSlab
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.diagnosis import diagnose
 from experiments.model_files import Controller, SimulationModel
 

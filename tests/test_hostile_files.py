@@ -158,7 +158,7 @@ def test_generated_task_files_are_used_only_when_they_are_the_task(damage, cut):
 @pytest.fixture(scope="session")
 def record_file(tmp_path_factory):
     """A 4 s record of r1 at 10 kHz under the PID alone, with the training dither."""
-    from clm_sim.record import save_npz
+    from clm_sim.records.write import save_npz
     from experiments.testbed import Testbed
 
     run = Testbed().training_run().slice(0, 40000)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import reference_sim as ref
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.cli import main
 from experiments.model_files import load_model
 from experiments.records.output_error import training_rmse
@@ -133,8 +133,8 @@ def test_the_benchmark_page_rows_reproduce_from_their_model_files():
     """Every row of the EMPS page's table has its model file beside the page
     (docs/results/emps_models/<row>.json); simulated on PULSES from it, each gives the page's
     test RMSE to its printed two decimals (half a unit of the last digit, 0.005 mm)."""
-    from clm_sim.record import load_record
     from experiments.studies.emps.benchmark import slug
+    from clm_sim.records.read import load_record
 
     docs = Path(__file__).resolve().parents[1] / "docs" / "results"
     test = load_record(EMPS / "DATA_EMPS_PULSES.mat", columns={"y": "qm", "r": "qg", "u": "vir"},

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from clm_sim.features import FeatureMap
-from clm_sim.record import load_record
+from clm_sim.records.read import load_record
 from controllers.idim import IDIMProtocol, cross_test, fit
 from controllers.lip import LIPFeedforward
 from experiments.cli import main

@@ -169,7 +169,7 @@ def test_record_run_writes_force_rms_inside_and_outside(tmp_path):
     lambda = 0.01 against lambda = 0 is there."""
     import json
 
-    from clm_sim.record import save_npz
+    from clm_sim.records.write import save_npz
     from experiments.runner import run_experiment
     from experiments.testbed import Testbed
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from clm_sim.effects import CableSlab, CableTaut
+from clm_sim.effects.position import CableSlab, CableTaut
 from clm_sim.errors import UserError
 from experiments.studies.mechanism import prediction as mp
 from experiments.studies.mechanism import units

@@ -14,7 +14,8 @@ import pytest
 import torch
 
 from clm_sim.errors import UserError
-from clm_sim.record import Run, save_npz
+from clm_sim.records.write import save_npz
+from clm_sim.run import Run
 from controllers.lip import LIPFeedforward
 from controllers.pgnn import PGNNFeedforward
 from experiments.cli import main
@@ -90,7 +91,8 @@ def test_a_bad_lip_file_is_refused_by_every_consumer(saved, tmp_path, capsys, ca
                 if consumer == "export-ff" else
                 ["diagnose", "x.csv", "--model", path, "--out", tmp_path / "out"])
         if consumer != "export-ff":  # a record that passes its guards: the model is refused
-            from clm_sim.record import Run, save_npz
+            from clm_sim.records.write import save_npz
+            from clm_sim.run import Run
             t = np.arange(20000) * 1e-3
             y = 0.1 * np.sin(2 * t)
             save_npz(Run(t=t, r=y, y=y, u=-4 * y + 0.2 * np.cos(2 * t)
@@ -266,7 +268,7 @@ def test_diagnose_takes_a_diagnosis_json_as_its_model(tmp_path, capsys):
 def test_a_record_given_as_the_model_is_named_a_record(tmp_path, capsys, suffix, command):
     """Not 'cannot read (UnicodeDecodeError)': the file is a record, and a model (a config) is
     JSON or YAML."""
-    from clm_sim.record import convert
+    from clm_sim.records.write import convert
 
     record = _moving_record(tmp_path / "x.npz")
     model = record if suffix == ".npz" else convert(record, suffix[1:],

@@ -19,9 +19,10 @@ import pytest
 import scipy.integrate
 import scipy.signal
 
-from clm_sim.effects import (EFFECTS, CableSlab, CableTaut, Cogging, ForceOffset, ForceRipple,
-                             FrictionAsymmetry, Presliding, Stribeck, TrackEnd, dahl_path,
-                             total_force)
+from clm_sim.effects import EFFECTS, total_force
+from clm_sim.effects.friction import FrictionAsymmetry, Presliding, Stribeck, dahl_path
+from clm_sim.effects.position import (CableSlab, CableTaut, Cogging, ForceOffset, ForceRipple,
+                                      TrackEnd)
 from clm_sim.errors import UserError
 from clm_sim.loop import simulate
 from clm_sim.plant import Plant

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments import plots
 
 

@@ -9,7 +9,9 @@ import pytest
 import scipy.io
 
 from clm_sim.errors import UserError
-from clm_sim.record import SIGNALS, Run, load_record, save_csv, save_mat, save_npz
+from clm_sim.records.read import load_record
+from clm_sim.records.write import save_csv, save_mat, save_npz
+from clm_sim.run import SIGNALS, Run
 
 META = {"run": "training", "seed": 11, "config": {"plant": {"mass": 18.8}}, "versions": {"x": "1"}}
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from clm_sim.record import Run, save_npz
+from clm_sim.records.write import save_npz
+from clm_sim.run import Run
 from experiments.cli import main
 
 EMPS = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "emps"

@@ -13,7 +13,7 @@ import pytest
 import reference_sim as ref
 from clm_sim.open_loop import initial_state, score, simulate_input
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.cli import main
 from experiments.model_files import SimulationModel
 from experiments.records.simulation import simulate_record
@@ -182,8 +182,8 @@ def test_the_published_emps_model_scores_as_published():
     5.19 mm on the training and 8.33 mm on the test record. Our kernel holds the input over the
     sample (zero-order hold) and takes the state from a parabola through 20 samples; the
     published figures come from another integration: measured +2.0 % and +0.6 %, hence 3 %."""
-    from clm_sim.record import load_record
     from experiments.model_files import load_model
+    from clm_sim.records.read import load_record
 
     model = load_model(Path(__file__).resolve().parents[1] / "experiments" /
                                   "configs" / "emps_model.yaml")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from clm_sim import Testbed
-from clm_sim.effects import ForceOffset
+from clm_sim.effects.position import ForceOffset
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 from experiments.config import ExperimentConfig, Training

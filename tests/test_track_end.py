@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scipy.integrate
 
-from clm_sim.effects import CableSlab, TrackEnd
+from clm_sim.effects.position import CableSlab, TrackEnd
 from clm_sim.errors import UserError
 from clm_sim.plant import Plant
 from small_config import tiny_mechanism
@@ -75,7 +75,7 @@ def test_force_is_the_exact_inverse_and_the_motor_command_holds_the_rest():
 def test_the_motor_command_inverts_the_ripple_exactly():
     """Force ripple alone: the command holds u (1 + rho) = rest (1e-12 N), where inverse_force
     (u fed with the rest) is off by rho^2 rest."""
-    from clm_sim.effects import ForceRipple
+    from clm_sim.effects.position import ForceRipple
 
     y = np.linspace(-0.1, 0.1, 41)
     z = np.zeros_like(y)

@@ -1,15 +1,15 @@
 """The C namespace of a force law (:mod:`clm_sim.namespace`): an effect's
-:meth:`~clm_sim.effects.Effect.law` evaluated on :class:`CExpr` values writes its C expression of
-``y`` (m), ``v`` (m/s) and ``base`` (N: the physical force), with the generated file's ``R()``
-literals and maths macros (``SIN``, ``EXP``, ``FABS``, ``SGN``, ``POW``). Parentheses follow C's
-precedence and keep the law's order of operations (the rounding of every operation is the
-numpy law's)."""
+:meth:`~clm_sim.effects.base.Effect.law` evaluated on :class:`CExpr` values writes its C
+expression of ``y`` (m), ``v`` (m/s) and ``base`` (N: the physical force), with the generated
+file's ``R()`` literals and maths macros (``SIN``, ``EXP``, ``FABS``, ``SGN``, ``POW``).
+Parentheses follow C's precedence and keep the law's order of operations (the rounding of every
+operation is the numpy law's)."""
 
 from __future__ import annotations
 
 from clm_sim.errors import UserError
 from clm_sim.rigid_body import rigid_body
-from controllers.export.window import ACTIVATION_LAWS
+from controllers.activations import ACTIVATIONS
 from controllers.export.c_literals import c_real
 
 # precedence: 0 an operand (literal, name, call, parenthesised), 1 unary, 2 * /, 3 + -, 4 < >
@@ -114,7 +114,7 @@ def rigid_body_c(theta, a: str, v: str, s: str, y: str) -> str:
 
 def activation_c(name: str) -> str:
     """The C expression of the activation ``name`` (its law) of ``x``."""
-    return CExpr.of(ACTIVATION_LAWS[name](CExpr("x"), C)).text
+    return CExpr.of(ACTIVATIONS[name].law(CExpr("x"), C)).text
 
 
 def effect_c(effect) -> str:

@@ -16,7 +16,8 @@ import numpy as np
 from clm_sim.errors import UserError
 from clm_sim.rigid_body import rigid_body
 from controllers.export.options import ExportOptions, safe_text
-from controllers.export.window import ACTIVATION_LAWS, WindowFeedforward
+from controllers.activations import ACTIVATIONS
+from controllers.export.window import WindowFeedforward
 
 # The opset the graph is written in: 17, which most runtimes accept (every operator used here is
 # defined there), and the IR version of that opset (onnx's table: opset 17 is
@@ -149,13 +150,13 @@ def _effect(g: _Graph, e, y: str, v: str, base: str) -> str:
 
 
 def _activation(g: _Graph, name: str, x: str) -> str:
-    """The activation ``name`` (its law, :data:`~controllers.export.window.ACTIVATION_LAWS`) as
+    """The activation ``name`` (its law, :data:`~controllers.activations.ACTIVATIONS`) as
     graph nodes of ``x``. A sigmoid is ``1/(1 + e^-x)``, not the Sigmoid operator: ONNX
     Runtime's float64 Sigmoid is an approximation (1e-4 off, measured with 1.32), its Exp is
     exact to rounding. softplus uses Log(1 + e^x) (log1p below); gelu needs erf, which this
     namespace lacks."""
     try:
-        return ACTIVATION_LAWS[name](_Node(g, x), _OnnxNamespace()).name
+        return ACTIVATIONS[name].law(_Node(g, x), _OnnxNamespace()).name
     except AttributeError:
         raise UserError(f"export: activation {name!r} has no ONNX form here (use --to c)") \
             from None

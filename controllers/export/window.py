@@ -28,11 +28,12 @@ import numpy as np
 import scipy.signal
 
 from clm_sim.errors import UserError
+from clm_sim.features import lip_regressors
 from clm_sim.plant import THETA_NAMES
 from clm_sim.namespace import NUMPY
-from clm_sim.rigid_body import rigid_body
+from clm_sim.rigid_body import rigid_body, rigid_body_columns
+from controllers.activations import ACTIVATIONS
 
-ACTIVATIONS = ("tanh", "sigmoid", "softplus", "silu", "gelu", "relu")
 DEFAULT_TOL = 1e-15
 # The longest impulse response (s) of a filter that is exported: the product's default (250 Hz)
 # lasts 0.1 s at 10 kHz; one of seconds is a cut-off typed in the wrong unit, and the work to
@@ -98,25 +99,11 @@ class Network:
         return h @ self.out_w + self.out_b
 
 
-# The activations of controllers.pgnn.network.ACTIVATIONS, each written once against an array
-# namespace (clm_sim.namespace): numpy here (as torch computes them), C (controllers/export/
-# c_law.py) and ONNX (onnx_graph.py) evaluate the same law. The C's AVX2 path keeps its own
-# intrinsics (c_source._ACT_AVX2).
-ACTIVATION_LAWS = {
-    "tanh": lambda x, xp: xp.tanh(x),
-    "sigmoid": lambda x, xp: 1.0 / (1.0 + xp.exp(-x)),
-    "softplus": lambda x, xp: xp.where(x > 20.0, x, xp.log1p(xp.exp(x))),  # torch: threshold 20
-    "silu": lambda x, xp: x / (1.0 + xp.exp(-x)),
-    "gelu": lambda x, xp: 0.5 * x * (1.0 + xp.erf(x / xp.sqrt(2.0))),
-    "relu": lambda x, xp: xp.relu(x),
-}
-
-
 def activate(name: str, x: np.ndarray) -> np.ndarray:
     """The activation ``name``'s law on numpy arrays (e^x of a saturated unit may overflow to
     inf where the law then takes its limit)."""
     with np.errstate(over="ignore"):
-        return ACTIVATION_LAWS[name](x, NUMPY)
+        return ACTIVATIONS[name].law(x, NUMPY)
 
 
 @dataclass(frozen=True)
@@ -210,19 +197,19 @@ class WindowFeedforward:
             r0 = w[:, c]
             v = (w[:, c + 1] - w[:, c - 1]) / (2.0 * ts)
             a = (w[:, c + 1] - 2.0 * w[:, c] + w[:, c - 1]) / (ts * ts)
-            return np.column_stack([a, v, np.sign(v), r0])
+            return lip_regressors(r0, v, a)
         # The features at every instant of the window, differenced as the product does, then
         # the filter's FIR.
         va = (w[:, 2:] - w[:, :-2]) / (2.0 * ts)
         aa = (w[:, 2:] - 2.0 * w[:, 1:-1] + w[:, :-2]) / (ts * ts)
         h = self.kernel
-        return np.column_stack([aa @ h, va @ h, np.sign(va) @ h, w[:, 1:-1] @ h])
+        return np.column_stack([column @ h for column in
+                                rigid_body_columns(aa, va, np.sign(va), w[:, 1:-1])])
 
     def theta_vector(self) -> np.ndarray:
         """``theta`` in the order of the features ``[a, v, sign v, y]``: mass, viscous, coulomb,
         stiffness."""
-        th = self.theta
-        return np.array([th["mass"], th["viscous"], th["coulomb"], th["stiffness"]])
+        return np.array([self.theta[name] for name in THETA_NAMES])
 
     def __call__(self, windows: np.ndarray) -> np.ndarray:
         """``u_ff[k]`` (N) from windows (B, lag+1+lead) = ``r[k-lag .. k+lead]`` (m)."""

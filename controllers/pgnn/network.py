@@ -9,7 +9,7 @@ the training (variable projection, :mod:`controllers.pgnn.cost`) exploits.
 The training's Jacobian ``d f_NN / d beta`` is the closed form of backpropagation for a perceptron
 of any depth (:meth:`PGNNNetwork.network_jacobian`): per sample, a layer's weight gradient is the
 outer product of its back-propagated sensitivity and its input. It is written once for every width
-and depth, with each activation's derivative from :data:`DERIVATIVES` beside :data:`ACTIVATIONS`;
+and depth, with each activation's derivative from :data:`controllers.activations.ACTIVATIONS`;
 ``tests/test_pgnn.py`` checks it against ``torch.func`` and central differences. The per-sample
 reverse mode of ``torch.func`` (``vmap(jacrev)``) it replaces cost 9 ms of the 60 ms of an
 n_l = 16 training iteration for arithmetic that takes 1 ms (``benchmarks/bench_fit.py``).
@@ -24,44 +24,9 @@ import torch
 from torch import nn
 from torch.func import functional_call
 
-# The one map from an activation name in a config to a module.
-ACTIVATIONS = {"tanh": nn.Tanh, "sigmoid": nn.Sigmoid, "softplus": nn.Softplus, "silu": nn.SiLU,
-               "gelu": nn.GELU, "relu": nn.ReLU}
+from controllers.activations import ACTIVATIONS
+
 DTYPE = torch.float64
-
-
-def _sigmoid_derivative(pre, out):
-    return out * (1 - out)
-
-
-def _softplus_derivative(pre, out):
-    # nn.Softplus() is linear above its threshold (pre > 20), as its own backward is.
-    return torch.where(pre > 20, torch.ones_like(pre), torch.sigmoid(pre))
-
-
-def _silu_derivative(pre, out):
-    s = torch.sigmoid(pre)
-    return s * (1 + pre * (1 - s))
-
-
-def _gelu_derivative(pre, out):
-    # nn.GELU() is the exact (erf) form: x Phi(x).
-    return (0.5 * (1 + torch.erf(pre * 0.5 ** 0.5))
-            + pre * torch.exp(-0.5 * pre * pre) * (2 * torch.pi) ** -0.5)
-
-
-def _tanh_derivative(pre, out):
-    return 1 - out * out
-
-
-def _relu_derivative(pre, out):
-    return (pre > 0).to(DTYPE)
-
-
-# d act / d pre as a function of the pre-activation and the activation's output, per name.
-DERIVATIVES = {"tanh": _tanh_derivative, "sigmoid": _sigmoid_derivative,
-               "softplus": _softplus_derivative, "silu": _silu_derivative,
-               "gelu": _gelu_derivative, "relu": _relu_derivative}
 
 
 class MLP(nn.Module):
@@ -76,7 +41,7 @@ class MLP(nn.Module):
         widths = (n_inputs, *hidden)
         self.hidden = nn.ModuleList(nn.Linear(a, b, dtype=DTYPE)
                                     for a, b in itertools.pairwise(widths))
-        self.act = ACTIVATIONS[activation]()
+        self.act = ACTIVATIONS[activation].module(nn)
         self.activation = activation
         self.out = nn.Linear(widths[-1], 1, dtype=DTYPE)
 
@@ -174,7 +139,7 @@ class PGNNNetwork(nn.Module):
             grad = torch.from_numpy(np.ascontiguousarray(w_out, dtype=np.float64))
             for li in range(len(pres) - 1, -1, -1):
                 # Sensitivity of f_NN to this layer's pre-activations (N, width).
-                delta = grad * DERIVATIVES[self.mlp.activation](pres[li], outs[li])
+                delta = grad * ACTIVATIONS[self.mlp.activation].derivative(pres[li], outs[li])
                 inputs = outs[li - 1] if li > 0 else zs
                 w_at, b_at = offsets[f"hidden.{li}.weight"], offsets[f"hidden.{li}.bias"]
                 width, fan_in = delta.shape[1], inputs.shape[1]

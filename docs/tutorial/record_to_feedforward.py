@@ -32,8 +32,8 @@ from pathlib import Path
 
 from clm_sim import (ExperimentConfig, LIPFeedforward, PGNNFeedforward, PGNNSettings, Plant,
                      Testbed, Training, diagnose, load_model, load_record)
-from clm_sim.effects import Cogging
-from clm_sim.record import save_csv
+from clm_sim.effects.position import Cogging
+from clm_sim.records.write import save_csv
 
 work = Path(tempfile.mkdtemp(prefix="clm-tutorial-"))  # every file of the tutorial goes here
 

@@ -38,7 +38,7 @@ def _cmd_run(args) -> int:
 
 def _load(path, args):
     """The record at ``path``, read with the command's ``--columns`` and ``--scale``."""
-    from clm_sim.record import load_record, parse_pairs
+    from clm_sim.records.read import load_record, parse_pairs
 
     return load_record(path, columns=parse_pairs(args.columns, "--columns", number=False),
                        scale=parse_pairs(args.scale, "--scale", number=True))
@@ -55,7 +55,7 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_export(args) -> int:
-    from clm_sim.record import convert
+    from clm_sim.records.write import convert
 
     out, samples = convert(args.run, args.to, args.out)
     print(f"wrote {out} ({samples} samples)")

@@ -22,7 +22,7 @@ from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap
 from clm_sim.modelfile import mapping, read_json, sample_time
 from clm_sim.outdir import atomic_folder
-from clm_sim.record import RECORD_SUFFIXES
+from clm_sim.records.files import RECORD_SUFFIXES
 from clm_sim.schema import build_effect
 from controllers.export import c_source, selftest
 from controllers.export.envelope import ABSURD, Envelope
@@ -200,7 +200,7 @@ def _load(path: Path, ts: float | None, filter_tail: float) -> WindowFeedforward
 
 
 def _record_envelope(record, source: str, ts: float, cutoff, order: int) -> Envelope:
-    from clm_sim.record import load_record
+    from clm_sim.records.read import load_record
 
     run = record if not isinstance(record, (str, Path)) else load_record(record)
     if abs(run.ts - ts) > 1e-6 * ts:

@@ -15,7 +15,7 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_folder
-from clm_sim.record import Run
+from clm_sim.run import Run
 from controllers.idim import CrossTest, IDIMFit, IDIMProtocol, cross_test, fit
 from experiments.table import THETA_UNITS
 
@@ -148,7 +148,7 @@ def simulation_fit(result: Identified, *, model=None, model_source: str | None =
     :class:`~clm_sim.plant.Plant`) or else the force fit's; the starts are the force fit, the
     model, and ``starts`` perturbations of the force fit (seeded by ``seed``); ``hold`` names
     parameters kept at the force fit's value (the model's where the force fit has none)."""
-    from clm_sim.effects import ForceOffset
+    from clm_sim.effects.position import ForceOffset
     from clm_sim.plant import Plant
     from experiments.records import output_error as oe
     source = result.source

@@ -12,11 +12,11 @@ from experiments.diagnosis.residual import DiagnosisSettings, Residual, source_o
 from experiments.diagnosis.search import forward_select
 from experiments.model_files import SimulationModel
 from experiments.records.guards import refuse_other_rate
-from clm_sim.effects import Effect
+from clm_sim.effects.base import Effect
 from clm_sim.errors import UserError, check_ts
 from clm_sim.numerics import single_threaded
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 
 
 @dataclass

@@ -11,7 +11,7 @@ import numpy as np
 
 from clm_sim.loop import Dither
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from controllers.lip import LIPFeedforward
 from controllers.pid import PIDDesign
 from experiments.config import ExperimentConfig, Training

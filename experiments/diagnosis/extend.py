@@ -18,13 +18,14 @@ from experiments.diagnosis.origin import registered_gain
 from experiments.diagnosis.outcome import Gain, GainSignals
 from experiments.diagnosis.residual import DiagnosisSettings, Residual
 from experiments.model_files import Controller
-from clm_sim.effects import Effect, Stribeck
+from clm_sim.effects.base import Effect
+from clm_sim.effects.friction import Stribeck
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force
 from clm_sim.loop import simulate
 from clm_sim.open_loop import INIT_SAMPLES, initial_state, score, simulate_input
 from clm_sim.plant import THETA_NAMES, Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from controllers.lip import LIPFeedforward
 
 

@@ -29,8 +29,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from clm_sim.effects import (CableSlab, Cogging, Effect, ForceOffset, ForceRipple,
-                             FrictionAsymmetry, Presliding, Stribeck)
+from clm_sim.effects.base import Effect
+from clm_sim.effects.friction import FrictionAsymmetry, Presliding, Stribeck
+from clm_sim.effects.position import CableSlab, Cogging, ForceOffset, ForceRipple
 from clm_sim.plant import THETA_NAMES
 from experiments.diagnosis.context import Candidate, Context, Rejection
 from experiments.diagnosis.finding import Estimate, Finding

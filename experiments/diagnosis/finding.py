@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Mapping
 
-from clm_sim.effects import Effect
+from clm_sim.effects.base import Effect
 
 
 def _num(x: float) -> str:

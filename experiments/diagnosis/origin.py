@@ -17,7 +17,7 @@ import scipy.optimize
 
 from clm_sim.features import edge_force
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.diagnosis.families import periodic_effect_types
 from experiments.diagnosis.outcome import OriginGain
 from experiments.diagnosis.residual import DiagnosisSettings, Residual

@@ -35,7 +35,7 @@ import scipy.signal
 from clm_sim.errors import UserError
 from clm_sim.features import FeatureMap, edge_force
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 
 
 @dataclass(frozen=True)

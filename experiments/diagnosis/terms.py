@@ -12,7 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clm_sim.effects import CableSlab, Cogging, Effect, ForceRipple, Presliding, Stribeck
+from clm_sim.effects.base import Effect
+from clm_sim.effects.friction import Presliding, Stribeck
+from clm_sim.effects.position import CableSlab, Cogging, ForceRipple
 from experiments.diagnosis.residual import Residual
 
 MAX_SMOOTH_ORDER = 9

@@ -38,12 +38,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
-from clm_sim.effects import (Cogging, ForceOffset, ForceRipple, FrictionAsymmetry, Presliding,
-                             Stribeck)
+from clm_sim.effects.friction import FrictionAsymmetry, Presliding, Stribeck
+from clm_sim.effects.position import Cogging, ForceOffset, ForceRipple
 from clm_sim.errors import UserError
 from clm_sim.open_loop import INIT_SAMPLES, initial_state, simulate_input
 from clm_sim.plant import Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 
 # Every parameter a simulation-error fit can free, with its unit, in this order.
 UNITS = {"mass": "kg", "viscous": "N·s/m", "coulomb": "N", "stiffness": "N/m", "offset": "N",

@@ -25,8 +25,8 @@ from clm_sim.open_loop import (INIT_SAMPLES, MIN_SCORED_SAMPLES, Score, initial_
                                simulate_input)
 from clm_sim.outdir import atomic_folder
 from clm_sim.plant import Plant
-from clm_sim.record import Run
 from experiments.model_files import SimulationModel
+from clm_sim.run import Run
 
 COLUMNS = ("t", "u", "y_measured", "y_simulated", "error")
 

@@ -1,5 +1,5 @@
 """Warnings where the data look wrong but may be right: each is one line for stderr, and the
-command still runs (a refusal is for what cannot be right: :mod:`clm_sim.record`).
+command still runs (a refusal is for what cannot be right: :mod:`clm_sim.records.checks`).
 
 - ``y`` leads ``r``: a measured position follows its reference, so the columns may be swapped;
 - the force does not push the position as a force should (a fitted mass below zero, by more than

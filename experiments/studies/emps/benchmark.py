@@ -40,7 +40,8 @@ from clm_sim.errors import UserError
 from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, simulate_input
 from clm_sim.outdir import atomic_folder, check_output_folder
 from clm_sim.plant import Plant
-from clm_sim.record import Run, load_record
+from clm_sim.records.read import load_record
+from clm_sim.run import Run
 from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments.records import output_error as oe
@@ -188,7 +189,7 @@ def make_candidate(c: Candidate, record: Run, settings: BenchmarkSettings, like:
     """``c`` made on ``record`` alone: the equation-error fit there, the structure, the starts
     (that fit, ``settings.perturbed_starts`` draws of ``rng`` around it, and ``published``'s
     values where given) and the simulation-error fit."""
-    from clm_sim.effects import FrictionAsymmetry
+    from clm_sim.effects.friction import FrictionAsymmetry
 
     protocol = dataclasses.replace(settings.published_procedure, offset=c.offset)
     eq = equation_error(record, protocol, like)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from clm_sim.errors import UserError
-from clm_sim.record import SIGNALS, Run
+from clm_sim.run import SIGNALS, Run
 
 
 def cycle_edges(r: np.ndarray, cycles: int) -> tuple[int, ...]:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES, Plant
-from clm_sim.record import Run
+from clm_sim.run import Run
 from experiments.diagnosis.context import Step
 from experiments.diagnosis.extend import extended_plant, joint_fit
 from experiments.diagnosis.residual import DiagnosisSettings, Residual

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clm_sim.record import Run
+from clm_sim.run import Run
 
 
 @dataclass(frozen=True)

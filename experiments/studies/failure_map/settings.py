@@ -6,7 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from clm_sim.effects import CableSlab, Cogging, Effect, ForceRipple, Stribeck
+from clm_sim.effects.base import Effect
+from clm_sim.effects.friction import Stribeck
+from clm_sim.effects.position import CableSlab, Cogging, ForceRipple
 from clm_sim.errors import UserError
 from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
 

@@ -47,7 +47,8 @@ import numpy as np
 import scipy.stats
 import yaml
 
-from clm_sim.effects import CableSlab, Effect
+from clm_sim.effects.base import Effect
+from clm_sim.effects.position import CableSlab
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.outdir import atomic_folder
