@@ -55,11 +55,11 @@ def python_control_loop(plant: Plant, pid, ts: float):
     """The closed loop as a python-control interconnection with inputs ``r``, ``d`` (dither) and
     outputs ``y`` (encoder), ``u`` (plant input); states ``[x, v, controller states]``."""
     step = python_twin(kernel.plant_step)
-    args = plant.kernel_args(ts)
+    terms = plant.kernel_plant(ts)
     q = plant.encoder_resolution
 
     def update(t, state, u, params):
-        return np.array(step(state[0], state[1], u[0], *args))
+        return np.array(step(state[0], state[1], u[0], terms))
 
     def output(t, state, u, params):
         x = state[0]

@@ -61,56 +61,58 @@ def track_factor(x, track):
 
 
 @nb.njit(**_INLINE)
-def applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                  track, taut):
+def applied_force(x, u, e):
     """Motor force (with ripple and the track ends' factor) minus the position-dependent
-    parasitic forces, N. ``taut`` rows: a taut cable carrier's force, reach and centre (N, m, m;
+    parasitic forces of the effects' arrays ``e`` (``clm_sim.effects.base.EffectArrays``), N.
+    ``e.taut`` rows: a taut cable carrier's force, reach and centre (N, m, m;
     ``force*tanh(((x - centre)/reach)**3)``, see ``clm_sim.effects.CableTaut``)."""
     rho = 0.0
-    for i in range(rp_amp.shape[0]):
-        rho += rp_amp[i] * math.sin(rp_k[i] * x + rp_ph[i])
+    for i in range(e.ripple_amp.shape[0]):
+        rho += e.ripple_amp[i] * math.sin(e.ripple_k[i] * x + e.ripple_phase[i])
     f = u * (1.0 + rho)
-    if track.shape[0] > 0:
-        f *= track_factor(x, track)
-    f -= offset
-    for i in range(taut.shape[0]):
-        d = (x - taut[i, 2]) / taut[i, 1]
-        f -= taut[i, 0] * math.tanh(d * d * d)
-    for i in range(hk_amp.shape[0]):
-        f -= hk_amp[i] * math.sin(hk_k[i] * x + hk_ph[i])
-    d = x - poly_c
+    if e.track.shape[0] > 0:
+        f *= track_factor(x, e.track)
+    f -= e.offset
+    for i in range(e.taut.shape[0]):
+        d = (x - e.taut[i, 2]) / e.taut[i, 1]
+        f -= e.taut[i, 0] * math.tanh(d * d * d)
+    for i in range(e.harmonic_amp.shape[0]):
+        f -= e.harmonic_amp[i] * math.sin(e.harmonic_k[i] * x + e.harmonic_phase[i])
+    d = x - e.poly_center
     p = 0.0
-    for i in range(poly.shape[0] - 1, -1, -1):
-        p = p * d + poly[i]
+    for i in range(e.poly_coef.shape[0] - 1, -1, -1):
+        p = p * d + e.poly_coef[i]
     return f - p
 
 
 @nb.njit(**_INLINE)
-def friction_levels(fc, st_amp, st_v, st_exp, asym):
+def friction_levels(fc, e):
     """``(break_pos, break_neg, v_flat)``: the force a stage at rest must exceed to start moving
     in the positive and negative direction (N, Coulomb + Stribeck peak + asymmetry), and the speed
     (m/s) from which on every Stribeck term is exactly 0.0 in float64."""
     st_sum = 0.0
     v_flat = 0.0
-    for i in range(st_amp.shape[0]):
-        st_sum += st_amp[i]
-        v_flat = max(v_flat, st_v[i] * _EXP_UNDERFLOW ** (1.0 / st_exp[i]))
-    return fc + st_sum + asym[0], fc + st_sum + asym[1], v_flat
+    for i in range(e.stribeck_peak.shape[0]):
+        st_sum += e.stribeck_peak[i]
+        v_flat = max(v_flat, e.stribeck_velocity[i] * _EXP_UNDERFLOW
+                     ** (1.0 / e.stribeck_exponent[i]))
+    return fc + st_sum + e.asym[0], fc + st_sum + e.asym[1], v_flat
 
 
 @nb.njit(**_INLINE)
-def friction_extra(v, s, st_amp, st_v, st_exp, asym, v_flat):
+def friction_extra(v, s, e, v_flat):
     """Friction beyond viscous ``fv*v`` for motion in direction ``s`` (+1/-1), incl. Coulomb part
     added by the caller; returns Stribeck plus direction-dependent terms (N, resisting if > 0*s).
     Above ``v_flat`` (m/s, see :func:`friction_levels`) the Stribeck terms are 0.0 and skipped."""
     f = 0.0
     av = abs(v)
     if not av >= v_flat:  # (a NaN speed goes through, as it would without the shortcut)
-        for i in range(st_amp.shape[0]):
-            f += st_amp[i] * math.exp(-((av / st_v[i]) ** st_exp[i]))
+        for i in range(e.stribeck_peak.shape[0]):
+            f += e.stribeck_peak[i] * math.exp(-((av / e.stribeck_velocity[i])
+                                                 ** e.stribeck_exponent[i]))
     if s > 0:
-        return f + asym[0] + asym[2] * v
-    return -f - asym[1] + asym[3] * v
+        return f + e.asym[0] + e.asym[2] * v
+    return -f - e.asym[1] + e.asym[3] * v
 
 
 @nb.njit(**_JIT)
@@ -192,17 +194,16 @@ def dahl_substep(x, v, g, ad, bd, d_f, d_l, d_z):
 
 
 @nb.njit(**_INLINE)
-def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
-            hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-            st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z, levels):
+def advance(x, v, u, p, levels):
     """:func:`plant_step` with the friction levels of :func:`friction_levels` given, as the tuple
-    ``levels``. (Calls stay within 30 arguments: CPython compiles a longer call as a ``*args``
-    call, which numba cannot inline.)"""
+    ``levels``."""
     break_pos, break_neg, v_flat = levels
+    e = p.effects
+    h, ad, bd, mass, fv, fc, fk = p.h, p.ad, p.bd, p.mass, p.viscous, p.coulomb, p.stiffness
+    d_f, d_l, d_z = e.dahl_sliding, e.dahl_length, e.dahl_state
     dahl = d_f.shape[0] > 0
-    for _ in range(nsub):
-        fa = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                           track, taut)
+    for _ in range(p.substeps):
+        fa = applied_force(x, u, e)
         if v == 0.0:
             fn = fa - fk * x
             if dahl:
@@ -212,7 +213,7 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
             s = 1.0 if fn > 0.0 else -1.0
         else:
             s = 1.0 if v > 0.0 else -1.0
-        g = fa - s * fc - friction_extra(v, s, st_amp, st_v, st_exp, asym, v_flat)
+        g = fa - s * fc - friction_extra(v, s, e, v_flat)
         if dahl:
             # Dahl's force is continuous in the motion: the reversal event below is for Coulomb.
             x1, v1, dx = dahl_substep(x, v, g, ad, bd, d_f, d_l, d_z)
@@ -239,14 +240,13 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
         x = xc
         v = 0.0
         rest = h - t0
-        fn = applied_force(x, u, hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c,
-                           offset, track, taut) - fk * x
+        fn = applied_force(x, u, e) - fk * x
         if dahl:
             fn -= dahl_force(d_f, d_z)
         if rest <= 0.0 or (fn <= break_pos and fn >= -break_neg):
             continue
         s = 1.0 if fn > 0.0 else -1.0
-        a1 = (fn - s * fc - friction_extra(0.0, s, st_amp, st_v, st_exp, asym, v_flat)) / mass
+        a1 = (fn - s * fc - friction_extra(0.0, s, e, v_flat)) / mass
         if a1 * s > 0.0:
             xe = x + 0.5 * a1 * rest * rest
             if dahl:
@@ -257,44 +257,35 @@ def advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
 
 
 @nb.njit(**_JIT)
-def plant_step(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
-               hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-               st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z):
-    """Advance the motor over one held-input sample of ``nsub`` sub-steps of ``h`` seconds.
+def plant_step(x, v, u, p):
+    """Advance the motor ``p`` (``clm_sim.effects.base.KernelPlant``: the plant, each part by
+    its name) over one held-input sample of ``p.substeps`` sub-steps of ``p.h`` seconds.
 
-    ``ad`` (2x2) and ``bd`` (2,) propagate ``[x, v]`` over one sub-step for a constant force
-    ``G``: ``[x, v] <- ad @ [x, v] + bd * G``. ``track`` (n, 3; m): the track ends' start,
-    coil length and fringe (:func:`track_factor`); ``taut`` (n, 3; N, m, m): taut cable
-    carriers (:func:`applied_force`). ``d_f, d_l`` (N, m): Dahl elements' sliding
-    force and length; ``d_z``: their states, advanced in place. Returns the new ``(x, v)``.
+    ``p.ad`` (2x2) and ``p.bd`` (2,) propagate ``[x, v]`` over one sub-step for a constant
+    force ``G``: ``[x, v] <- ad @ [x, v] + bd * G``. ``p.effects.track`` (n, 3; m): the track
+    ends' start, coil length and fringe (:func:`track_factor`); ``taut`` (n, 3; N, m, m): taut
+    cable carriers (:func:`applied_force`); ``dahl_sliding, dahl_length`` (N, m): Dahl
+    elements' sliding force and length; ``dahl_state``: their states, advanced in place.
+    Returns the new ``(x, v)``.
     """
-    break_pos, break_neg, v_flat = friction_levels(fc, st_amp, st_v, st_exp, asym)
-    return advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
-                   hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                   st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
-                   (break_pos, break_neg, v_flat))
+    return advance(x, v, u, p, friction_levels(p.coulomb, p.effects))
 
 
 @nb.njit(_nrt=False, **_JIT)
-def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
-                h, nsub, ad, bd, mass, fv, fc, fk,
-                hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
-                y_out, x_out, u_out, ufb_out, z):
+def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a, p, y_out, x_out, u_out, ufb_out, z):
     """Run the sampled loop over ``len(r)`` samples, writing into the four output arrays.
 
     At sample k the encoder reads ``y = resolution*round(x/resolution)`` (``x`` exactly if
     ``resolution == 0``); the controller (direct form II transposed of ``b``, ``a``, state ``z``
     of length ``len(a)``, zeros at the start, left holding the final state) maps ``e = r - y`` to
-    ``u_fb``; ``u = u_fb + u_ff + dither`` is held over the sample and the motor advanced by
-    :func:`plant_step` (the Dahl states ``d_z`` are advanced in place from the caller's start
-    values). Returns 0, or ``k + 1`` if the state became non-finite at sample k (a
-    diverging loop).
+    ``u_fb``; ``u = u_fb + u_ff + dither`` is held over the sample and the motor ``p`` advanced
+    by :func:`plant_step` (its Dahl states advanced in place from the caller's start values).
+    Returns 0, or ``k + 1`` if the state became non-finite at sample k (a diverging loop).
     """
     n = r.shape[0]
     order = a.shape[0] - 1
     x, v = x0, v0
-    break_pos, break_neg, v_flat = friction_levels(fc, st_amp, st_v, st_exp, asym)
+    levels = friction_levels(p.coulomb, p.effects)
     for k in range(n):
         y = x if resolution == 0.0 else resolution * math.floor(x / resolution + 0.5)
         e = r[k] - y
@@ -308,36 +299,28 @@ def closed_loop(r, u_ff, dither, x0, v0, resolution, b, a,
         x_out[k] = x
         u_out[k] = u
         ufb_out[k] = ufb
-        x, v = advance(x, v, u, h, nsub, ad, bd, mass, fv, fc, fk,
-                       hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                       st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
-                       (break_pos, break_neg, v_flat))
+        x, v = advance(x, v, u, p, levels)
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1
     return 0
 
 
 @nb.njit(_nrt=False, **_JIT)
-def open_loop(u, x0, v0, h, nsub, ad, bd, mass, fv, fc, fk,
-              hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-              st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z, x_out, v_out):
-    """The motor driven by the held inputs ``u`` (N), no controller: ``x_out[k], v_out[k]`` is
-    the state (m, m/s) at sample k, from ``(x0, v0)`` at sample 0, ``u[k]`` held over
-    ``[t_k, t_k+1)`` and the motor advanced by :func:`plant_step` (Dahl states ``d_z`` advanced
-    in place from the caller's). Returns 0, or ``k + 1`` if the state became non-finite at
-    sample k."""
+def open_loop(u, x0, v0, p, x_out, v_out):
+    """The motor ``p`` driven by the held inputs ``u`` (N), no controller: ``x_out[k], v_out[k]``
+    is the state (m, m/s) at sample k, from ``(x0, v0)`` at sample 0, ``u[k]`` held over
+    ``[t_k, t_k+1)`` and the motor advanced by :func:`plant_step` (its Dahl states advanced in
+    place from the caller's). Returns 0, or ``k + 1`` if the state became non-finite at sample
+    k."""
     n = u.shape[0]
     x, v = x0, v0
-    break_pos, break_neg, v_flat = friction_levels(fc, st_amp, st_v, st_exp, asym)
+    levels = friction_levels(p.coulomb, p.effects)
     for k in range(n):
         x_out[k] = x
         v_out[k] = v
         if k == n - 1:
             break
-        x, v = advance(x, v, u[k], h, nsub, ad, bd, mass, fv, fc, fk,
-                       hk_amp, hk_k, hk_ph, rp_amp, rp_k, rp_ph, poly, poly_c, offset,
-                       st_amp, st_v, st_exp, asym, track, taut, d_f, d_l, d_z,
-                       (break_pos, break_neg, v_flat))
+        x, v = advance(x, v, u[k], p, levels)
         if not (math.isfinite(x) and abs(x) < 1e3):
             return k + 1
     return 0

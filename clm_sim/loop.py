@@ -129,7 +129,7 @@ def simulate(plant: Plant, controller: DiscreteController, r: np.ndarray, ts: fl
 
     y, x, u, ufb = (np.empty(n) for _ in range(4))
     status = kernel.closed_loop(r, u_ff, dither, float(r[0]), 0.0, float(plant.encoder_resolution),
-                                b, a, *plant.kernel_args(ts), y, x, u, ufb, np.zeros(a.shape[0]))
+                                b, a, plant.kernel_plant(ts), y, x, u, ufb, np.zeros(a.shape[0]))
     if status:
         raise UserError(f"closed loop diverged at t = {(status - 1) * ts:.4f} s; the controller "
                         f"does not stabilise this plant")

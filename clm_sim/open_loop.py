@@ -70,14 +70,14 @@ def simulate_input(plant: Plant, u: np.ndarray, ts: float, state: InitialState
     u = np.ascontiguousarray(u, dtype=np.float64)
     n = len(u)
     x, v = np.full(n, np.nan), np.full(n, np.nan)
-    args = list(plant.kernel_args(ts))
-    z = args[-1]
+    motor = plant.kernel_plant(ts)
+    z = motor.effects.dahl_state
     if len(state.bristles) != len(z):
         raise UserError(f"initial state has {len(state.bristles)} bristle states, the plant "
                         f"{len(z)} pre-sliding elements")
     z[:] = state.bristles
     k0 = state.sample
-    status = kernel.open_loop(u[k0:], float(state.position_m), float(state.velocity_m_s), *args,
+    status = kernel.open_loop(u[k0:], float(state.position_m), float(state.velocity_m_s), motor,
                               x[k0:], v[k0:])
     if status:
         raise UserError(f"the open-loop simulation diverged at t = {(k0 + status - 1) * ts:.4f} "

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.linalg
 
 from clm_sim.effects import lower_effects, total_force
-from clm_sim.effects.base import Effect
+from clm_sim.effects.base import Effect, KernelPlant
 from clm_sim.effects.friction import Stribeck
 from clm_sim.effects.position import CableSlab, ForceRipple
 from clm_sim.errors import UserError
@@ -176,8 +176,10 @@ class Plant:
         return _substep_matrices(float(self.mass), float(self.viscous), float(self.stiffness),
                                  self.substeps, float(ts))
 
-    def kernel_args(self, ts: float) -> tuple:
-        """Positional arguments of :func:`clm_sim.kernel.plant_step` after ``(x, v, u)``."""
+    def kernel_plant(self, ts: float) -> KernelPlant:
+        """This plant as :func:`clm_sim.kernel.plant_step` takes it at sample time ``ts`` (s)."""
         h, ad, bd = self.substep_matrices(ts)
-        return (h, self.substeps, ad, bd, float(self.mass), float(self.viscous),
-                float(self.coulomb), float(self.stiffness), *lower_effects(self.effects).arrays())
+        return KernelPlant(h=h, substeps=self.substeps, ad=ad, bd=bd, mass=float(self.mass),
+                           viscous=float(self.viscous), coulomb=float(self.coulomb),
+                           stiffness=float(self.stiffness),
+                           effects=lower_effects(self.effects).arrays())

@@ -118,13 +118,12 @@ def _kernel_force(effect, y, v, u):
     """The inverse-model force of ``effect`` from the simulator's kernel terms, in motion
     (v != 0): what the motor supplies beyond ``u`` (applied_force) plus the friction beyond
     Coulomb and viscous (friction_extra)."""
-    a = lower_effects([effect]).arrays()
-    v_flat = friction_levels(0.0, a[9], a[10], a[11], a[12])[2]
+    e = lower_effects([effect]).arrays()
+    v_flat = friction_levels(0.0, e)[2]
     out = np.empty(len(y))
     for i in range(len(y)):
-        out[i] = (u[i] - applied_force(y[i], u[i], *a[:9], a[13], a[14])
-                  + friction_extra(v[i], 1.0 if v[i] > 0 else -1.0, a[9], a[10], a[11], a[12],
-                                   v_flat))
+        out[i] = (u[i] - applied_force(y[i], u[i], e)
+                  + friction_extra(v[i], 1.0 if v[i] > 0 else -1.0, e, v_flat))
     return out
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -50,23 +50,68 @@ class KernelTerms:
     taut_reach: list = field(default_factory=list)
     taut_center: list = field(default_factory=list)
 
-    def arrays(self) -> tuple:
-        """The terms as contiguous float64 arrays, in the order the kernel takes them."""
+    def arrays(self) -> EffectArrays:
+        """The terms as the compiled simulator takes them: contiguous float64 arrays, by name."""
         f = lambda x: np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1))  # noqa: E731
-        return (
-            f(self.harmonic_amp), f(self.harmonic_k), f(self.harmonic_phase),
-            f(self.ripple_amp), f(self.ripple_k), f(self.ripple_phase),
-            f(self.poly_coef if self.poly_coef else [0.0]), float(self.poly_center),
-            float(self.offset),
-            f(self.stribeck_peak), f(self.stribeck_velocity), f(self.stribeck_exponent),
-            f(self.asym),
-            np.ascontiguousarray(np.column_stack([self.track_start, self.track_length,
-                                                  self.track_fringe]).reshape(-1, 3)),
-            np.ascontiguousarray(np.column_stack([self.taut_force, self.taut_reach,
-                                                  self.taut_center]).reshape(-1, 3)),
-            f(self.dahl_sliding), f(self.dahl_length),
-            np.zeros(len(self.dahl_sliding)),  # the bristle states (relaxed at the start)
+        return EffectArrays(
+            harmonic_amp=f(self.harmonic_amp), harmonic_k=f(self.harmonic_k),
+            harmonic_phase=f(self.harmonic_phase),
+            ripple_amp=f(self.ripple_amp), ripple_k=f(self.ripple_k),
+            ripple_phase=f(self.ripple_phase),
+            poly_coef=f(self.poly_coef if self.poly_coef else [0.0]),
+            poly_center=float(self.poly_center), offset=float(self.offset),
+            stribeck_peak=f(self.stribeck_peak), stribeck_velocity=f(self.stribeck_velocity),
+            stribeck_exponent=f(self.stribeck_exponent), asym=f(self.asym),
+            track=np.ascontiguousarray(np.column_stack([
+                self.track_start, self.track_length, self.track_fringe]).reshape(-1, 3)),
+            taut=np.ascontiguousarray(np.column_stack([
+                self.taut_force, self.taut_reach, self.taut_center]).reshape(-1, 3)),
+            dahl_sliding=f(self.dahl_sliding), dahl_length=f(self.dahl_length),
+            dahl_state=np.zeros(len(self.dahl_sliding)),  # relaxed at the start
         )
+
+
+class EffectArrays(NamedTuple):
+    """:class:`KernelTerms` as the compiled simulator (:mod:`clm_sim.kernel`) reads them, each
+    by its name: float64 arrays (``track`` and ``taut`` with one row of three per element:
+    start, coil length, fringe; force, reach, centre) and two floats. ``dahl_state``: the
+    pre-sliding elements' bristle states, advanced in place by a simulation."""
+
+    harmonic_amp: np.ndarray
+    harmonic_k: np.ndarray
+    harmonic_phase: np.ndarray
+    ripple_amp: np.ndarray
+    ripple_k: np.ndarray
+    ripple_phase: np.ndarray
+    poly_coef: np.ndarray
+    poly_center: float
+    offset: float
+    stribeck_peak: np.ndarray
+    stribeck_velocity: np.ndarray
+    stribeck_exponent: np.ndarray
+    asym: np.ndarray
+    track: np.ndarray
+    taut: np.ndarray
+    dahl_sliding: np.ndarray
+    dahl_length: np.ndarray
+    dahl_state: np.ndarray
+
+
+class KernelPlant(NamedTuple):
+    """A plant as the compiled simulator takes it, each part by its name: the sub-step ``h``
+    (s), ``substeps`` per sample, the exact propagation of the linear part over a sub-step
+    (``[x, v] <- ad @ [x, v] + bd * F``), the rigid-body parameters (kg, N*s/m, N, N/m) and the
+    effects' arrays."""
+
+    h: float
+    substeps: int
+    ad: np.ndarray
+    bd: np.ndarray
+    mass: float
+    viscous: float
+    coulomb: float
+    stiffness: float
+    effects: EffectArrays
 
 
 def check_positive(where: str, **values: float) -> None:
