@@ -12,39 +12,64 @@ existed is still read by its section (none: the extrapolation study; two section
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from clm_sim.errors import UserError
 from clm_sim.schema import build, load_yaml
 
-KINDS = {"extrapolation": "study", "failure_map": "failure_map",  # kind -> its section
-         "emps_benchmark": "benchmark", "mechanism": "mechanism",
-         "identifiability": "identifiability"}
-MODULES = {"extrapolation": "extrapolation.study", "failure_map": "failure_map.study",  # kind ->
-           "emps_benchmark": "emps.benchmark", "mechanism": "mechanism.study",  # its module in
-           "identifiability": "profiles.study"}  # experiments.studies
-POOLED = {"failure_map", "mechanism", "identifiability", "emps_benchmark"}  # kinds whose main() takes workers=
+
+@functools.cache
+def declared() -> dict[str, tuple[str, object]]:
+    """kind -> (its section, its package) of every study package under ``experiments/studies/``
+    (a folder whose ``__init__.py`` sets ``KIND``), in the packages' name order. Importing a
+    package costs nothing: its study module is imported by its ``study()``."""
+    import importlib
+    import pkgutil
+
+    import experiments.studies as studies
+
+    found = {}
+    for info in pkgutil.iter_modules(studies.__path__):
+        if info.ispkg:
+            package = importlib.import_module(f"{studies.__name__}.{info.name}")
+            if hasattr(package, "KIND"):
+                found[package.KIND] = (package.SECTION, package)
+    return found
+
+
+def sections() -> dict[str, str]:
+    """kind -> the section its settings go under."""
+    return {kind: section for kind, (section, _) in declared().items()}
+
+
+def study_for(path):
+    """The :class:`~experiments.studies.protocol.Study` that the config at ``path`` names (only
+    that study's module is imported); ``UserError`` naming the file when it names none."""
+    kind = kind_of(load_yaml(path), path)
+    return declared()[kind][1].study()
 
 
 def kind_of(data: dict, path) -> str:
     """The kind of the study config ``data`` read from ``path``; ``UserError`` (naming the file)
     for an unknown kind, a section of another kind, or no way to tell."""
+    kinds = sections()
     kind = data.get("kind")
-    sections = [s for s in KINDS.values() if s in data]
+    found = [s for s in kinds.values() if s in data]
     if kind is None:  # as before kind: existed; without a section, load_study says what is missing
-        by_section = {section: name for name, section in KINDS.items()}
-        if len(sections) > 1:
-            a, b = sections[:2]
+        by_section = {section: name for name, section in kinds.items()}
+        if len(found) > 1:
+            a, b = found[:2]
             raise UserError(f"{path}: kind: missing; a config with both '{a}:' and '{b}:' says "
                             f"which study it is with 'kind: {by_section[a]}' or "
                             f"'kind: {by_section[b]}'")
-        return by_section[sections[0]] if sections else "extrapolation"
-    if not isinstance(kind, str) or kind not in KINDS:
-        raise UserError(f"{path}: kind: expected one of {', '.join(KINDS)}, got {kind!r}")
-    other = [s for s in sections if s != KINDS[kind]]
+        return by_section[found[0]] if found else "extrapolation"
+    if not isinstance(kind, str) or kind not in kinds:
+        raise UserError(f"{path}: kind: expected one of {', '.join(kinds)}, got {kind!r}")
+    other = [s for s in found if s != kinds[kind]]
     if other:
         raise UserError(f"{path}: {other[0]}: not a setting of 'kind: {kind}' (its settings go "
-                        f"under '{KINDS[kind]}:')")
+                        f"under '{kinds[kind]}:')")
     return kind
 
 
@@ -63,7 +88,7 @@ def refuse_unread(data: dict, kind: str, keys=tuple(NOT_READ)) -> None:
     config ``data`` of ``kind``."""
     for key in keys:
         if key in data:
-            why = NOT_READ[key].format(section=KINDS[kind])
+            why = NOT_READ[key].format(section=sections()[kind])
             raise UserError(f"{key}: not used by the {kind} study ({why}); remove it")
 
 
@@ -79,12 +104,12 @@ def take_kind(data: dict, path, expected: str) -> dict:
 def load_case_study(path, kind: str, settings_type, references):
     """``(config, settings)`` of a study whose cases set the plant (the failure map, the
     mechanism study): an experiment config without plant effects or ``truth:``, the study's
-    section (``KINDS[kind]``) as ``settings_type``, and every reference key that
+    section (:func:`sections`) as ``settings_type``, and every reference key that
     ``references(settings)`` names defined under ``references:``. Errors name the file and key."""
     from experiments.config import ExperimentConfig
 
     path = Path(path)
-    section = KINDS[kind]
+    section = sections()[kind]
     data = take_kind(load_yaml(path), path, kind)
     raw = data.pop(section, None)
     try:
@@ -106,24 +131,16 @@ def load_case_study(path, kind: str, settings_type, references):
     return config, settings
 
 
-def run_checked(config_path, out, load, run, *, workers: int | None = None,
-                quiet: bool = False):
-    """``clm-sim study CONFIG`` for a study run on an experiment config: ``load(config_path)``
-    gives ``(config, settings)``, the checks ``clm-sim run`` makes before any computation (errors
-    name the file), ``run(config, settings, out, workers=, quiet=)`` into ``out`` (default
-    ``results/<config stem>``); prints the report's findings and where the report is, and
-    returns the run's result."""
-    from clm_sim.outdir import check_writable
-    from experiments.report.screen import report_summary
-    from experiments.runner import preflight
+def preflighted(load):
+    """``load`` followed by the checks ``clm-sim run`` makes before any computation
+    (:func:`experiments.runner.preflight`), errors naming the file."""
+    def checked(path):
+        from experiments.runner import preflight
 
-    config, settings = load(config_path)
-    try:
-        preflight(config)
-    except UserError as exc:
-        raise UserError(f"{config_path}: {exc}") from None
-    out = Path(out) if out else Path("results") / Path(config_path).stem
-    check_writable(out, inputs=(config_path,))  # before the work
-    result = run(config, settings, out, workers=workers, quiet=quiet)
-    print(report_summary(out), end="")
-    return result
+        config, settings = load(path)
+        try:
+            preflight(config)
+        except UserError as exc:
+            raise UserError(f"{path}: {exc}") from None
+        return config, settings
+    return checked

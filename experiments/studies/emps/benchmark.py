@@ -38,10 +38,9 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, simulate_input
-from clm_sim.outdir import atomic_folder, check_output_folder
 from clm_sim.plant import Plant
 from clm_sim.record import Run, load_record
-from clm_sim.schema import build, load_yaml
+from clm_sim.schema import build, load_yaml, to_plain
 from controllers.idim import IDIMProtocol
 from experiments.records import output_error as oe
 from experiments.model_files import SimulationModel, load_model
@@ -50,6 +49,7 @@ from experiments.studies.emps.cycles import cycle_edges, left_out
 from experiments.studies.emps.drift import Drift, explain_drift, plot_drift
 from experiments.studies.emps.plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
+from experiments.studies.protocol import Study
 from experiments.processes.workers import map_in_order
 
 STRUCTURES = ("equation_error", "diagnosis")
@@ -631,25 +631,62 @@ def plot_errors(traces, ax=None):
     return ax
 
 
-def main(config_path, out=None, *, quiet: bool = False, workers: int | None = None) -> int:
-    """``clm-sim study CONFIG [--workers N]`` for a config with a ``benchmark:`` section (the
-    fits in ``workers`` processes, default 1; the result does not depend on it)."""
-    from experiments import plots
+@dataclass(frozen=True)
+class Named:
+    """What :data:`STUDY` reads besides the settings: the config's name and path."""
 
-    name, settings = load_benchmark(config_path)
-    out = Path(out) if out else Path("results") / Path(config_path).stem
-    inputs = (config_path, settings.training, settings.test, settings.published_model)
-    check_output_folder(out, what="a benchmark", inputs=inputs)
-    progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
+    name: str
+    path: Path
+
+
+@dataclass(frozen=True)
+class BenchmarkResult:
+    """The study's result as ``benchmark.json`` holds it: the config's name, the command, the
+    settings and :func:`run_benchmark`'s result (rows, choice, leak, sensitivities, drift)."""
+
+    name: str
+    command: str
+    settings: BenchmarkSettings
+    run: dict
+
+    def to_json(self) -> dict:
+        settings, result = self.settings, self.run
+        pick = result["pick"]
+        return {"name": self.name, "command": self.command, "selection": settings.selection,
+                "rule": "the lowest mean left-out-cycle RMSE among the candidates whose "
+                        "whole-record fit is a measurement (benchmark.selection in the config, "
+                        "with its reason)",
+                "chosen": None if pick is None else pick.name,
+                "rows": [r.to_json() for r in result["rows"]],
+                "baselines": [dataclasses.asdict(b) for b in settings.baselines],
+                "init_samples": settings.init_samples, "cycles": settings.cycles,
+                "leak": result["leak"], "initial_state_test_rmse_m": result["initial_state"],
+                "sensitivity": [s.to_json() for s in result["sensitivity"]],
+                "cpu_s": result["cpu_s"], "drift": result["drift"].to_json()}
+
+
+def _load(path) -> tuple[Named, BenchmarkSettings]:
+    name, settings = load_benchmark(path)
+    return Named(name, Path(path)), settings
+
+
+def _compute(named: Named, settings: BenchmarkSettings, *, workers: int,
+             progress) -> tuple[BenchmarkResult, None]:
     try:
-        result = run_benchmark(settings, progress, workers or 1)
+        result = run_benchmark(settings, progress, workers)
     except UserError as exc:
         text = str(exc)
-        raise UserError(text if text.startswith(str(config_path)) else
-                        f"{config_path}: {text}") from None
-    command = f"clm-sim study {config_path}"
-    report = to_markdown(result, settings, command)
-    rows, pick = result["rows"], result["pick"]
+        raise UserError(text if text.startswith(str(named.path)) else
+                        f"{named.path}: {text}") from None
+    return BenchmarkResult(named.name, f"clm-sim study {named.path}", settings, result), None
+
+
+def _files(result: BenchmarkResult, folder: Path, scene=None) -> None:
+    """The models (``models/*.json``) and the figures (``folder``: the test-record errors of
+    the published model, the chosen one and the diagnosis's; the drift)."""
+    from experiments import plots
+
+    settings, rows, pick = result.settings, result.run["rows"], result.run["pick"]
     test = load_record(settings.test, columns=settings.columns, scale=settings.scale)
     ts = test.ts
 
@@ -657,31 +694,26 @@ def main(config_path, out=None, *, quiet: bool = False, workers: int | None = No
         return simulate_record(SimulationModel(plant, None, "model", ts), test,
                                init_samples=settings.init_samples)
 
-    with atomic_folder(out, what="a benchmark", inputs=inputs) as tmp:
-        (tmp / "benchmark.json").write_text(json.dumps(
-            {"name": name, "command": command, "selection": settings.selection,
-             "rule": "the lowest mean left-out-cycle RMSE among the candidates whose "
-                     "whole-record fit is a measurement (benchmark.selection in the config, "
-                     "with its reason)",
-             "chosen": None if pick is None else pick.name,
-             "rows": [r.to_json() for r in rows],
-             "baselines": [dataclasses.asdict(b) for b in settings.baselines],
-             "init_samples": settings.init_samples, "cycles": settings.cycles,
-             "leak": result["leak"], "initial_state_test_rmse_m": result["initial_state"],
-             "sensitivity": [s.to_json() for s in result["sensitivity"]],
-             "cpu_s": result["cpu_s"], "drift": result["drift"].to_json()}, indent=1))
-        (tmp / "report.md").write_text(report)
-        for r in rows:
-            info = oe.model_file(r.plant, ts, name=r.name, description=f"EMPS: {r.made_from}")
-            path = tmp / "models" / f"{slug(r.name)}.json"
-            path.parent.mkdir(exist_ok=True)
-            path.write_text(json.dumps(info, indent=1))
-        traces = [("published model", sim(rows[0].plant))]
-        if pick is not None:
-            traces.append((f"chosen: {pick.name}", sim(pick.plant)))
-        traces.append((rows[2].name, sim(rows[2].plant)))
-        plots.save(plot_errors(traces).figure, tmp / "figures" / "test_errors.png")
-        if result["drift"].traces:
-            plots.save(plot_drift(result["drift"]).figure, tmp / "figures" / "drift.png")
-    print("\n".join([*table(rows, settings), "", *verdict(result, settings)]))
-    return 0
+    for r in rows:
+        info = oe.model_file(r.plant, ts, name=r.name, description=f"EMPS: {r.made_from}")
+        path = folder.parent / "models" / f"{slug(r.name)}.json"
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(json.dumps(info, indent=1))
+    traces = [("published model", sim(rows[0].plant))]
+    if pick is not None:
+        traces.append((f"chosen: {pick.name}", sim(pick.plant)))
+    traces.append((rows[2].name, sim(rows[2].plant)))
+    plots.save(plot_errors(traces).figure, folder / "test_errors.png")
+    if result.run["drift"].traces:
+        plots.save(plot_drift(result.run["drift"]).figure, folder / "drift.png")
+
+
+STUDY = Study(
+    kind="emps_benchmark", section="benchmark", what="a benchmark", settings=BenchmarkSettings,
+    load=_load, compute=_compute, result=BenchmarkResult, result_file="benchmark.json",
+    report=lambda result, settings: to_markdown(result.run, settings, result.command),
+    figures=_files, workers=lambda: 1,
+    resolved=lambda named, settings: {"name": named.name, "benchmark": to_plain(settings)},
+    inputs=lambda path, s: (path, s.training, s.test, s.published_model),
+    summary=lambda result, out: "\n".join([*table(result.run["rows"], result.settings), "",
+                                           *verdict(result.run, result.settings)]))

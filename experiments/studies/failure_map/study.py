@@ -38,10 +38,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import yaml
 
 from clm_sim.features import TrainingRange
-from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
 from experiments.config import ExperimentConfig, resolved
@@ -52,10 +50,11 @@ from experiments.studies.failure_map.result import (BothFits, CellFailure, CellS
                                                     FailureMapResult, FitRow, Interval, Mechanism,
                                                     NetworkBeyond, ThetaDrift)
 from experiments.studies.failure_map.settings import FailureMapSettings
-from experiments.studies.kinds import load_case_study, run_checked
+from experiments.studies.kinds import load_case_study, preflighted
+from experiments.studies.protocol import Study
 from experiments.sweeps.store import code_version
 from experiments.table import THETA_UNITS
-from experiments.testbed import Progress, Testbed
+from experiments.testbed import Testbed
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
@@ -330,32 +329,15 @@ def compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: 
     return map_in_order(run_cell, tasks, workers, done)
 
 
-def run_failure_map(config: ExperimentConfig, settings: FailureMapSettings, out, *,
-                    workers: int | None = None, quiet: bool = False) -> FailureMapResult:
-    """Run the study and write it into ``out`` (replaced atomically). Returns the map."""
-    progress = Progress(quiet)
-    out = Path(out)
-    workers = workers or cores()
-    with atomic_folder(out, what="a clm-sim failure map") as tmp:
-        (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
-            {**resolved(config), "failure_map": to_plain(settings)}, sort_keys=False))
-        start = time.perf_counter()
-        results = compute(config, settings, workers=workers, progress=progress)
-        result = replace(summarize(settings, results),
-                         wall_time_s=time.perf_counter() - start, workers=workers,
-                         code_version=code_version())  # the sources that computed the cells
-        (tmp / "failure_map.json").write_text(json.dumps(result.to_json(), indent=1))
-        draw(result, tmp / "figures")
-        (tmp / "report.md").write_text(report(result))
-    progress(f"report in {out}/report.md")
-    return result
-
-
-def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
-    """``clm-sim study CONFIG`` for a config with a ``failure_map:`` section."""
-    result = run_checked(config_path, out, load_failure_map, run_failure_map,
-                         workers=workers, quiet=quiet)
-    return 1 if result.failures else 0
+def _compute(config: ExperimentConfig, settings: FailureMapSettings, *, workers: int,
+             progress) -> tuple[FailureMapResult, None]:
+    """Every cell, summarized: the map, with the wall time, the workers and the code version."""
+    start = time.perf_counter()
+    results = compute(config, settings, workers=workers, progress=progress)
+    result = replace(summarize(settings, results),
+                     wall_time_s=time.perf_counter() - start, workers=workers,
+                     code_version=code_version())  # the sources that computed the cells
+    return result, None
 
 
 # ----------------------------------------------------------------------------- report
@@ -386,7 +368,7 @@ def _why(s: FailureMapResult, c: CellStats) -> str:
     return text
 
 
-def report(s: FailureMapResult) -> str:
+def report(s: FailureMapResult, settings: FailureMapSettings | None = None) -> str:
     """``report.md``: every sentence and number generated from the map."""
     st = s.settings
     lam = st.lam
@@ -507,10 +489,18 @@ def _region_sentence(s: FailureMapResult, outside: list[CellStats]) -> str:
 
 # ----------------------------------------------------------------------------- figures
 
-def draw(result: FailureMapResult, folder: Path) -> None:
+def draw(result: FailureMapResult, folder: Path, scene=None) -> None:
     """The report's figures (:func:`failure_map_figures`) as PNG files."""
     from experiments import plots
     from experiments.studies.failure_map.figures import failure_map_figures
 
     for stem, fig in failure_map_figures(result).items():
         plots.save(fig, Path(folder) / f"{stem}.png")
+
+
+STUDY = Study(
+    kind="failure_map", section="failure_map", what="a clm-sim failure map",
+    settings=FailureMapSettings, load=preflighted(load_failure_map), compute=_compute,
+    result=FailureMapResult, result_file="failure_map.json", report=report, figures=draw,
+    resolved=lambda config, settings: {**resolved(config), "failure_map": to_plain(settings)},
+    workers=cores, exit_code=lambda result: 1 if result.failures else 0)
