@@ -64,7 +64,7 @@ def test_the_view_names_units_that_stay_near_linear_and_the_intervention_removes
 
 
 def test_the_outcome_holds_an_amount_within_its_factor_and_a_sign_beside_its_interval():
-    from experiments.studies.mechanism.study import outcome
+    from experiments.studies.mechanism.summary import outcome
 
     pred = {"mae_diff_um": -0.4, "mae_diff_calibrated_um": -0.1, "error_beyond_lambda0_n": 2.0,
             "error_beyond_lambda_n": 0.5, "factor": 2.0}
@@ -79,7 +79,7 @@ def test_the_outcome_holds_an_amount_within_its_factor_and_a_sign_beside_its_int
 
 
 def test_a_prediction_names_a_case_and_its_keys(tmp_path):
-    from experiments.studies.mechanism.study import load_mechanism
+    from experiments.studies.mechanism.settings import load_mechanism
 
     path = tmp_path / "p.yaml"
     path.write_text(tiny_mechanism() + "  prediction:\n    cable_cubic: {mae_diff_um: 0.1}\n")
@@ -95,16 +95,16 @@ def test_a_prediction_names_a_case_and_its_keys(tmp_path):
 
 @pytest.mark.slow
 def test_a_study_with_the_view_reports_units_effects_and_the_prediction(tmp_path):
-    from experiments.studies.mechanism.study import load_mechanism, run_mechanism
+    from experiments.studies.mechanism.study import STUDY
+    from experiments.studies.runner import run
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism() + "  near_linear: 1.0\n  prediction:\n    cable_cubic: "
                     "{mae_diff_um: 0.1, error_beyond_lambda0_n: 1, error_beyond_lambda_n: 1, "
                     "factor: 2}\n")
-    config, st = load_mechanism(path)
-    s = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
+    s = run(STUDY, path, tmp_path / "out", workers=1, quiet=True)
     text = (tmp_path / "out" / "report.md").read_text()
     assert "**Unit by unit**" in text and "written before the run (cable_cubic)" in text
-    eb = s["cases"]["cable_linear"]["effects_beyond"]
+    eb = s.cases["cable_linear"]["effects_beyond"]
     assert list(eb) == ["0:cable_slab"] and eb["0:cable_slab"]["beyond_rms_n"] < 1e-9
-    assert s["cases"]["cable_cubic"]["effects_beyond"]["0:cable_slab"]["inside_rms_n"] > 0
+    assert s.cases["cable_cubic"]["effects_beyond"]["0:cable_slab"]["inside_rms_n"] > 0

@@ -1,10 +1,11 @@
 """What a study is: the one declaration :mod:`experiments.studies.runner` runs.
 
-Each study package (a folder of ``experiments/studies/``) says in its ``__init__.py`` which
-config it reads, at no import cost: ``KIND`` (the config's ``kind:``), ``SECTION`` (the section
-its settings go under) and ``study()``, which imports the study's module and returns its
-:class:`Study`. The runner finds the packages by walking ``experiments.studies`` (a new kind is
-a new package and touches no list); the layer test counts that walk as an edge to each package.
+Each study package (a folder of ``experiments/studies/``) says in its ``kind.py`` which config
+it reads, at no import cost: ``KIND`` (the config's ``kind:``), ``SECTION`` (the section its
+settings go under) and ``study()``, which imports the study's module and returns its
+:class:`Study`. The runner finds them by walking the packages of ``experiments.studies`` (a new
+kind is a new package and touches no list); the layer test counts that walk as an edge to each
+``kind`` module.
 """
 
 from __future__ import annotations

@@ -78,13 +78,13 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
     settings = data.pop("study", None)
     try:
         if has_study:  # before the build, whose checks assume a run on the records
-            refuse_unread(data, "extrapolation", ("data",))
+            refuse_unread(data, "extrapolation", "study", ("data",))
         config = build(ExperimentConfig, data, "config")
         preflight(config)
         if not has_study:
             raise UserError("needs a 'study:' section (lambdas, seeds, ...); a plain experiment "
                             "runs with 'clm-sim run'")
-        refuse_unread(data, "extrapolation")
+        refuse_unread(data, "extrapolation", "study")
         study = build(StudySettings, settings, "study")
     except UserError as exc:
         raise in_file(path, exc) from None

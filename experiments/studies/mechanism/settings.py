@@ -101,5 +101,5 @@ class MechanismSettings:
 
 def load_mechanism(path) -> tuple[ExperimentConfig, MechanismSettings]:
     """Read a mechanism config; errors name the file and the key."""
-    return load_case_study(path, "mechanism", MechanismSettings,
+    return load_case_study(path, "mechanism", "mechanism", MechanismSettings,
                            lambda settings: (settings.inside, settings.outside))

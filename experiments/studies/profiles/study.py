@@ -122,9 +122,9 @@ def load_profiles(path) -> tuple[ExperimentConfig, ProfileSettings]:
     data = take_kind(load_yaml(path), path, "identifiability")
     raw = data.pop("identifiability", None)
     try:
-        refuse_unread(data, "identifiability", ("data",))  # before the build: it assumes a run
+        refuse_unread(data, "identifiability", "identifiability", ("data",))  # before the build: it assumes a run
         config = build(ExperimentConfig, data, "config")
-        refuse_unread(data, "identifiability")
+        refuse_unread(data, "identifiability", "identifiability")
         settings = build(ProfileSettings, raw, "identifiability")
     except UserError as exc:
         raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
@@ -390,8 +390,8 @@ def summarize(settings: ProfileSettings, records: list[RecordRun], hidden: int,
         parameters=params, checks=checks)
 
 
-def _compute(config: ExperimentConfig, settings: ProfileSettings, *, workers: int,
-             progress) -> tuple[ProfilesResult, None]:
+def _timed(config: ExperimentConfig, settings: ProfileSettings, *, workers: int,
+           progress) -> tuple[ProfilesResult, None]:
     start = time.perf_counter()
     sizes = compute(config, settings, workers=workers, progress=progress)
     return ProfilesResult(sizes, time.perf_counter() - start), None
@@ -406,7 +406,7 @@ def _figures(result: ProfilesResult, folder: Path, scene=None) -> None:
 
 STUDY = Study(
     kind="identifiability", section="identifiability", what="a clm-sim identifiability study",
-    settings=ProfileSettings, load=preflighted(load_profiles), compute=_compute,
+    settings=ProfileSettings, load=preflighted(load_profiles), compute=_timed,
     result=ProfilesResult, result_file="identifiability.json",
     report=lambda result, settings: to_markdown(result.sizes), figures=_figures,
     resolved=lambda config, settings: {**resolved(config),
