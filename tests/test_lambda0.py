@@ -425,6 +425,8 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     """A tiny design (two records, one draw, a 3-neuron network, 5 iterations): every cell has
     both lambdas per draw, the report prints the finding and the mechanism table, and the truth's
     cubic is the cable's 2000 N/m^3 (a cubic through a cubic) and 0 for the control."""
+    from experiments.studies.mechanism.report import report
+    from experiments.studies.mechanism.result import MechanismResult
     from experiments.studies.mechanism.study import STUDY
     from experiments.studies.runner import run
 
@@ -444,6 +446,12 @@ def test_mechanism_study_runs_and_reports(tmp_path):
             for f in c["fits"])
     assert "Largest static force error beyond the range" in text
     assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
+    # mechanism.json is the result's one mapping: read back, it writes the same bytes and the
+    # report drawn from it is the one the run wrote
+    written = (tmp_path / "out" / "mechanism.json").read_text()
+    back = MechanismResult.from_json(json.loads(written))
+    assert back == summary and json.dumps(back.to_json(), indent=1) == written
+    assert report(back) == text
 
 
 @pytest.mark.slow
@@ -463,12 +471,11 @@ def test_lambda0_diag_holds_the_named_parameter_of_the_lambda0_row_only(tmp_path
                     + "  lambda0_diag: {stiffness: 100.0}\n")
     (cp, sp), (ch, sh) = load_mechanism(plain), load_mechanism(held)
     a, b = run_cell(cells(cp, sp)[0]), run_cell(cells(ch, sh)[0])
-    lip = a["lip"]["theta"]
-    free0, held0 = (next(f for f in r["fits"] if f["lambda"] == 0.0) for r in (a, b))
-    assert abs(free0["drift_stiffness"]) > 1e3 * abs(held0["drift_stiffness"])
-    assert held0["theta"]["viscous"] != pytest.approx(lip["viscous"], rel=1e-6)
-    assert [f["theta"] for f in a["fits"] if f["lambda"] > 0] == \
-        [f["theta"] for f in b["fits"] if f["lambda"] > 0]
+    lip = a.lip.theta
+    free0, held0 = (next(f for f in r.fits if f.lam == 0.0) for r in (a, b))
+    assert abs(free0.drift_stiffness) > 1e3 * abs(held0.drift_stiffness)
+    assert held0.theta["viscous"] != pytest.approx(lip["viscous"], rel=1e-6)
+    assert [f.theta for f in a.fits if f.lam > 0] == [f.theta for f in b.fits if f.lam > 0]
     from experiments.studies.mechanism.report import report
     from experiments.studies.mechanism.summary import summarize
     text = report(summarize(sh, [b, run_cell(cells(ch, sh)[1])]))
@@ -514,9 +521,10 @@ def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
         (1, (0,)), (1, (1,)), (2, (0,)), (2, (1,)), (3, (0,)), (3, (1,))]
     split = cells(config, st, 2)[:2]
     whole = [run_cell(t) for t in cells(config, st, 1)[:1]]
-    assert [(f["draw"], f["lambda"]) for f in whole[0]["fits"]] == [
+    assert [(f.draw, f.lam) for f in whole[0].fits] == [
         (0, 0.0), (0, st.lam), (1, 0.0), (1, st.lam)]
-    assert json.dumps(merged([run_cell(t) for t in split])) == json.dumps(whole)
+    assert (json.dumps([c.to_json() for c in merged([run_cell(t) for t in split])])
+            == json.dumps([c.to_json() for c in whole]))
 
 
 def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():

@@ -11,6 +11,8 @@ import numpy as np
 
 from clm_sim.features import TrainingRange
 from experiments.config import ExperimentConfig
+from experiments.studies.mechanism.result import (CellLip, CellResult, EffectBeyond, Fit,
+                                                   StaticSplit)
 from experiments.studies.mechanism.settings import MechanismSettings
 from experiments.testbed import Testbed
 
@@ -48,7 +50,7 @@ def linear_part(model, phi: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(cols, model.network(phi), rcond=None)[0]
 
 
-def _cell(cell: Cell) -> dict:
+def _cell(cell: Cell) -> CellResult:
     from controllers.pgnn import training_data
 
     st = cell.settings
@@ -84,48 +86,49 @@ def _cell(cell: Cell) -> dict:
     def rms_along(model):
         return float(np.sqrt(np.mean((model.feedforward(sig.r, ts) - need)[along] ** 2)))
 
-    out = {"case": cell.case, "record": cell.record, "position_limit_m": inside.position_m,
-           "effects_beyond": effects_beyond(config, tb, st),
-           "y": y.tolist(), "truth": truth.tolist(), "lip_static": lip_static.tolist(),
-           "lip": {"theta": dict(lip.theta_), "error_beyond_rms_n": rms_beyond(lip_static),
-                   "error_along_rms_n": rms_along(lip),
-                   "need_along_rms_n": float(np.sqrt(np.mean(need[along] ** 2))),
-                   "mae": {r: tb.replay(lip, r).mae for r in (st.inside, st.outside)}},
-           "truth_cubic": cubic(y[within], truth[within]), "fits": []}
+    beyond_effects = effects_beyond(config, tb, st)
+    cell_lip = CellLip(theta=dict(lip.theta_), error_beyond_rms_n=rms_beyond(lip_static),
+                       error_along_rms_n=rms_along(lip),
+                       need_along_rms_n=float(np.sqrt(np.mean(need[along] ** 2))),
+                       mae={r: tb.replay(lip, r).mae for r in (st.inside, st.outside)})
+    fits = []
     for draw in range(st.draws) if cell.draws is None else cell.draws:
         for lam in (0.0, st.lam):
-            fit = {k: v for k, v in settings.items() if k != "lam"}
+            given = {k: v for k, v in settings.items() if k != "lam"}
             if lam == 0.0 and st.zero_lam_diag:
-                fit["lam_diag"] = dict(st.zero_lam_diag)
-            model = tb.fit_pgnn(run, hidden=st.hidden, lam=lam, seed=draw, lip=lip, **fit)
+                given["lam_diag"] = dict(st.zero_lam_diag)
+            model = tb.fit_pgnn(run, hidden=st.hidden, lam=lam, seed=draw, lip=lip, **given)
             phys, net = static_parts(model, y)
             coef = linear_part(model, data.phi)
             lin = coef[3] * y + coef[4]
             rest = net - lin
             total = phys + net
-            out["fits"].append({
-                "draw": draw, "lambda": lam, "stop": model.fit_.stop,
-                "iterations": model.fit_.iterations, "data_cost": model.fit_.data_cost,
-                "theta": dict(model.theta_),
-                "mae": {r: tb.replay(model, r).mae for r in (st.inside, st.outside)},
-                "error_beyond_rms_n": rms_beyond(total),
-                "error_beyond_sides_rms_n": [rms_beyond(total, -1), rms_beyond(total, 1)],
-                "error_along_rms_n": rms_along(model),
-                "dwell_force_n": float(np.interp(reach, y, total)),
-                "drift_stiffness": model.theta_["stiffness"] - lip.theta_["stiffness"],
-                "network_linear": dict(zip(("mass", "viscous", "coulomb", "stiffness",
-                                            "offset"), map(float, coef))),
-                "remainder_cubic": cubic(y[within], rest[within]),
-                "model_cubic": cubic(y[within], total[within]),
-                "static": {"physical": phys.tolist(), "network": net.tolist(),
-                           "network_linear": lin.tolist(), "remainder": rest.tolist()}})
+            fit = Fit(
+                draw=draw, lam=lam, stop=model.fit_.stop, iterations=model.fit_.iterations,
+                data_cost=model.fit_.data_cost, theta=dict(model.theta_),
+                mae={r: tb.replay(model, r).mae for r in (st.inside, st.outside)},
+                error_beyond_rms_n=rms_beyond(total),
+                error_beyond_sides_rms_n=[rms_beyond(total, -1), rms_beyond(total, 1)],
+                error_along_rms_n=rms_along(model),
+                dwell_force_n=float(np.interp(reach, y, total)),
+                drift_stiffness=model.theta_["stiffness"] - lip.theta_["stiffness"],
+                network_linear=dict(zip(("mass", "viscous", "coulomb", "stiffness", "offset"),
+                                        map(float, coef))),
+                remainder_cubic=cubic(y[within], rest[within]),
+                model_cubic=cubic(y[within], total[within]),
+                static=StaticSplit(phys.tolist(), net.tolist(), lin.tolist(), rest.tolist()))
             if st.near_linear is not None:
-                out["fits"][-1]["units"] = _units(model, data.phi, y, phys, truth, within,
-                                                  st.near_linear, rms_along, tb, st.outside)
-    return out
+                fit = replace(fit, units=_units(model, data.phi, y, phys, truth, within,
+                                                st.near_linear, rms_along, tb, st.outside))
+            fits.append(fit)
+    return CellResult(case=cell.case, record=cell.record, position_limit_m=inside.position_m,
+                      effects_beyond=beyond_effects, y=y.tolist(), truth=truth.tolist(),
+                      lip_static=lip_static.tolist(), lip=cell_lip,
+                      truth_cubic=cubic(y[within], truth[within]), fits=tuple(fits))
 
 
-def effects_beyond(config: ExperimentConfig, tb: Testbed, st: MechanismSettings) -> dict:
+def effects_beyond(config: ExperimentConfig, tb: Testbed,
+                   st: MechanismSettings) -> dict[str, EffectBeyond]:
     """Per effect of the plant, the rms force (N) that the LIP's columns (a, v, sign v, y, 1)
     do not hold: the effect's force along the exact motion minus its least-squares projection
     on those columns over the inside reference; on the inside reference and along the outside
@@ -144,9 +147,9 @@ def effects_beyond(config: ExperimentConfig, tb: Testbed, st: MechanismSettings)
         coef = np.linalg.lstsq(cols(sig_in), force[0], rcond=None)[0]
         rest_in = force[0] - cols(sig_in) @ coef
         rest_out = (force[1] - cols(sig_out) @ coef)[beyond]
-        out[f"{k}:{effect.type}"] = {
-            "inside_rms_n": float(np.sqrt(np.mean(rest_in ** 2))),
-            "beyond_rms_n": float(np.sqrt(np.mean(rest_out ** 2)))}
+        out[f"{k}:{effect.type}"] = EffectBeyond(
+            inside_rms_n=float(np.sqrt(np.mean(rest_in ** 2))),
+            beyond_rms_n=float(np.sqrt(np.mean(rest_out ** 2))))
     return out
 
 
@@ -191,13 +194,13 @@ def _units(model, phi_train, y, phys, truth, within, near_linear, rms_along, tb,
     return {"view": v["units"], "intervention": arms}
 
 
-def run_cell(cell: Cell) -> dict:
+def run_cell(cell: Cell) -> CellResult:
     """One cell in a worker process (single-threaded torch)."""
     import torch
 
     torch.set_num_threads(1)
     out = _cell(cell)
-    json.dumps(out, allow_nan=False)
+    json.dumps(out.to_json(), allow_nan=False)  # a NaN in the results is a bug
     return out
 
 
@@ -219,21 +222,21 @@ def parts_for(settings: MechanismSettings, workers: int) -> int:
     return 1 if workers <= 1 or n % workers == 0 else workers
 
 
-def merged(results: list[dict]) -> list[dict]:
+def merged(results: list[CellResult]) -> list[CellResult]:
     """The results of the tasks of :func:`cells` as one per (case, record), every draw's fits
     in draw order: what the record computed in one task gives (the rest of a record's result
     is the same in each of its tasks: the same training run, LIP and replays)."""
-    out: list[dict] = []
+    out: list[CellResult] = []
     for r in results:
-        if out and (out[-1]["case"], out[-1]["record"]) == (r["case"], r["record"]):
-            out[-1]["fits"].extend(r["fits"])
+        if out and (out[-1].case, out[-1].record) == (r.case, r.record):
+            out[-1] = replace(out[-1], fits=out[-1].fits + r.fits)
         else:
-            out.append({**r, "fits": list(r["fits"])})
+            out.append(r)
     return out
 
 
 def compute(config: ExperimentConfig, settings: MechanismSettings, *, workers: int = 1,
-            progress=None) -> list[dict]:
+            progress=None) -> list[CellResult]:
     """Every cell (in ``workers`` processes when > 1), in task order; the results do not depend
     on ``workers`` (a record split over tasks, :func:`parts_for`, is merged back)."""
     from experiments.processes.workers import map_in_order

@@ -8,7 +8,7 @@ import numpy as np
 import scipy.stats
 
 from clm_sim.schema import to_plain
-from experiments.studies.mechanism.result import MechanismResult
+from experiments.studies.mechanism.result import CellResult, Fit, MechanismResult
 from experiments.studies.mechanism.settings import MechanismSettings
 from experiments.table import holm
 
@@ -58,7 +58,7 @@ def paired_median(values: list[list[float]]) -> dict:
             "n": len(flat)}
 
 
-def summarize(settings: MechanismSettings, results: list[dict]) -> MechanismResult:
+def summarize(settings: MechanismSettings, results: list[CellResult]) -> MechanismResult:
     """Per case: finding (iii) over records x draws (difference and log ratio of MAE on the
     outside reference, lam - 0, and of the static force error beyond the range), the per-record
     means, and the mechanism's medians; Holm over the cases."""
@@ -66,67 +66,64 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> MechanismResu
     out, pvals = {}, []
     ref = settings.outside
     for case in settings.cases:
-        cell_list = [r for r in results if r["case"] == case]
+        cell_list = [r for r in results if r.case == case]
         pairs = []  # per record: [(fit lam0, fit reg), ...]
         for r in cell_list:
-            by = {(f["draw"], f["lambda"]): f for f in r["fits"]}
+            by = {(f.draw, f.lam): f for f in r.fits}
             pairs.append([(by[(d, 0.0)], by[(d, settings.lam)]) for d in range(settings.draws)])
-        diff = [[b["mae"][ref] - a["mae"][ref] for a, b in p] for p in pairs]
-        logr = [[np.log(b["mae"][ref] / a["mae"][ref]) for a, b in p] for p in pairs]
-        err = [[b["error_beyond_rms_n"] - a["error_beyond_rms_n"] for a, b in p] for p in pairs]
+        diff = [[b.mae[ref] - a.mae[ref] for a, b in p] for p in pairs]
+        logr = [[np.log(b.mae[ref] / a.mae[ref]) for a, b in p] for p in pairs]
+        err = [[b.error_beyond_rms_n - a.error_beyond_rms_n for a, b in p] for p in pairs]
         boot_lr = cluster_bootstrap(logr, settings.bootstrap, settings.confidence, rng)
-        fits = [f for r in cell_list for f in r["fits"]]
+        fits = [f for r in cell_list for f in r.fits]
 
-        def med(lam, key, sub=None):
-            vals = [f[key] if sub is None else f[key][sub] for f in fits if f["lambda"] == lam]
-            return float(np.median(vals))
+        def med(lam, get):
+            return float(np.median([get(f) for f in fits if f.lam == lam]))
 
         rows = {}
         for name, lam in (("lambda=0", 0.0), (f"lambda={settings.lam:g}", settings.lam)):
             rows[name] = {
-                "mae_inside_um": med(lam, "mae", settings.inside) * 1e6,
-                "mae_outside_um": med(lam, "mae", ref) * 1e6,
-                "error_beyond_rms_n": med(lam, "error_beyond_rms_n"),
-                "error_along_rms_n": med(lam, "error_along_rms_n"),
-                "dwell_force_n": med(lam, "dwell_force_n"),
-                "drift_stiffness": med(lam, "drift_stiffness"),
-                "network_linear_stiffness": med(lam, "network_linear", "stiffness"),
-                "model_linear_stiffness_minus_lip": float(np.median(
-                    [f["drift_stiffness"] + f["network_linear"]["stiffness"]
-                     for f in fits if f["lambda"] == lam])),
-                "remainder_cubic": med(lam, "remainder_cubic"),
-                "model_cubic": med(lam, "model_cubic"),
+                "mae_inside_um": med(lam, lambda f: f.mae[settings.inside]) * 1e6,
+                "mae_outside_um": med(lam, lambda f: f.mae[ref]) * 1e6,
+                "error_beyond_rms_n": med(lam, lambda f: f.error_beyond_rms_n),
+                "error_along_rms_n": med(lam, lambda f: f.error_along_rms_n),
+                "dwell_force_n": med(lam, lambda f: f.dwell_force_n),
+                "drift_stiffness": med(lam, lambda f: f.drift_stiffness),
+                "network_linear_stiffness": med(lam, lambda f: f.network_linear["stiffness"]),
+                "model_linear_stiffness_minus_lip": med(
+                    lam, lambda f: f.drift_stiffness + f.network_linear["stiffness"]),
+                "remainder_cubic": med(lam, lambda f: f.remainder_cubic),
+                "model_cubic": med(lam, lambda f: f.model_cubic),
                 # how far each parameter travelled (median |theta - theta_LIP| over the fits):
                 # a control that holds one parameter shows here where the drift went instead
                 "theta_moved": {k: float(np.median(
-                    [abs(f["theta"][k] - r["lip"]["theta"][k])
-                     for r in cell_list for f in r["fits"] if f["lambda"] == lam]))
-                    for k in cell_list[0]["lip"]["theta"]},
-                "converged": sum(f["stop"] == "converged" for f in fits if f["lambda"] == lam),
-                "fits": sum(f["lambda"] == lam for f in fits)}
-        lip = {"mae_inside_um": float(np.median([r["lip"]["mae"][settings.inside]
+                    [abs(f.theta[k] - r.lip.theta[k])
+                     for r in cell_list for f in r.fits if f.lam == lam]))
+                    for k in cell_list[0].lip.theta},
+                "converged": sum(f.stop == "converged" for f in fits if f.lam == lam),
+                "fits": sum(f.lam == lam for f in fits)}
+        lip = {"mae_inside_um": float(np.median([r.lip.mae[settings.inside]
                                                  for r in cell_list])) * 1e6,
-               "mae_outside_um": float(np.median([r["lip"]["mae"][ref]
-                                                  for r in cell_list])) * 1e6,
-               "error_beyond_rms_n": float(np.median([r["lip"]["error_beyond_rms_n"]
+               "mae_outside_um": float(np.median([r.lip.mae[ref] for r in cell_list])) * 1e6,
+               "error_beyond_rms_n": float(np.median([r.lip.error_beyond_rms_n
                                                       for r in cell_list])),
-               "error_along_rms_n": float(np.median([r["lip"]["error_along_rms_n"]
+               "error_along_rms_n": float(np.median([r.lip.error_along_rms_n
                                                      for r in cell_list])),
-               "need_along_rms_n": float(np.median([r["lip"]["need_along_rms_n"]
+               "need_along_rms_n": float(np.median([r.lip.need_along_rms_n
                                                     for r in cell_list]))}
         every = [f for f in fits]
-        rho = scipy.stats.spearmanr([f["mae"][ref] for f in every],
-                                    [f["error_beyond_rms_n"] for f in every])
-        worst = max(fits, key=lambda f: f["error_beyond_rms_n"])
-        worst_record = next(r["record"] for r in cell_list if any(f is worst for f in r["fits"]))
+        rho = scipy.stats.spearmanr([f.mae[ref] for f in every],
+                                    [f.error_beyond_rms_n for f in every])
+        worst = max(fits, key=lambda f: f.error_beyond_rms_n)
+        worst_record = next(r.record for r in cell_list if any(f is worst for f in r.fits))
         p = _record_t(diff)
         pvals.append(p)
         out[case] = {
             "effects": [e.as_config() for e in settings.cases[case]],
-            "truth_cubic": float(np.median([r["truth_cubic"] for r in cell_list])),
-            "truth_dwell_force_n": float(np.median([np.interp(max(r["y"]), r["y"], r["truth"])
+            "truth_cubic": float(np.median([r.truth_cubic for r in cell_list])),
+            "truth_dwell_force_n": float(np.median([np.interp(max(r.y), r.y, r.truth)
                                                     for r in cell_list])),
-            "records": [r["record"] for r in cell_list], "draws": settings.draws,
+            "records": [r.record for r in cell_list], "draws": settings.draws,
             "mae_outside_diff": {**cluster_bootstrap(diff, settings.bootstrap,
                                                      settings.confidence, rng),
                                  "per_record": [float(np.mean(d)) for d in diff],
@@ -140,14 +137,13 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> MechanismResu
                                   **paired_median(err)},
             "spearman_mae_vs_force_error": float(rho.statistic),
             # the fit that carries a heavy tail, and on which side of the range its error is
-            "worst_error_beyond": {"record": worst_record, "draw": worst["draw"],
-                                   "lambda": worst["lambda"],
-                                   "rms_n": worst["error_beyond_rms_n"],
-                                   "sides_rms_n": worst["error_beyond_sides_rms_n"],
-                                   "mae_outside_um": worst["mae"][ref] * 1e6,
-                                   "error_along_rms_n": worst["error_along_rms_n"]},
+            "worst_error_beyond": {"record": worst_record, "draw": worst.draw,
+                                   "lambda": worst.lam, "rms_n": worst.error_beyond_rms_n,
+                                   "sides_rms_n": worst.error_beyond_sides_rms_n,
+                                   "mae_outside_um": worst.mae[ref] * 1e6,
+                                   "error_along_rms_n": worst.error_along_rms_n},
             "rows": rows, "lip": lip,
-            "effects_beyond": cell_list[0].get("effects_beyond")}
+            "effects_beyond": {k: e.to_json() for k, e in cell_list[0].effects_beyond.items()}}
         if settings.near_linear is not None:
             out[case]["units"] = units_summary(settings, fits)
         if settings.prediction and case in settings.prediction:
@@ -157,7 +153,7 @@ def summarize(settings: MechanismSettings, results: list[dict]) -> MechanismResu
     return MechanismResult(out, to_plain(settings))
 
 
-def units_summary(settings: MechanismSettings, fits: list[dict]) -> dict:
+def units_summary(settings: MechanismSettings, fits: list[Fit]) -> dict:
     """Per row: how many units the reading names (median, range), their share of the network's
     remainder force beyond the range, and the intervention against its control: medians of the
     static force error beyond and inside, the change of the error beyond per fit (arm minus
@@ -165,38 +161,38 @@ def units_summary(settings: MechanismSettings, fits: list[dict]) -> dict:
     control."""
     out = {}
     for name, lam in (("lambda=0", 0.0), (f"lambda={settings.lam:g}", settings.lam)):
-        rows = [f for f in fits if f["lambda"] == lam]
-        n_named = [len(f["units"]["intervention"]["named"]["units"]) for f in rows]
+        rows = [f for f in fits if f.lam == lam]
+        n_named = [len(f.units["intervention"]["named"]["units"]) for f in rows]
 
         def share(f):
-            view, named = f["units"]["view"], f["units"]["intervention"]["named"]["units"]
+            view, named = f.units["view"], f.units["intervention"]["named"]["units"]
             tot = sum(u["remainder_beyond_rms_n"] ** 2 for u in view)
             return (sum(view[j]["remainder_beyond_rms_n"] ** 2 for j in named) / tot
                     if tot > 0 else 0.0)
 
         def delta(f, arm):
-            return (f["units"]["intervention"][arm]["error_beyond_rms_n"]
-                    - f["error_beyond_rms_n"])
+            return (f.units["intervention"][arm]["error_beyond_rms_n"]
+                    - f.error_beyond_rms_n)
 
-        both = [f for f in rows if f["units"]["intervention"]["named"]["units"]]
+        both = [f for f in rows if f.units["intervention"]["named"]["units"]]
         out[name] = {
             "named_median": float(np.median(n_named)), "named_range": [min(n_named),
                                                                         max(n_named)],
             "fits_with_named": len(both), "fits": len(rows),
             "named_share_beyond": float(np.median([share(f) for f in rows])),
-            "error_beyond_none_n": float(np.median([f["error_beyond_rms_n"] for f in rows])),
+            "error_beyond_none_n": float(np.median([f.error_beyond_rms_n for f in rows])),
             **{f"error_beyond_{arm}_n": float(np.median(
-                [f["units"]["intervention"][arm]["error_beyond_rms_n"] for f in both]))
+                [f.units["intervention"][arm]["error_beyond_rms_n"] for f in both]))
                if both else None for arm in ("named", "control")},
             **{f"error_inside_{arm}_n": float(np.median(
-                [f["units"]["intervention"][arm]["error_inside_rms_n"] for f in both]))
+                [f.units["intervention"][arm]["error_inside_rms_n"] for f in both]))
                if both else None for arm in ("none", "named", "control")},
             **{f"delta_beyond_{arm}_n": float(np.median([delta(f, arm) for f in both]))
                if both else None for arm in ("named", "control")},
             **{f"mae_outside_{arm}_um": float(np.median(
-                [f["units"]["intervention"][arm]["mae_outside"] for f in both])) * 1e6
+                [f.units["intervention"][arm]["mae_outside"] for f in both])) * 1e6
                if both else None for arm in ("named", "control")},
-            "mae_outside_none_um": float(np.median([f["mae"][settings.outside] for f in both]))
+            "mae_outside_none_um": float(np.median([f.mae[settings.outside] for f in both]))
             * 1e6 if both else None,
             "named_lowers_more": int(sum(delta(f, "named") < min(0.0, delta(f, "control"))
                                          for f in both))}
