@@ -433,15 +433,15 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism())
     summary = run(STUDY, path, tmp_path / "out", workers=1, quiet=True)
-    assert summary.cases["cable_cubic"]["truth_cubic"] == pytest.approx(2000.0, rel=1e-6)
-    assert abs(summary.cases["cable_linear"]["truth_cubic"]) < 1e-3
+    assert summary.cases["cable_cubic"].truth_cubic == pytest.approx(2000.0, rel=1e-6)
+    assert abs(summary.cases["cable_linear"].truth_cubic) < 1e-3
     text = (tmp_path / "out" / "report.md").read_text()
     assert "| cable_linear | λ = 0 |" in text and "two-level bootstrap" in text
     for case in ("cable_cubic", "cable_linear"):  # the worst fit's error, split by side
-        w = summary.cases[case]["worst_error_beyond"]
+        w = summary.cases[case].worst_error_beyond
         # the whole's mean square is the sides' weighted by their points: between the two
-        assert min(w["sides_rms_n"]) <= w["rms_n"] <= max(w["sides_rms_n"])
-        assert w["rms_n"] == max(f["error_beyond_rms_n"] for c in json.loads(
+        assert min(w.sides_rms_n) <= w.rms_n <= max(w.sides_rms_n)
+        assert w.rms_n == max(f["error_beyond_rms_n"] for c in json.loads(
             (tmp_path / "out" / "mechanism.json").read_text())["cells"] if c["case"] == case
             for f in c["fits"])
     assert "Largest static force error beyond the range" in text

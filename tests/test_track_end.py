@@ -128,10 +128,10 @@ def test_mechanism_study_runs_on_the_track_end_variant(tmp_path):
     summary = run(STUDY, path, tmp_path / "out", workers=1, quiet=True)
     g = TrackEnd(start=0.012, coil_length=0.02, fringe=0.001).overlap(np.array(0.02))
     assert g < 0.7
-    assert summary.cases["track_end"]["truth_dwell_force_n"] == pytest.approx(0.2 / g,
+    assert summary.cases["track_end"].truth_dwell_force_n == pytest.approx(0.2 / g,
                                                                                   rel=1e-9)
-    lip = summary.cases["track_end"]["lip"]
-    assert lip["need_along_rms_n"] > 0 and np.isfinite(lip["error_along_rms_n"])
+    lip = summary.cases["track_end"].lip
+    assert lip.need_along_rms_n > 0 and np.isfinite(lip.error_along_rms_n)
     text = (tmp_path / "out" / "report.md").read_text()
     assert "| track_end | λ = 0 |" in text and "The force along r2 beyond the range" in text
 

@@ -3,7 +3,6 @@ computed."""
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +35,7 @@ def draw(results: list[CellResult], settings: MechanismSettings, path: Path) -> 
         top, bottom = axes[0, j], axes[1, j]
         top.plot(y, r.truth, color=plots.PALETTE[0], ls="--", label="true force")
         top.plot(y, lip, color=plots.PALETTE[7], label="LIP")
-        z = zero_label(asdict(settings))
+        z = zero_label(settings)
         top.plot(y, tot["0"], color=plots.PALETTE[4], label=f"PGNN {z}")
         top.plot(y, tot["1"], color=plots.PALETTE[5], label=f"PGNN λ = {settings.lam:g}")
         bottom.plot(y, np.asarray(f0.static.physical) - lip, color=plots.PALETTE[1],
@@ -55,7 +54,7 @@ def draw(results: list[CellResult], settings: MechanismSettings, path: Path) -> 
             ax.set_ylabel("force [N]")
         top.set_title(f"{case}, record {r.record}: static force at rest", fontsize=9,
                       loc="left")
-        bottom.set_title(f"{zero_label(asdict(settings))} fit, split", fontsize=9, loc="left")
+        bottom.set_title(f"{zero_label(settings)} fit, split", fontsize=9, loc="left")
         bottom.set_xlabel("position [mm]")
         top.legend(fontsize=7, loc="upper left")
         bottom.legend(fontsize=7, loc="upper left")

@@ -4,7 +4,11 @@ whole result (:mod:`experiments.studies.mechanism.summary` summarizes the cells)
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+
+from clm_sim.schema import build, to_plain
+from experiments.studies.mechanism.settings import MechanismSettings
 
 
 @dataclass(frozen=True)
@@ -147,23 +151,293 @@ class CellResult:
                    d["truth_cubic"], tuple(map(Fit.from_json, d["fits"])))
 
 
+def _plain(cls, d: dict):
+    """``cls`` from its JSON mapping whose keys are its field names."""
+    return cls(**d)
+
+
+@dataclass(frozen=True)
+class MaeDifference:
+    """MAE on the outside reference, lambda − 0 (m) over records x draws: the mean and its
+    two-level bootstrap interval, the per-record means, the pairs where lambda is lower and all
+    pairs, the t-test's p on the per-record means and its t-interval, and p after Holm."""
+
+    mean: float
+    ci: list[float]
+    per_record: list[float]
+    lam_lower: int
+    n: int
+    p_records_t: float | None
+    ci_records_t: list[float] | None
+    p_holm: float | None = None
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    from_json = classmethod(_plain)
+
+
+@dataclass(frozen=True)
+class Ratio:
+    """MAE on the outside reference, lambda / 0: the ratio and its bootstrap interval."""
+
+    ratio: float
+    ci: list[float]
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    from_json = classmethod(_plain)
+
+
+@dataclass(frozen=True)
+class ForceDifference:
+    """Static force error beyond the range, lambda − 0 (N): mean with its bootstrap interval,
+    the median of the pairs, how many are above zero, and the pairs."""
+
+    mean: float
+    ci: list[float]
+    median: float
+    higher: int
+    n: int
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    from_json = classmethod(_plain)
+
+
+@dataclass(frozen=True)
+class WorstFit:
+    """The fit with the largest static force error beyond the range: its record, draw and
+    lambda, the error (rms, N; below and above the range), its MAE on the outside reference
+    (µm) and its force error along it beyond the range (N)."""
+
+    record: int
+    draw: int
+    lam: float
+    rms_n: float
+    sides_rms_n: list[float]
+    mae_outside_um: float
+    error_along_rms_n: float
+
+    def to_json(self) -> dict:
+        return {"record": self.record, "draw": self.draw, "lambda": self.lam,
+                "rms_n": self.rms_n, "sides_rms_n": self.sides_rms_n,
+                "mae_outside_um": self.mae_outside_um,
+                "error_along_rms_n": self.error_along_rms_n}
+
+    @classmethod
+    def from_json(cls, d: dict) -> WorstFit:
+        return cls(d["record"], d["draw"], d["lambda"], d["rms_n"], d["sides_rms_n"],
+                   d["mae_outside_um"], d["error_along_rms_n"])
+
+
+@dataclass(frozen=True)
+class RowSummary:
+    """One row (lambda = 0 or lambda) of a case: medians over its fits of the MAE (µm), the
+    force errors (N), the force at the far dwell (N), the stiffness drift, the network's slope
+    and their sum (N/m), the cubic coefficients (N/m³), how far each parameter of θ moved, and
+    how many fits converged of how many."""
+
+    mae_inside_um: float
+    mae_outside_um: float
+    error_beyond_rms_n: float
+    error_along_rms_n: float
+    dwell_force_n: float
+    drift_stiffness: float
+    network_linear_stiffness: float
+    model_linear_stiffness_minus_lip: float
+    remainder_cubic: float
+    model_cubic: float
+    theta_moved: dict[str, float]
+    converged: int
+    fits: int
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    from_json = classmethod(_plain)
+
+
+@dataclass(frozen=True)
+class LipSummary:
+    """The LIP of a case, medians over its records: MAE inside and outside (µm), the static
+    force error beyond the range, the force error along the outside reference and the rms of
+    the command needed there (N)."""
+
+    mae_inside_um: float
+    mae_outside_um: float
+    error_beyond_rms_n: float
+    error_along_rms_n: float
+    need_along_rms_n: float
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    from_json = classmethod(_plain)
+
+
+@dataclass(frozen=True)
+class UnitsRow:
+    """The unit-by-unit view of one row (:func:`experiments.studies.mechanism.summary.
+    units_summary`): named units (median, range), fits with named units of all fits, the named
+    units' share of the remainder beyond the range, and medians of the static error beyond and
+    inside (N), its change per arm (N) and the MAE outside (µm) per arm (none: the fit itself;
+    named; control), and in how many fits the named arm lowers the error more."""
+
+    named_median: float
+    named_range: list[int]
+    fits_with_named: int
+    fits: int
+    named_share_beyond: float
+    error_beyond_none_n: float
+    error_beyond_named_n: float | None
+    error_beyond_control_n: float | None
+    error_inside_none_n: float | None
+    error_inside_named_n: float | None
+    error_inside_control_n: float | None
+    delta_beyond_named_n: float | None
+    delta_beyond_control_n: float | None
+    mae_outside_named_um: float | None
+    mae_outside_control_um: float | None
+    mae_outside_none_um: float | None
+    named_lowers_more: int
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    from_json = classmethod(_plain)
+
+
+_MEASURED = ("measured_mae_diff_um", "measured_ci_um", "sign_held", "amount_held",
+             "measured_error_beyond_lambda0_n", "measured_error_beyond_lambda_n",
+             "error_beyond_lambda0_held", "error_beyond_lambda_held", "calibrated_amount_held")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The prediction written before the run (``predicted``: the config's numbers, µm and N,
+    and ``factor``) beside what the run measured, and which parts held."""
+
+    predicted: dict[str, float]
+    measured_mae_diff_um: float
+    measured_ci_um: list[float]
+    sign_held: bool
+    amount_held: bool
+    measured_error_beyond_lambda0_n: float
+    measured_error_beyond_lambda_n: float
+    error_beyond_lambda0_held: bool
+    error_beyond_lambda_held: bool
+    calibrated_amount_held: bool | None = None
+
+    @property
+    def mae_diff_um(self) -> float:
+        return self.predicted["mae_diff_um"]
+
+    @property
+    def mae_diff_calibrated_um(self) -> float | None:
+        return self.predicted.get("mae_diff_calibrated_um")
+
+    @property
+    def error_beyond_lambda0_n(self) -> float:
+        return self.predicted["error_beyond_lambda0_n"]
+
+    @property
+    def error_beyond_lambda_n(self) -> float:
+        return self.predicted["error_beyond_lambda_n"]
+
+    @property
+    def factor(self) -> float:
+        return self.predicted["factor"]
+
+    def to_json(self) -> dict:
+        out = {**self.predicted, **{k: getattr(self, k) for k in _MEASURED[:-1]}}
+        if self.calibrated_amount_held is not None:
+            out["calibrated_amount_held"] = self.calibrated_amount_held
+        return out
+
+    @classmethod
+    def from_json(cls, d: dict) -> Outcome:
+        return cls({k: v for k, v in d.items() if k not in _MEASURED},
+                   **{k: d[k] for k in _MEASURED if k in d})
+
+
+@dataclass(frozen=True)
+class CaseSummary:
+    """Finding (iii) and its mechanism for one case: the plant's effects (as configured), the
+    truth's cubic coefficient (N/m³) and far-dwell force (N), the records and draws, the MAE
+    difference and ratio, the force error difference, Spearman's rho between MAE and force
+    error over the fits, the worst fit, the rows (lambda = 0, lambda), the LIP, each effect's
+    force the LIP does not hold, and, when set, the unit-by-unit view and the prediction."""
+
+    effects: list[dict]
+    truth_cubic: float
+    truth_dwell_force_n: float
+    records: list[int]
+    draws: int
+    mae_outside_diff: MaeDifference
+    mae_outside_ratio: Ratio
+    error_beyond_diff: ForceDifference
+    spearman_mae_vs_force_error: float
+    worst_error_beyond: WorstFit
+    rows: dict[str, RowSummary]
+    lip: LipSummary
+    effects_beyond: dict[str, EffectBeyond]
+    units: dict[str, UnitsRow] | None = None
+    prediction: Outcome | None = None
+
+    def to_json(self) -> dict:
+        out = {"effects": self.effects, "truth_cubic": self.truth_cubic,
+               "truth_dwell_force_n": self.truth_dwell_force_n, "records": self.records,
+               "draws": self.draws, "mae_outside_diff": self.mae_outside_diff.to_json(),
+               "mae_outside_ratio": self.mae_outside_ratio.to_json(),
+               "error_beyond_diff": self.error_beyond_diff.to_json(),
+               "spearman_mae_vs_force_error": self.spearman_mae_vs_force_error,
+               "worst_error_beyond": self.worst_error_beyond.to_json(),
+               "rows": {k: r.to_json() for k, r in self.rows.items()},
+               "lip": self.lip.to_json(),
+               "effects_beyond": {k: e.to_json() for k, e in self.effects_beyond.items()}}
+        if self.units is not None:
+            out["units"] = {k: u.to_json() for k, u in self.units.items()}
+        if self.prediction is not None:
+            out["prediction"] = self.prediction.to_json()
+        return out
+
+    @classmethod
+    def from_json(cls, d: dict) -> CaseSummary:
+        return cls(d["effects"], d["truth_cubic"], d["truth_dwell_force_n"], d["records"],
+                   d["draws"], MaeDifference.from_json(d["mae_outside_diff"]),
+                   Ratio.from_json(d["mae_outside_ratio"]),
+                   ForceDifference.from_json(d["error_beyond_diff"]),
+                   d["spearman_mae_vs_force_error"],
+                   WorstFit.from_json(d["worst_error_beyond"]),
+                   {k: RowSummary.from_json(r) for k, r in d["rows"].items()},
+                   LipSummary.from_json(d["lip"]),
+                   {k: EffectBeyond.from_json(e) for k, e in d["effects_beyond"].items()},
+                   None if "units" not in d else
+                   {k: UnitsRow.from_json(u) for k, u in d["units"].items()},
+                   None if "prediction" not in d else Outcome.from_json(d["prediction"]))
+
+
 @dataclass(frozen=True)
 class MechanismResult:
-    """Per case its summary (:func:`experiments.studies.mechanism.summary.summarize`: finding
-    (iii) with its intervals and Holm-adjusted p, the mechanism's medians), the settings as the
-    config names them, the wall time (s; None before the run is timed) and every cell (one per
-    case and record, in task order)."""
+    """Per case its :class:`CaseSummary` (:func:`experiments.studies.mechanism.summary.
+    summarize`), the settings, the wall time (s; None before the run is timed) and every cell
+    (one per case and record, in task order)."""
 
-    cases: dict[str, dict]
-    settings: dict
+    cases: dict[str, CaseSummary]
+    settings: MechanismSettings
     wall_time_s: float | None = None
     cells: tuple[CellResult, ...] = ()
 
     def to_json(self) -> dict:
-        return {"cases": self.cases, "settings": self.settings,
-                "wall_time_s": self.wall_time_s, "cells": [c.to_json() for c in self.cells]}
+        return {"cases": {k: c.to_json() for k, c in self.cases.items()},
+                "settings": to_plain(self.settings), "wall_time_s": self.wall_time_s,
+                "cells": [c.to_json() for c in self.cells]}
 
     @classmethod
     def from_json(cls, d: dict) -> MechanismResult:
-        return cls(d["cases"], d["settings"], d.get("wall_time_s"),
+        return cls({k: CaseSummary.from_json(c) for k, c in d["cases"].items()},
+                   build(MechanismSettings, d["settings"], "settings"), d.get("wall_time_s"),
                    tuple(map(CellResult.from_json, d.get("cells", ()))))

@@ -59,16 +59,16 @@ from experiments.studies.protocol import Study
 
 
 def _compute(config: ExperimentConfig, settings: MechanismSettings, *, workers: int,
-             progress) -> tuple[MechanismResult, MechanismSettings]:
-    """Every cell, summarized and timed; the figure reads the settings as typed."""
+             progress) -> tuple[MechanismResult, None]:
+    """Every cell, summarized and timed."""
     start = time.perf_counter()
     cells = compute(config, settings, workers=workers, progress=progress)
     result = summarize(settings, cells)
-    return replace(result, wall_time_s=time.perf_counter() - start, cells=tuple(cells)), settings
+    return replace(result, wall_time_s=time.perf_counter() - start, cells=tuple(cells)), None
 
 
-def _figures(result: MechanismResult, folder: Path, settings: MechanismSettings) -> None:
-    draw(list(result.cells), settings, folder / "force_beyond.png")
+def _figures(result: MechanismResult, folder: Path, scene=None) -> None:
+    draw(list(result.cells), result.settings, folder / "force_beyond.png")
 
 
 STUDY = Study(
