@@ -28,7 +28,6 @@ method's effect, and why the force-residual extension drifts
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 import time
 from dataclasses import dataclass, field
@@ -40,16 +39,15 @@ from clm_sim.errors import UserError
 from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, simulate_input
 from clm_sim.plant import Plant
 from clm_sim.record import Run, load_record
-from clm_sim.schema import build, load_yaml, to_plain
+from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments.records import output_error as oe
 from experiments.model_files import SimulationModel, load_model
 from experiments.records.simulation import simulate_record
 from experiments.studies.emps.cycles import cycle_edges, left_out
-from experiments.studies.emps.drift import Drift, explain_drift, plot_drift
+from experiments.studies.emps.drift import Drift, explain_drift
 from experiments.studies.emps.plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
-from experiments.studies.protocol import Study
 from experiments.processes.workers import map_in_order
 
 STRUCTURES = ("equation_error", "diagnosis")
@@ -629,91 +627,3 @@ def plot_errors(traces, ax=None):
     ax.set_ylabel("measured − simulated (mm)")
     plots._legend_right(ax)
     return ax
-
-
-@dataclass(frozen=True)
-class Named:
-    """What :data:`STUDY` reads besides the settings: the config's name and path."""
-
-    name: str
-    path: Path
-
-
-@dataclass(frozen=True)
-class BenchmarkResult:
-    """The study's result as ``benchmark.json`` holds it: the config's name, the command, the
-    settings and :func:`run_benchmark`'s result (rows, choice, leak, sensitivities, drift)."""
-
-    name: str
-    command: str
-    settings: BenchmarkSettings
-    run: dict
-
-    def to_json(self) -> dict:
-        settings, result = self.settings, self.run
-        pick = result["pick"]
-        return {"name": self.name, "command": self.command, "selection": settings.selection,
-                "rule": "the lowest mean left-out-cycle RMSE among the candidates whose "
-                        "whole-record fit is a measurement (benchmark.selection in the config, "
-                        "with its reason)",
-                "chosen": None if pick is None else pick.name,
-                "rows": [r.to_json() for r in result["rows"]],
-                "baselines": [dataclasses.asdict(b) for b in settings.baselines],
-                "init_samples": settings.init_samples, "cycles": settings.cycles,
-                "leak": result["leak"], "initial_state_test_rmse_m": result["initial_state"],
-                "sensitivity": [s.to_json() for s in result["sensitivity"]],
-                "cpu_s": result["cpu_s"], "drift": result["drift"].to_json()}
-
-
-def _load(path) -> tuple[Named, BenchmarkSettings]:
-    name, settings = load_benchmark(path)
-    return Named(name, Path(path)), settings
-
-
-def _compute(named: Named, settings: BenchmarkSettings, *, workers: int,
-             progress) -> tuple[BenchmarkResult, None]:
-    try:
-        result = run_benchmark(settings, progress, workers)
-    except UserError as exc:
-        text = str(exc)
-        raise UserError(text if text.startswith(str(named.path)) else
-                        f"{named.path}: {text}") from None
-    return BenchmarkResult(named.name, f"clm-sim study {named.path}", settings, result), None
-
-
-def _files(result: BenchmarkResult, folder: Path, scene=None) -> None:
-    """The models (``models/*.json``) and the figures (``folder``: the test-record errors of
-    the published model, the chosen one and the diagnosis's; the drift)."""
-    from experiments import plots
-
-    settings, rows, pick = result.settings, result.run["rows"], result.run["pick"]
-    test = load_record(settings.test, columns=settings.columns, scale=settings.scale)
-    ts = test.ts
-
-    def sim(plant):
-        return simulate_record(SimulationModel(plant, None, "model", ts), test,
-                               init_samples=settings.init_samples)
-
-    for r in rows:
-        info = oe.model_file(r.plant, ts, name=r.name, description=f"EMPS: {r.made_from}")
-        path = folder.parent / "models" / f"{slug(r.name)}.json"
-        path.parent.mkdir(exist_ok=True)
-        path.write_text(json.dumps(info, indent=1))
-    traces = [("published model", sim(rows[0].plant))]
-    if pick is not None:
-        traces.append((f"chosen: {pick.name}", sim(pick.plant)))
-    traces.append((rows[2].name, sim(rows[2].plant)))
-    plots.save(plot_errors(traces).figure, folder / "test_errors.png")
-    if result.run["drift"].traces:
-        plots.save(plot_drift(result.run["drift"]).figure, folder / "drift.png")
-
-
-STUDY = Study(
-    kind="emps_benchmark", section="benchmark", what="a benchmark", settings=BenchmarkSettings,
-    load=_load, compute=_compute, result=BenchmarkResult, result_file="benchmark.json",
-    report=lambda result, settings: to_markdown(result.run, settings, result.command),
-    figures=_files, workers=lambda: 1,
-    resolved=lambda named, settings: {"name": named.name, "benchmark": to_plain(settings)},
-    inputs=lambda path, s: (path, s.training, s.test, s.published_model),
-    summary=lambda result, out: "\n".join([*table(result.run["rows"], result.settings), "",
-                                           *verdict(result.run, result.settings)]))

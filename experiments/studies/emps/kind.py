@@ -7,6 +7,6 @@ KIND, SECTION = "emps_benchmark", "benchmark"  # the config's kind: and its sett
 
 def study():
     """The study (:class:`experiments.studies.protocol.Study`), its module imported now."""
-    from experiments.studies.emps.benchmark import STUDY
+    from experiments.studies.emps.study import STUDY
 
     return STUDY
