@@ -370,7 +370,7 @@ def test_holm_adjusts_step_down():
 def test_cluster_bootstrap_covers_the_spread_between_records():
     """The two-level bootstrap's interval widens with the spread between records, which a
     bootstrap over draws alone would miss; its mean is the mean of the record means."""
-    from experiments.studies.mechanism.study import cluster_bootstrap
+    from experiments.studies.mechanism.summary import cluster_bootstrap
 
     rng = np.random.default_rng(1)
     tight = [[0.0 + 0.01 * rng.standard_normal() for _ in range(3)] for _ in range(6)]
@@ -387,7 +387,7 @@ def test_the_record_t_interval_is_scipys_and_wider_than_the_bootstrap_over_five_
     means (scipy's, computed another way), and over five records the percentile bootstrap is the
     narrower of the two: why the report prints both."""
     import scipy.stats
-    from experiments.studies.mechanism.study import cluster_bootstrap, record_t_interval
+    from experiments.studies.mechanism.summary import cluster_bootstrap, record_t_interval
 
     rng = np.random.default_rng(3)
     values = [[0.2 + 0.1 * k + 0.02 * rng.standard_normal() for _ in range(2)] for k in range(5)]
@@ -401,7 +401,7 @@ def test_the_record_t_interval_is_scipys_and_wider_than_the_bootstrap_over_five_
 
 
 def test_cubic_recovers_the_cable_term():
-    from experiments.studies.mechanism.study import cubic
+    from experiments.studies.mechanism.cells import cubic
 
     y = np.linspace(-0.1, 0.1, 41)
     assert cubic(y, 10 * y + 2000 * y ** 3 + 1.0) == pytest.approx(2000.0, rel=1e-9)
@@ -409,7 +409,7 @@ def test_cubic_recovers_the_cable_term():
 
 
 def test_mechanism_config_loads_and_errors_name_the_key(tmp_path):
-    from experiments.studies.mechanism.study import load_mechanism
+    from experiments.studies.mechanism.settings import load_mechanism
 
     config, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism.yaml")
     assert st.records >= 5 and st.pgnn.weight_decay == 0 and st.pgnn.continuation_lam == 0
@@ -425,25 +425,33 @@ def test_mechanism_study_runs_and_reports(tmp_path):
     """A tiny design (two records, one draw, a 3-neuron network, 5 iterations): every cell has
     both lambdas per draw, the report prints the finding and the mechanism table, and the truth's
     cubic is the cable's 2000 N/m^3 (a cubic through a cubic) and 0 for the control."""
-    from experiments.studies.mechanism.study import load_mechanism, run_mechanism
+    from experiments.studies.mechanism.report import report
+    from experiments.studies.mechanism.result import MechanismResult
+    from experiments.studies.mechanism.study import STUDY
+    from experiments.studies.runner import run
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism())
-    config, st = load_mechanism(path)
-    summary = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
-    assert summary["cases"]["cable_cubic"]["truth_cubic"] == pytest.approx(2000.0, rel=1e-6)
-    assert abs(summary["cases"]["cable_linear"]["truth_cubic"]) < 1e-3
+    summary = run(STUDY, path, tmp_path / "out", workers=1, quiet=True)
+    assert summary.cases["cable_cubic"].truth_cubic == pytest.approx(2000.0, rel=1e-6)
+    assert abs(summary.cases["cable_linear"].truth_cubic) < 1e-3
     text = (tmp_path / "out" / "report.md").read_text()
     assert "| cable_linear | λ = 0 |" in text and "two-level bootstrap" in text
     for case in ("cable_cubic", "cable_linear"):  # the worst fit's error, split by side
-        w = summary["cases"][case]["worst_error_beyond"]
+        w = summary.cases[case].worst_error_beyond
         # the whole's mean square is the sides' weighted by their points: between the two
-        assert min(w["sides_rms_n"]) <= w["rms_n"] <= max(w["sides_rms_n"])
-        assert w["rms_n"] == max(f["error_beyond_rms_n"] for c in json.loads(
+        assert min(w.sides_rms_n) <= w.rms_n <= max(w.sides_rms_n)
+        assert w.rms_n == max(f["error_beyond_rms_n"] for c in json.loads(
             (tmp_path / "out" / "mechanism.json").read_text())["cells"] if c["case"] == case
             for f in c["fits"])
     assert "Largest static force error beyond the range" in text
     assert (tmp_path / "out" / "figures" / "force_beyond.png").stat().st_size > 0
+    # mechanism.json is the result's one mapping: read back, it writes the same bytes and the
+    # report drawn from it is the one the run wrote
+    written = (tmp_path / "out" / "mechanism.json").read_text()
+    back = MechanismResult.from_json(json.loads(written))
+    assert back == summary and json.dumps(back.to_json(), indent=1) == written
+    assert report(back) == text
 
 
 @pytest.mark.slow
@@ -452,7 +460,8 @@ def test_lambda0_diag_holds_the_named_parameter_of_the_lambda0_row_only(tmp_path
     lambda = 0 row's stiffness stays at theta_LIP while its mass and friction still move, the
     lambda = 0.01 row is the fit without the setting bit for bit, and the report names the row
     by what it holds. A bad value is refused naming the key."""
-    from experiments.studies.mechanism.study import load_mechanism, run_cell, cells
+    from experiments.studies.mechanism.cells import cells, run_cell
+    from experiments.studies.mechanism.settings import load_mechanism
 
     one_case = ("  cases:\n    cable_cubic:\n"
                 "      - {type: cable_slab, coefficients: [0.0, 10.0, 0.0, 2000.0]}\n")
@@ -462,13 +471,13 @@ def test_lambda0_diag_holds_the_named_parameter_of_the_lambda0_row_only(tmp_path
                     + "  lambda0_diag: {stiffness: 100.0}\n")
     (cp, sp), (ch, sh) = load_mechanism(plain), load_mechanism(held)
     a, b = run_cell(cells(cp, sp)[0]), run_cell(cells(ch, sh)[0])
-    lip = a["lip"]["theta"]
-    free0, held0 = (next(f for f in r["fits"] if f["lambda"] == 0.0) for r in (a, b))
-    assert abs(free0["drift_stiffness"]) > 1e3 * abs(held0["drift_stiffness"])
-    assert held0["theta"]["viscous"] != pytest.approx(lip["viscous"], rel=1e-6)
-    assert [f["theta"] for f in a["fits"] if f["lambda"] > 0] == \
-        [f["theta"] for f in b["fits"] if f["lambda"] > 0]
-    from experiments.studies.mechanism.study import report, summarize
+    lip = a.lip.theta
+    free0, held0 = (next(f for f in r.fits if f.lam == 0.0) for r in (a, b))
+    assert abs(free0.drift_stiffness) > 1e3 * abs(held0.drift_stiffness)
+    assert held0.theta["viscous"] != pytest.approx(lip["viscous"], rel=1e-6)
+    assert [f.theta for f in a.fits if f.lam > 0] == [f.theta for f in b.fits if f.lam > 0]
+    from experiments.studies.mechanism.report import report
+    from experiments.studies.mechanism.summary import summarize
     text = report(summarize(sh, [b, run_cell(cells(ch, sh)[1])]))
     assert "| cable_cubic | λ = 0, stiffness held |" in text
     assert "λ = 0.01 − λ = 0, stiffness held" in text
@@ -482,7 +491,7 @@ def test_one_exploded_pair_moves_the_mean_force_error_but_not_its_median():
     """Fifty paired force errors near +1.5 N and one of +3300 N (a network that explodes
     beyond the range, as one fit of lambda0_iii_ten_draws.yaml does): the mean moves by some
     65 N, the median and the count of pairs above zero do not."""
-    from experiments.studies.mechanism.study import paired_median
+    from experiments.studies.mechanism.summary import paired_median
 
     calm = [[1.5 + 0.01 * (k - d) for d in range(10)] for k in range(5)]
     wild = [row[:] for row in calm]
@@ -498,8 +507,8 @@ def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
     """Five records on two workers would leave one worker idle for the last record: the draws
     of a record are then split over tasks, and merged back they are what one task computes,
     bit for bit (a record's two draws, split in two)."""
-    from experiments.studies.mechanism.study import (cells, load_mechanism, merged, parts_for,
-                                                     run_cell)
+    from experiments.studies.mechanism.cells import cells, merged, parts_for, run_cell
+    from experiments.studies.mechanism.settings import load_mechanism
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism(records=3, draws=2, cases=(
@@ -512,9 +521,10 @@ def test_a_record_split_over_tasks_gives_what_one_task_gives(tmp_path):
         (1, (0,)), (1, (1,)), (2, (0,)), (2, (1,)), (3, (0,)), (3, (1,))]
     split = cells(config, st, 2)[:2]
     whole = [run_cell(t) for t in cells(config, st, 1)[:1]]
-    assert [(f["draw"], f["lambda"]) for f in whole[0]["fits"]] == [
+    assert [(f.draw, f.lam) for f in whole[0].fits] == [
         (0, 0.0), (0, st.lam), (1, 0.0), (1, st.lam)]
-    assert json.dumps(merged([run_cell(t) for t in split])) == json.dumps(whole)
+    assert (json.dumps([c.to_json() for c in merged([run_cell(t) for t in split])])
+            == json.dumps([c.to_json() for c in whole]))
 
 
 def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
@@ -630,7 +640,7 @@ def test_every_shipped_lambda_comparison_varies_lambda_alone():
     from experiments.config import load_config
     from experiments.studies.extrapolation.study import load_study
     from experiments.studies.failure_map.study import load_failure_map
-    from experiments.studies.mechanism.study import load_mechanism
+    from experiments.studies.mechanism.settings import load_mechanism
     from experiments.sweeps.grid import load_sweep
 
     configs = ROOT / "experiments" / "configs"
@@ -669,7 +679,7 @@ def test_lambda0_diag_that_would_change_a_second_setting_or_nothing_is_refused(e
                                                                               tmp_path):
     """A hold of zero holds nothing (and the report would call it a pull); with a continuation
     start on, a hold also turns the start off (it runs only without a pull): two settings."""
-    from experiments.studies.mechanism.study import load_mechanism
+    from experiments.studies.mechanism.settings import load_mechanism
 
     path = tmp_path / "m.yaml"
     config = tiny_mechanism()

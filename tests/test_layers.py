@@ -82,6 +82,13 @@ def imports(module: str) -> set[str]:
 
 
 GRAPH = {m: imports(m) for m in MODULES}
+# The study runner finds the study kinds by walking the packages of experiments/studies/
+# (pkgutil) for their ``kind`` module, an import by name that ast cannot see: each is an edge.
+STUDY_PACKAGES = sorted(m for m, path in MODULES.items()
+                        if m.startswith("experiments.studies.") and m.count(".") == 2
+                        and path.name == "__init__.py")
+GRAPH["experiments.studies.runner"] |= {f"{p}.kind" for p in STUDY_PACKAGES
+                                        if f"{p}.kind" in MODULES}
 
 
 def test_the_layers_are_the_expected_packages():
@@ -154,6 +161,33 @@ def test_the_experiments_root_holds_the_pipeline_only():
     assert len(root) <= 8, root
 
 
+@pytest.mark.parametrize("package", STUDY_PACKAGES)
+def test_every_study_package_declares_its_study(package):
+    """A study kind is its package: ``KIND``, ``SECTION`` and ``study()`` in its ``kind.py``,
+    whose ``study()`` imports the module that declares the study (an edge of the graph), and
+    the runner finds it."""
+    import importlib
+
+    from experiments.studies.protocol import Study
+    from experiments.studies.runner import declared
+
+    kind = importlib.import_module(f"{package}.kind")
+    study = kind.study()
+    assert isinstance(study, Study)
+    assert (study.kind, study.section) == (kind.KIND, kind.SECTION)
+    assert declared()[kind.KIND] == (kind.SECTION, kind)
+    assert f"{package}.kind" in GRAPH["experiments.studies.runner"]
+    assert any(_within(t, package) for t in GRAPH[f"{package}.kind"]), package
+
+
+def test_the_study_kinds_are_the_packages_the_runner_finds():
+    from experiments.studies.runner import declared
+
+    assert sorted(k.__name__ for _, k in declared().values()) == [
+        f"{p}.kind" for p in STUDY_PACKAGES]
+    assert len({section for section, _ in declared().values()}) == len(declared())
+
+
 def test_the_command_line_only_parses_and_dispatches():
     assert len(MODULES["experiments.cli"].read_text("utf-8").splitlines()) <= 250
 
@@ -191,6 +225,18 @@ def test_start_up_imports_load_no_library_they_do_not_use(modules, absent):
     scipy.stats, torch: seconds), where the functions that use it import it themselves."""
     code = (f"import sys, {modules}; "
             f"print([m for m in {absent!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, check=True).stdout.strip()
+    assert out == "[]", out
+
+
+def test_finding_the_study_kinds_loads_no_study():
+    """``clm-sim study`` finds every kind before it reads the config's: the walk imports each
+    study package's ``__init__.py`` only, never a study module nor the libraries they load."""
+    code = ("import sys; from experiments.studies.runner import declared; declared(); "
+            "print([m for m in sys.modules if m.endswith(('.study', '.benchmark')) "
+            "or m.split('.')[0] in ('torch', 'matplotlib', 'control') "
+            "or m in ('scipy.signal', 'scipy.stats')])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=ROOT, check=True).stdout.strip()
     assert out == "[]", out

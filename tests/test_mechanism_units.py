@@ -64,22 +64,18 @@ def test_the_view_names_units_that_stay_near_linear_and_the_intervention_removes
 
 
 def test_the_outcome_holds_an_amount_within_its_factor_and_a_sign_beside_its_interval():
-    from experiments.studies.mechanism.study import outcome
+    from experiments.studies.mechanism.summary import outcome
 
     pred = {"mae_diff_um": -0.4, "mae_diff_calibrated_um": -0.1, "error_beyond_lambda0_n": 2.0,
             "error_beyond_lambda_n": 0.5, "factor": 2.0}
-    case = {"mae_outside_diff": {"mean": -0.15e-6, "ci_records_t": [-0.25e-6, -0.05e-6]},
-            "rows": {"lambda=0": {"error_beyond_rms_n": 3.9},
-                     "lambda=0.01": {"error_beyond_rms_n": 1.1}}}
-    o = outcome(pred, case)
-    assert o["sign_held"] and not o["amount_held"] and o["calibrated_amount_held"]
-    assert o["error_beyond_lambda0_held"] and not o["error_beyond_lambda_held"]
-    case["mae_outside_diff"]["ci_records_t"] = [-0.25e-6, +0.01e-6]
-    assert not outcome(pred, case)["sign_held"]
+    o = outcome(pred, -0.15e-6, [-0.25e-6, -0.05e-6], (3.9, 1.1))
+    assert o.sign_held and not o.amount_held and o.calibrated_amount_held
+    assert o.error_beyond_lambda0_held and not o.error_beyond_lambda_held
+    assert not outcome(pred, -0.15e-6, [-0.25e-6, +0.01e-6], (3.9, 1.1)).sign_held
 
 
 def test_a_prediction_names_a_case_and_its_keys(tmp_path):
-    from experiments.studies.mechanism.study import load_mechanism
+    from experiments.studies.mechanism.settings import load_mechanism
 
     path = tmp_path / "p.yaml"
     path.write_text(tiny_mechanism() + "  prediction:\n    cable_cubic: {mae_diff_um: 0.1}\n")
@@ -95,16 +91,16 @@ def test_a_prediction_names_a_case_and_its_keys(tmp_path):
 
 @pytest.mark.slow
 def test_a_study_with_the_view_reports_units_effects_and_the_prediction(tmp_path):
-    from experiments.studies.mechanism.study import load_mechanism, run_mechanism
+    from experiments.studies.mechanism.study import STUDY
+    from experiments.studies.runner import run
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism() + "  near_linear: 1.0\n  prediction:\n    cable_cubic: "
                     "{mae_diff_um: 0.1, error_beyond_lambda0_n: 1, error_beyond_lambda_n: 1, "
                     "factor: 2}\n")
-    config, st = load_mechanism(path)
-    s = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
+    s = run(STUDY, path, tmp_path / "out", workers=1, quiet=True)
     text = (tmp_path / "out" / "report.md").read_text()
     assert "**Unit by unit**" in text and "written before the run (cable_cubic)" in text
-    eb = s["cases"]["cable_linear"]["effects_beyond"]
-    assert list(eb) == ["0:cable_slab"] and eb["0:cable_slab"]["beyond_rms_n"] < 1e-9
-    assert s["cases"]["cable_cubic"]["effects_beyond"]["0:cable_slab"]["inside_rms_n"] > 0
+    eb = s.cases["cable_linear"].effects_beyond
+    assert list(eb) == ["0:cable_slab"] and eb["0:cable_slab"].beyond_rms_n < 1e-9
+    assert s.cases["cable_cubic"].effects_beyond["0:cable_slab"].inside_rms_n > 0

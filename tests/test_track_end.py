@@ -105,7 +105,7 @@ def test_a_bad_parameter_in_a_config_names_the_file_and_exits_2(tmp_path, capsys
 
 
 def test_the_variant_config_loads():
-    from experiments.studies.mechanism.study import load_mechanism
+    from experiments.studies.mechanism.settings import load_mechanism
 
     _, st = load_mechanism(ROOT / "experiments" / "configs" / "lambda0_mechanism_track_end.yaml")
     assert any(isinstance(e, TrackEnd) for e in st.cases["track_end"])
@@ -117,21 +117,21 @@ def test_mechanism_study_runs_on_the_track_end_variant(tmp_path):
     """A tiny design (two records, one draw, a 3-neuron network, 5 iterations) on a plant whose
     track ends 12 mm out, with r2 reaching 20 mm: the study runs, reports the case, and its true
     dwell force is the motor command, 10 y / g(y), not the first-order 10 y (2 - g)."""
-    from experiments.studies.mechanism.study import load_mechanism, run_mechanism
+    from experiments.studies.mechanism.study import STUDY
+    from experiments.studies.runner import run
 
     path = tmp_path / "m.yaml"
     path.write_text(tiny_mechanism(cases=(
         "  cases:\n    track_end:\n"
         "      - {type: cable_slab, coefficients: [0.0, 10.0]}\n"
         "      - {type: track_end, start: 0.012, coil_length: 0.02, fringe: 0.001}\n")))
-    config, st = load_mechanism(path)
-    summary = run_mechanism(config, st, tmp_path / "out", workers=1, quiet=True)
+    summary = run(STUDY, path, tmp_path / "out", workers=1, quiet=True)
     g = TrackEnd(start=0.012, coil_length=0.02, fringe=0.001).overlap(np.array(0.02))
     assert g < 0.7
-    assert summary["cases"]["track_end"]["truth_dwell_force_n"] == pytest.approx(0.2 / g,
+    assert summary.cases["track_end"].truth_dwell_force_n == pytest.approx(0.2 / g,
                                                                                   rel=1e-9)
-    lip = summary["cases"]["track_end"]["lip"]
-    assert lip["need_along_rms_n"] > 0 and np.isfinite(lip["error_along_rms_n"])
+    lip = summary.cases["track_end"].lip
+    assert lip.need_along_rms_n > 0 and np.isfinite(lip.error_along_rms_n)
     text = (tmp_path / "out" / "report.md").read_text()
     assert "| track_end | λ = 0 |" in text and "The force along r2 beyond the range" in text
 

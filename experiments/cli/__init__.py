@@ -95,17 +95,11 @@ def _warn(path, lines: list[str]) -> None:
 
 
 def _cmd_study(args) -> int:
-    import importlib
+    from experiments.studies import runner
 
-    from clm_sim.schema import load_yaml
-    from experiments.studies.kinds import MODULES, POOLED, kind_of
-
-    # Only the study asked for is imported (each loads its own libraries: matplotlib,
+    # Only the study the config names is imported (each loads its own libraries: matplotlib,
     # scipy.signal, torch), so a config refused for its kind costs none of them.
-    kind = kind_of(load_yaml(args.config), args.config)
-    study = importlib.import_module(f"experiments.studies.{MODULES[kind]}")
-    pool = {"workers": args.workers} if kind in POOLED else {}
-    return study.main(args.config, args.out, quiet=args.quiet, **pool)
+    return runner.main(args.config, args.out, workers=args.workers, quiet=args.quiet)
 
 
 def _cmd_diagnose(args) -> int:

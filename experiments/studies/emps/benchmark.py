@@ -28,7 +28,6 @@ method's effect, and why the force-residual extension drifts
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 import time
 from dataclasses import dataclass, field
@@ -38,7 +37,6 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, simulate_input
-from clm_sim.outdir import atomic_folder, check_output_folder
 from clm_sim.plant import Plant
 from clm_sim.records.read import load_record
 from clm_sim.run import Run
@@ -48,7 +46,7 @@ from experiments.records import output_error as oe
 from experiments.model_files import SimulationModel, load_model
 from experiments.records.simulation import simulate_record
 from experiments.studies.emps.cycles import cycle_edges, left_out
-from experiments.studies.emps.drift import Drift, explain_drift, plot_drift
+from experiments.studies.emps.drift import Drift, explain_drift
 from experiments.studies.emps.plateaus import cycle_friction, plateaus
 from experiments.studies.kinds import take_kind
 from experiments.processes.workers import map_in_order
@@ -630,59 +628,3 @@ def plot_errors(traces, ax=None):
     ax.set_ylabel("measured − simulated (mm)")
     plots._legend_right(ax)
     return ax
-
-
-def main(config_path, out=None, *, quiet: bool = False, workers: int | None = None) -> int:
-    """``clm-sim study CONFIG [--workers N]`` for a config with a ``benchmark:`` section (the
-    fits in ``workers`` processes, default 1; the result does not depend on it)."""
-    from experiments import plots
-
-    name, settings = load_benchmark(config_path)
-    out = Path(out) if out else Path("results") / Path(config_path).stem
-    inputs = (config_path, settings.training, settings.test, settings.published_model)
-    check_output_folder(out, what="a benchmark", inputs=inputs)
-    progress = (lambda s: None) if quiet else (lambda s: print(s, flush=True))
-    try:
-        result = run_benchmark(settings, progress, workers or 1)
-    except UserError as exc:
-        text = str(exc)
-        raise UserError(text if text.startswith(str(config_path)) else
-                        f"{config_path}: {text}") from None
-    command = f"clm-sim study {config_path}"
-    report = to_markdown(result, settings, command)
-    rows, pick = result["rows"], result["pick"]
-    test = load_record(settings.test, columns=settings.columns, scale=settings.scale)
-    ts = test.ts
-
-    def sim(plant):
-        return simulate_record(SimulationModel(plant, None, "model", ts), test,
-                               init_samples=settings.init_samples)
-
-    with atomic_folder(out, what="a benchmark", inputs=inputs) as tmp:
-        (tmp / "benchmark.json").write_text(json.dumps(
-            {"name": name, "command": command, "selection": settings.selection,
-             "rule": "the lowest mean left-out-cycle RMSE among the candidates whose "
-                     "whole-record fit is a measurement (benchmark.selection in the config, "
-                     "with its reason)",
-             "chosen": None if pick is None else pick.name,
-             "rows": [r.to_json() for r in rows],
-             "baselines": [dataclasses.asdict(b) for b in settings.baselines],
-             "init_samples": settings.init_samples, "cycles": settings.cycles,
-             "leak": result["leak"], "initial_state_test_rmse_m": result["initial_state"],
-             "sensitivity": [s.to_json() for s in result["sensitivity"]],
-             "cpu_s": result["cpu_s"], "drift": result["drift"].to_json()}, indent=1))
-        (tmp / "report.md").write_text(report)
-        for r in rows:
-            info = oe.model_file(r.plant, ts, name=r.name, description=f"EMPS: {r.made_from}")
-            path = tmp / "models" / f"{slug(r.name)}.json"
-            path.parent.mkdir(exist_ok=True)
-            path.write_text(json.dumps(info, indent=1))
-        traces = [("published model", sim(rows[0].plant))]
-        if pick is not None:
-            traces.append((f"chosen: {pick.name}", sim(pick.plant)))
-        traces.append((rows[2].name, sim(rows[2].plant)))
-        plots.save(plot_errors(traces).figure, tmp / "figures" / "test_errors.png")
-        if result["drift"].traces:
-            plots.save(plot_drift(result["drift"]).figure, tmp / "figures" / "drift.png")
-    print("\n".join([*table(rows, settings), "", *verdict(result, settings)]))
-    return 0

@@ -13,17 +13,14 @@ are replayed on the training reference (r1) and on the reference that leaves the
 from __future__ import annotations
 
 import functools
-import json
 from dataclasses import dataclass, field
 from typing import ClassVar
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
-from clm_sim.outdir import atomic_folder, check_writable
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
@@ -36,8 +33,9 @@ from experiments.studies.extrapolation.result import (
     FEEDBACK, LIP, SEQUENTIAL, Costs, ExtrapolationResult, NetworkParts, Spread, Trained,
     Variant, variant_key, variant_label)
 from experiments.studies.kinds import refuse_unread, take_kind
+from experiments.studies.protocol import Study
 from experiments.table import THETA_UNITS, t_interval
-from experiments.testbed import Progress, Testbed
+from experiments.testbed import Testbed
 
 
 @dataclass(frozen=True)
@@ -80,13 +78,13 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
     settings = data.pop("study", None)
     try:
         if has_study:  # before the build, whose checks assume a run on the records
-            refuse_unread(data, "extrapolation", ("data",))
+            refuse_unread(data, "extrapolation", "study", ("data",))
         config = build(ExperimentConfig, data, "config")
         preflight(config)
         if not has_study:
             raise UserError("needs a 'study:' section (lambdas, seeds, ...); a plain experiment "
                             "runs with 'clm-sim run'")
-        refuse_unread(data, "extrapolation")
+        refuse_unread(data, "extrapolation", "study")
         study = build(StudySettings, settings, "study")
     except UserError as exc:
         raise in_file(path, exc) from None
@@ -94,29 +92,6 @@ def load_study(path) -> tuple[ExperimentConfig, StudySettings]:
         if key not in config.references:
             raise UserError(f"{path}: study: reference {key!r} is not defined under 'references'")
     return config, study
-
-
-def main(config_path, out=None, *, quiet: bool = False) -> int:
-    """``clm-sim study CONFIG`` for ``kind: extrapolation``: checked as ``clm-sim run`` checks,
-    before any work; prints the report's findings and where the report is."""
-    config, study = load_study(config_path)
-    out = Path(out) if out else Path("results") / Path(config_path).stem
-    check_writable(out, inputs=(config_path,))  # before the work
-    run_study(config, study, out, quiet=quiet)
-    from experiments.report.screen import report_summary
-    print(report_summary(out), end="")
-    return 0
-
-
-def run_study(config: ExperimentConfig, study: StudySettings, out: Path, *,
-              quiet: bool = False) -> ExtrapolationResult:
-    """Run the study and write it into ``out`` (replaced atomically). Returns its result."""
-    progress = Progress(quiet)
-    out = Path(out)
-    with atomic_folder(out, what="a clm-sim study") as tmp:
-        summary = _study(config, study, tmp, progress)
-    progress(f"report in {out}/report.md")
-    return summary
 
 
 def _variants(study: StudySettings):
@@ -129,11 +104,25 @@ def _variants(study: StudySettings):
     return out
 
 
-def _study(config: ExperimentConfig, study: StudySettings, out: Path,
-           progress) -> ExtrapolationResult:
+@dataclass(frozen=True)
+class Scene:
+    """What the figures draw beyond the result: the trained models, their replays, the LIP,
+    the references, the true force and each model's two parts (a figure never predicts)."""
+
+    config: ExperimentConfig
+    lip: object
+    refs: dict
+    models: dict
+    runs: dict
+    truth: dict
+    parts: dict
+
+
+def compute(config: ExperimentConfig, study: StudySettings, *,
+            progress=None) -> tuple[ExtrapolationResult, Scene]:
+    """Train and replay every variant; the result and what its figures draw."""
+    progress = progress or (lambda message: None)
     ts = config.ts
-    (out / "config.resolved.yaml").write_text(yaml.safe_dump(
-        {**resolved(config), "study": to_plain(study)}, sort_keys=False))
     tb = Testbed(config, progress=progress)
     train = tb.training_run()
     lip = tb.fit_lip(train)
@@ -168,14 +157,13 @@ def _study(config: ExperimentConfig, study: StudySettings, out: Path,
     parts = {key: {r: [m.predict_parts(y=ref, ts=ts) for m in ms] for r, ref in refs.items()}
              for key, ms in models.items()}
     summary = _summarize(config, study, lip, refs, models, mae, runs, truth, parts)
-    (out / "study.json").write_text(json.dumps(summary.to_json(), indent=1))
-    _figures(summary, config, lip, refs, models, runs, truth, parts, out / "figures")
-    (out / "report.md").write_text(_report(summary, study))
-    return summary
+    return summary, Scene(config, lip, refs, models, runs, truth, parts)
 
 
-def _figures(summary, config, lip, refs, models, runs, truth, parts, folder: Path) -> None:
+def _figures(summary: ExtrapolationResult, folder: Path, scene: Scene) -> None:
     """The report's figures into ``folder``."""
+    config, lip, refs, models = scene.config, scene.lip, scene.refs, scene.models
+    runs, truth, parts = scene.runs, scene.truth, scene.parts
     ts = config.ts
     plots.save(figures.theta_figure(summary, models), folder / "theta_training.png")
     plots.save(figures.cost_figure(summary, models), folder / "cost_terms.png")
@@ -368,3 +356,10 @@ def _report(s: ExtrapolationResult, study: StudySettings) -> str:
     lines += ["MAE against λ (mean ± std over seeds; λ = 0 drawn at the left edge):", "",
               "![mae](figures/mae_vs_lambda.png)", ""]
     return "\n".join(lines)
+
+
+STUDY = Study(
+    kind="extrapolation", section="study", what="a clm-sim study", settings=StudySettings,
+    load=load_study, compute=compute, result=ExtrapolationResult, result_file="study.json",
+    report=_report, figures=_figures,
+    resolved=lambda config, study: {**resolved(config), "study": to_plain(study)})

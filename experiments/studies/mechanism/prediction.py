@@ -95,7 +95,7 @@ def predict(config, effects, *, inside: str = "r1", outside: str = "r2",
 
 
 def main(argv=None) -> int:
-    from experiments.studies.mechanism.study import load_mechanism
+    from experiments.studies.mechanism.settings import load_mechanism
 
     argv = sys.argv[1:] if argv is None else argv
     config, settings = load_mechanism(argv[0])

@@ -461,3 +461,18 @@ def study_to_json(sizes: dict[int, SizeRecord], wall_time_s: float) -> dict:
 def sizes_from_json(sizes: dict) -> dict[int, SizeRecord]:
     """``{n_l: SizeRecord}`` of the study's ``"sizes"`` (order kept)."""
     return {int(key): SizeRecord.from_json(rec) for key, rec in sizes.items()}
+
+
+@dataclass(frozen=True)
+class ProfilesResult:
+    """The study's result: the record per network size and the study's wall time (s)."""
+
+    sizes: dict[int, SizeRecord]
+    wall_time_s: float
+
+    def to_json(self) -> dict:
+        return study_to_json(self.sizes, self.wall_time_s)
+
+    @classmethod
+    def from_json(cls, d: dict) -> ProfilesResult:
+        return cls(sizes_from_json(d["sizes"]), d["wall_time_s"])

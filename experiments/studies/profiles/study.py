@@ -32,29 +32,27 @@ output folder. The fits run in ``--workers`` processes; the result does not depe
 from __future__ import annotations
 
 import contextlib
-import json
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from clm_sim.errors import UserError
-from clm_sim.outdir import atomic_folder
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn.fit_record import FitRecord
 from controllers.pgnn_settings import PGNNSettings
 from experiments.config import ExperimentConfig, resolved
 from experiments.processes.workers import cores
-from experiments.studies.kinds import refuse_unread, run_checked, take_kind
+from experiments.studies.kinds import preflighted, refuse_unread, take_kind
 from experiments.studies.profiles import identifiability as ident
 from experiments.studies.profiles.report import to_markdown
 from experiments.studies.profiles.result import (Check, FirstStop, LipIntervals, MarkedFit, Point,
-                                         RecordFit, SizeRecord, Walk, WalkSettings,
-                                         study_to_json)
-from experiments.testbed import STREAM_NETWORK, Progress, Testbed, stream
+                                                 ProfilesResult, RecordFit, SizeRecord, Walk,
+                                                 WalkSettings)
+from experiments.studies.protocol import Study
+from experiments.testbed import STREAM_NETWORK, Testbed, stream
 
 
 _LOW, _GT_ZERO = "integer at least", "number above zero"  # a setting's constraint
@@ -124,9 +122,9 @@ def load_profiles(path) -> tuple[ExperimentConfig, ProfileSettings]:
     data = take_kind(load_yaml(path), path, "identifiability")
     raw = data.pop("identifiability", None)
     try:
-        refuse_unread(data, "identifiability", ("data",))  # before the build: it assumes a run
+        refuse_unread(data, "identifiability", "identifiability", ("data",))  # before the build: it assumes a run
         config = build(ExperimentConfig, data, "config")
-        refuse_unread(data, "identifiability")
+        refuse_unread(data, "identifiability", "identifiability")
         settings = build(ProfileSettings, raw, "identifiability")
     except UserError as exc:
         raise UserError(f"{path}: {str(exc).removeprefix('config.').removeprefix('config: ')}") \
@@ -392,33 +390,25 @@ def summarize(settings: ProfileSettings, records: list[RecordRun], hidden: int,
         parameters=params, checks=checks)
 
 
-# ----------------------------------------------------------------------------- running
+def _timed(config: ExperimentConfig, settings: ProfileSettings, *, workers: int,
+           progress) -> tuple[ProfilesResult, None]:
+    start = time.perf_counter()
+    sizes = compute(config, settings, workers=workers, progress=progress)
+    return ProfilesResult(sizes, time.perf_counter() - start), None
 
-def run_profiles(config: ExperimentConfig, settings: ProfileSettings, out, *,
-                 workers: int | None = None, quiet: bool = False) -> dict[int, SizeRecord]:
-    """Run the study and write it into ``out`` (replaced atomically). Returns the record per
-    network size."""
+
+def _figures(result: ProfilesResult, folder: Path, scene=None) -> None:
     from experiments import plots
     from experiments.studies.profiles.figures import identifiability_figure
 
-    progress = Progress(quiet)
-    out = Path(out)
-    workers = workers or cores()
-    with atomic_folder(out, what="a clm-sim identifiability study") as tmp:
-        (tmp / "config.resolved.yaml").write_text(yaml.safe_dump(
-            {**resolved(config), "identifiability": to_plain(settings)}, sort_keys=False))
-        start = time.perf_counter()
-        result = compute(config, settings, workers=workers, progress=progress)
-        (tmp / "identifiability.json").write_text(json.dumps(
-            study_to_json(result, time.perf_counter() - start), indent=1, allow_nan=False))
-        (tmp / "report.md").write_text(to_markdown(result))
-        plots.save(identifiability_figure(result), tmp / "figures" / "identifiability.png")
-    progress(f"report in {out}/report.md")
-    return result
+    plots.save(identifiability_figure(result.sizes), folder / "identifiability.png")
 
 
-def main(config_path, out=None, *, workers: int | None = None, quiet: bool = False) -> int:
-    """``clm-sim study CONFIG`` for ``kind: identifiability``."""
-    run_checked(config_path, out, load_profiles, run_profiles, workers=workers,
-                quiet=quiet)
-    return 0
+STUDY = Study(
+    kind="identifiability", section="identifiability", what="a clm-sim identifiability study",
+    settings=ProfileSettings, load=preflighted(load_profiles), compute=_timed,
+    result=ProfilesResult, result_file="identifiability.json",
+    report=lambda result, settings: to_markdown(result.sizes), figures=_figures,
+    resolved=lambda config, settings: {**resolved(config),
+                                       "identifiability": to_plain(settings)},
+    workers=cores, json_options=(("allow_nan", False),))
