@@ -7,9 +7,9 @@ thread, CPU time, for an accepted step (a rejected step adds a trial, on every s
 
 * ``product``: a trial evaluation (forward pass, the scaled linear system factorized by
   Cholesky QR twice, :class:`controllers.pgnn.cost.Range`), then at that point the Jacobian
-  (closed form, Kaufman's projection in place; the linear solve cached), ``J'J``, ``J'r``, the
-  first-order test and the damped Cholesky solve of
-  :func:`controllers.optim.levenberg_marquardt`;
+  (closed form, column-major, Kaufman's projection in place; the linear solve cached), ``J'J``,
+  ``J'r`` (:meth:`controllers.pgnn.cost.SeparableCost.normal_equations`), the first-order test
+  and the damped Cholesky solve of :func:`controllers.optim.levenberg_marquardt`;
 * ``reference``: the same step with the thin SVD of the linear system (the product's
   arithmetic before Cholesky QR; the SVD is still its fallback);
 * ``restructured``: the least arithmetic known here for the same step, in numpy: the linear
@@ -83,8 +83,7 @@ def product_iteration(cost, beta):
         moved[0] += 1
         b = beta + moved[0] * 1e-12  # a new point every time: no cache hit for the trial
         cost(b, False)
-        r, J = cost(b, True)
-        normal, g = J.T @ J, J.T @ r
+        r, normal, g = cost.normal_equations(b)
         optim.first_order_from_normal(normal, g, float(r @ r))
         damped_solve(normal, g)
         return normal, g
@@ -196,13 +195,16 @@ def cpu_ms(fn, repeats):
 
 
 def table_iterations(path) -> list[int]:
-    """The LM iterations a table's ``table.json`` records, at n_l = 16 and 8 (every start)."""
+    """The LM iterations a table's ``table.json`` records as run by its command, at n_l = 16
+    and 8 (a start one fit took from another's cache counted once, where it ran)."""
     import json
+
+    from experiments.table import lm_iterations
 
     counts = {16: 0, 8: 0}
     for row in json.loads(Path(path).read_text())["rows"]:
         if row.get("kind") == "pgnn" and row.get("hidden") in counts:
-            counts[row["hidden"]] += sum(f["iterations_total"] for f in row["fits"])
+            counts[row["hidden"]] += lm_iterations(row["fits"])[0]
     return [counts[16], counts[8]]
 
 

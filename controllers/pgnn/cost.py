@@ -136,14 +136,19 @@ class Range:
         return C if self._T is None else self._T.T @ C
 
     def project_out(self, J: np.ndarray) -> None:
-        """``J -= U U'J`` in place (``J`` C-ordered): the update is one BLAS call that adds
-        into ``J``, with no temporary of ``J``'s size."""
+        """``J -= U U'J`` in place (``J`` contiguous, either order): the update is one BLAS
+        call that adds into ``J``, with no temporary of ``J``'s size."""
         C = self.coordinates(J)
         if self._T is not None:
             C = self._T @ C
-        # In Fortran order J is J' (p, m): J' <- J' - C' U1'.
-        scipy.linalg.blas.dgemm(-1.0, C, self._U, beta=1.0, c=J.T, trans_a=1, trans_b=1,
-                                overwrite_c=1)
+        gemm = scipy.linalg.blas.dgemm
+        if J.flags.f_contiguous:
+            done = gemm(-1.0, self._U, C, beta=1.0, c=J, overwrite_c=1)
+        else:  # in Fortran order J is J' (p, m): J' <- J' - C' U1'
+            done = gemm(-1.0, C, self._U, beta=1.0, c=J.T, trans_a=1, trans_b=1,
+                        overwrite_c=1)
+        if not np.shares_memory(done, J):
+            raise ValueError("Range.project_out: J must be contiguous (it is updated in place)")
 
     def solve(self, c: np.ndarray) -> np.ndarray:
         """The least-squares solution of ``As x = c`` (minimum-norm where ``svd`` left out
@@ -269,13 +274,16 @@ class SeparableCost:
             i += rows
         if w.orthogonal > 0:
             self._net_cols = np.ones((n, self.n_hidden + 1))
-        # Jacobian: the linear-system rows (projected), then the hidden-weight decay rows.
+        # Jacobian: the linear-system rows (projected), column-major (each column is written
+        # and read contiguously: network_jacobian, the projection and J'J are fastest so);
+        # the hidden-weight decay rows (constant) apart.
         n_decay = int(self.decayed.sum()) if w.weight_decay > 0 else 0
-        self._J = np.zeros((m + n_decay, self.n_beta))
+        self._J = np.zeros((m, self.n_beta), order="F")
+        self._J_decay = np.zeros((n_decay, self.n_beta))
         if n_decay:
-            self._J[m + np.arange(n_decay), np.flatnonzero(self.decayed)] = \
+            self._J_decay[np.arange(n_decay), np.flatnonzero(self.decayed)] = \
                 np.sqrt(w.weight_decay)
-        self._jf = np.empty((n, self.n_beta))
+        self._jf = np.empty((n, self.n_beta), order="F")
 
     def _fill(self, h: np.ndarray) -> np.ndarray:
         """``self._A`` for hidden outputs ``h`` (N, n): the blocks that depend on them."""
@@ -360,13 +368,33 @@ class SeparableCost:
         r = self._residual(beta, sol)
         if not jacobian:
             return r
+        J = self._projected(beta, sol)
+        return r, (np.vstack([J, self._J_decay]) if len(self._J_decay) else J)
+
+    def _projected(self, beta: np.ndarray, sol: dict) -> np.ndarray:
+        """Kaufman's Jacobian of the linear-system rows at ``beta``: ``d(A x)/d beta`` with the
+        range of ``A`` projected out (the buffer ``self._J``)."""
         w_out = sol["x"][self.n_theta:self.n_theta + self.n_hidden]
+        self._beta_rows(beta, w_out, sol["layers"], out=self._J)
+        sol["range"].project_out(self._J)
+        return self._J
+
+    def normal_equations(self, beta: np.ndarray):
+        """``(r, J'J, J'r)`` at ``beta`` for :func:`controllers.optim.levenberg_marquardt`
+        (``normal=``): the Gram matrix of the computed Jacobian, its linear-system rows and
+        its hidden-weight decay rows (one entry each, ``sqrt(alpha)``) added apart, without
+        stacking the two."""
+        sol = self._solve(beta)
+        r = self._residual(beta, sol)
+        J = self._projected(beta, sol)
         m = len(self._c)
-        J = self._J[:m]
-        self._beta_rows(beta, w_out, sol["layers"], out=J)
-        # Kaufman: project out the range of A.
-        sol["range"].project_out(J)
-        return r, self._J
+        normal, g = J.T @ J, J.T @ r[:m]
+        if len(self._J_decay):
+            cols = np.flatnonzero(self.decayed)
+            s = self._J_decay[np.arange(len(cols)), cols]
+            normal[cols, cols] += s * s
+            g[cols] += s * r[m:]
+        return r, normal, g
 
     def _beta_rows(self, beta, w_out, layers=None, out=None) -> np.ndarray:
         """``d (A(beta) x) / d beta`` for the linear-system rows, at output weights ``w_out``."""
@@ -396,7 +424,7 @@ class SeparableCost:
         """``J`` with the rows of the hidden-weight decay (which depend on beta only)."""
         if not self.w.weight_decay > 0:
             return J
-        decay = self._J[len(self._c):]
+        decay = self._J_decay
         Jd = np.zeros((len(decay), J.shape[1]))
         Jd[:, J.shape[1] - len(beta):] = decay
         return np.vstack([J, Jd])

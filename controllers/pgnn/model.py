@@ -363,6 +363,10 @@ class PGNNFeedforward:
         self._check_size(len(fit.target), len(data.target))
         cache = StartCache() if reuse is None else reuse
         best, starts = None, []
+        # The LM iterations of every optimization this fit ran, and of those it took from the
+        # cache (each once): listed starts or not (a sequential twin, the regularized side of
+        # an exchange), so that a table's sum is what its command ran.
+        counted, spent = set(), {"run": 0, "reused": 0}
 
         def optimize(beta0, weights=None, model=self) -> tuple[StartOutcome, bool, str]:
             """The outcome from ``beta0`` of ``model``'s cost (``weights``), whether it was
@@ -370,9 +374,14 @@ class PGNNFeedforward:
             key = model._start_key(fit, held_out, theta_lip_v, beta0, weights)
             got = cache.take(key)
             if got is not None:
+                if key not in counted:
+                    counted.add(key)
+                    spent["reused"] += got.result.iterations
                 return got, True, key
             got = model._one_start(fit, held_out, theta_lip_v, rng, beta0, weights)
             cache.keep(key, got)
+            counted.add(key)
+            spent["run"] += got.result.iterations
             return got, False, key
 
         with single_threaded():
@@ -402,7 +411,8 @@ class PGNNFeedforward:
         self.ts_ = data.ts
         self.fit_ = FitRecord(
             stop=stop, cost_stop=res.stop, iterations=res.iterations,
-            iterations_total=int(sum(s.iterations for s in starts)), theta_moved=moved,
+            iterations_total=int(sum(s.iterations for s in starts)),
+            iterations_run=spent["run"], iterations_reused=spent["reused"], theta_moved=moved,
             theta_ftol=opt.theta_ftol, theta_path=theta_path(best.history),
             continuation_lam=(float(opt.continuation_lam)
                               if self._continues() or self._exchanges() else 0.0),
@@ -494,7 +504,8 @@ class PGNNFeedforward:
 
             res = optim.levenberg_marquardt(cost, net.get_nonlinear(),
                                             max_iter=self.settings.max_iter,
-                                            ftol=self.settings.ftol, atol=atol, callback=record)
+                                            ftol=self.settings.ftol, atol=atol, callback=record,
+                                            normal=cost.normal_equations)
             theta, w, b = cost.linear(res.p)
             net.set_nonlinear(res.p)
             net.set_linear(theta, w, b)
@@ -573,8 +584,9 @@ class PGNNFeedforward:
         if s.optimizer == "adam":
             result = optim.adam(fun, p0, max_iter=s.max_iter, lr=s.adam_lr, callback=record)
         else:
-            result = optim.levenberg_marquardt(fun, p0, max_iter=s.max_iter, ftol=s.ftol,
-                                               callback=record)
+            result = optim.levenberg_marquardt(
+                fun, p0, max_iter=s.max_iter, ftol=s.ftol, callback=record,
+                normal=cost.normal_equations if varpro else None)
         beta, (theta, w, b) = unpack(best["p"])
         net.set_nonlinear(beta)
         net.set_linear(theta, w, b)
