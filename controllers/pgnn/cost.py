@@ -113,12 +113,22 @@ class Range:
     @classmethod
     def of(cls, As: np.ndarray, exact: bool = False) -> Range:
         """The range of ``As`` (columns of unit norm or zero); ``exact``: through the SVD."""
+        return cls.of_scaled(As, np.ones(As.shape[1]), exact=exact)
+
+    @classmethod
+    def of_scaled(cls, A: np.ndarray, scale: np.ndarray, gram: np.ndarray | None = None,
+                  exact: bool = False) -> Range:
+        """The range of ``As = A / scale`` (``scale``: ``A``'s column norms, 1 for a zero
+        column; ``gram``: ``A'A`` where the caller has it), without forming ``As`` on the
+        Cholesky QR path: its Gram matrix is ``A'A`` scaled, and ``U1 = A (R1^-1 / scale)``."""
         if not exact:
-            got = _cholesky_qr2(As)
+            if gram is None:
+                gram = A.T @ A
+            got = _cholesky_qr2(A, gram / np.outer(scale, scale), 1.0 / scale)
             if got is not None:
                 U1, T, R = got
                 return cls("qr", U1, R=R, T=T)
-        U, s, Vt = np.linalg.svd(As, full_matrices=False)
+        U, s, Vt = np.linalg.svd(A / scale, full_matrices=False)
         keep = s > s[0] * 1e-12
         if not keep.all():
             U, s, Vt = U[:, keep], s[keep], Vt[keep]
@@ -168,12 +178,12 @@ QR_GRAM_DEVIATION = 0.5
 for which :class:`Range` keeps the second pass's basis (checked after the fact)."""
 
 
-def _cholesky_qr2(As: np.ndarray):
-    """``(U1, T, R)`` with ``As = U R``, ``U = U1 T`` orthonormal and ``R`` upper triangular, by
-    Cholesky QR twice; None where the first factorization fails or its basis is too far from
-    orthonormal (:class:`Range`)."""
+def _cholesky_qr2(A: np.ndarray, gram: np.ndarray, inverse_scale: np.ndarray):
+    """``(U1, T, R)`` with ``As = A diag(inverse_scale) = U R``, ``U = U1 T`` orthonormal and
+    ``R`` upper triangular, by Cholesky QR twice (``gram``: ``As'As``); None where the first
+    factorization fails or its basis is too far from orthonormal (:class:`Range`)."""
     potrf, trtri = scipy.linalg.lapack.dpotrf, scipy.linalg.lapack.dtrtri
-    R1, info = potrf(As.T @ As, lower=0, clean=1)
+    R1, info = potrf(gram, lower=0, clean=1)
     if info != 0:
         return None
     sv = np.linalg.svd(R1, compute_uv=False)  # those of As, to about u * kappa**2
@@ -182,7 +192,7 @@ def _cholesky_qr2(As: np.ndarray):
     inv1, info = trtri(R1, lower=0)
     if info != 0:
         return None
-    U1 = As @ inv1
+    U1 = A @ (inv1 * inverse_scale[:, None])
     G = U1.T @ U1
     # The 2-norm of G - I is at most k times its largest entry.
     if len(G) * np.abs(G - np.eye(len(G))).max() > QR_GRAM_DEVIATION:
@@ -312,9 +322,10 @@ class SeparableCost:
         layers = self.net.layer_outputs(beta, self.zs)
         h = layers[1][-1].numpy()
         A, c = self._fill(h), self._c
-        scale = np.linalg.norm(A, axis=0)
+        gram = A.T @ A  # the column norms from its diagonal: no pass over A for them
+        scale = np.sqrt(np.diag(gram))
         scale[scale == 0] = 1.0
-        span = Range.of(A / scale)
+        span = Range.of_scaled(A, scale, gram)
         x = span.solve(c) / scale
         r_lin = A @ x - c
         out = {"h": h, "layers": layers, "x": x, "range": span, "r_lin": r_lin}
