@@ -181,8 +181,9 @@ class FitRecord:
     ftol: float
     max_iter: int
     iterations_total: int | None = None
-    iterations_run: int | None = None
-    iterations_reused: int | None = None
+    # bookkeeping, not the outcome (a fit that took a start from the cache equals one that ran it)
+    iterations_run: int | None = field(default=None, compare=False)
+    iterations_reused: int | None = field(default=None, compare=False)
     theta_moved: float | None = None
     theta_ftol: float | None = None
     theta_path: tuple[ThetaPoint, ...] = ()
