@@ -28,11 +28,12 @@ thread, CPU time, for an accepted step (a rejected step adds a trial, on every s
 
 It checks that the three give the same normal matrix and gradient at the start (relative
 difference printed), and prints each rate, the product's ratio to the restructured one and
-what the table's iterations cost at each rate (``--iterations``: the table's LM iterations at
-n_l = 16 and 8, as its ``table.json`` records them; ``--table``: read them from that file).
+what the table's iterations cost at each rate (``--table``: the LM iterations at n_l = 16 and
+8 that a ``table.json`` records as run by its command, default the page's
+``docs/results/paper_table.json``; ``--iterations``: given instead).
 
     python benchmarks/bench_iteration_floor.py [--rounds 7] [--repeats 20]
-                                               [--iterations 6907,6213 | --table DIR/table.json]
+                                               [--table DIR/table.json | --iterations N16,N8]
 """
 
 from __future__ import annotations
@@ -237,13 +238,13 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=20, help="iterations per round")
     ap.add_argument("--rounds", type=int, default=7,
                     help="rounds, the sides interleaved; the median round is printed")
-    ap.add_argument("--iterations", default="6907,6213",
-                    help="the table's LM iterations at n_l = 16 and 8")
-    ap.add_argument("--table", default=None,
-                    help="a table.json to read the iterations from (instead of --iterations)")
+    ap.add_argument("--iterations", default=None,
+                    help="the table's LM iterations at n_l = 16 and 8 (instead of --table)")
+    ap.add_argument("--table", default=str(ROOT / "docs/results/paper_table.json"),
+                    help="a table.json to read the iterations run from (default: the page's)")
     args = ap.parse_args(argv)
-    counts = (table_iterations(args.table) if args.table
-              else [int(v) for v in args.iterations.split(",")])
+    counts = ([int(v) for v in args.iterations.split(",")] if args.iterations
+              else table_iterations(args.table))
 
     tb = Testbed.from_config(ROOT / "experiments/configs/paper_table.yaml")
     run = tb.training_run()
