@@ -7,9 +7,9 @@ thread, CPU time, for an accepted step (a rejected step adds a trial, on every s
 
 * ``product``: a trial evaluation (forward pass, the scaled linear system factorized by
   Cholesky QR twice, :class:`controllers.pgnn.cost.Range`), then at that point the Jacobian
-  (closed form, column-major, Kaufman's projection in place; the linear solve cached), ``J'J``,
-  ``J'r`` (:meth:`controllers.pgnn.cost.SeparableCost.normal_equations`), the first-order test
-  and the damped Cholesky solve of :func:`controllers.optim.levenberg_marquardt`;
+  (closed form, Kaufman's projection in place; the linear solve cached), ``J'J``, ``J'r``, the
+  first-order test and the damped Cholesky solve of
+  :func:`controllers.optim.levenberg_marquardt`;
 * ``reference``: the same step with the thin SVD of the linear system (the product's
   arithmetic before Cholesky QR; the SVD is still its fallback);
 * ``restructured``: the least arithmetic known here for the same step, in numpy: the linear
@@ -84,7 +84,8 @@ def product_iteration(cost, beta):
         moved[0] += 1
         b = beta + moved[0] * 1e-12  # a new point every time: no cache hit for the trial
         cost(b, False)
-        r, normal, g = cost.normal_equations(b)
+        r, J = cost(b, True)
+        normal, g = J.T @ J, J.T @ r
         optim.first_order_from_normal(normal, g, float(r @ r))
         damped_solve(normal, g)
         return normal, g

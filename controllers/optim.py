@@ -94,7 +94,7 @@ def _symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float = 1e-3,
                         rtol: float = 0.0, ftol: float | None = None,
                         atol: float | None = None, atol_window: int = 10,
-                        callback=None, normal=None) -> OptimResult:
+                        callback=None) -> OptimResult:
     """Minimize ``||r(p)||**2``; ``max_iter`` bounds the Jacobian evaluations.
 
     Converged when :func:`first_order_measure` is at most ``ftol`` (the Gauss-Newton model
@@ -106,9 +106,7 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
     iterations (so never before ``atol_window`` iterations: a point is not resolved on the
     prediction alone; ``atol_window=0`` is the prediction alone): the cost is then known to that
     resolution as far as the local model and the recent pace tell (a caller that states a
-    resolution should check it by continuing some such points). ``normal(p)``: ``(r, J'J, J'r)``
-    at ``p`` where the caller forms them itself (default: from ``fun(p, True)``), the Gram
-    matrix of a computed ``J`` all the same.
+    resolution should check it by continuing some such points).
     """
     p = np.array(p0, dtype=np.float64)
 
@@ -116,8 +114,6 @@ def levenberg_marquardt(fun, p0: np.ndarray, *, max_iter: int = 100, mu0: float 
         """``r``, ``J'J`` and ``J'r`` at ``p`` (the Gauss-Newton matrix from ``J`` itself,
         never as a difference of larger products: it is the Gram matrix of a computed ``J``,
         so its small eigenvalues, the flat directions, are those of a nearby problem)."""
-        if normal is not None:
-            return normal(p)
         r, J = fun(p, True)
         return r, J.T @ J, J.T @ r
 

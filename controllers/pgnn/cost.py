@@ -113,22 +113,12 @@ class Range:
     @classmethod
     def of(cls, As: np.ndarray, exact: bool = False) -> Range:
         """The range of ``As`` (columns of unit norm or zero); ``exact``: through the SVD."""
-        return cls.of_scaled(As, np.ones(As.shape[1]), exact=exact)
-
-    @classmethod
-    def of_scaled(cls, A: np.ndarray, scale: np.ndarray, gram: np.ndarray | None = None,
-                  exact: bool = False) -> Range:
-        """The range of ``As = A / scale`` (``scale``: ``A``'s column norms, 1 for a zero
-        column; ``gram``: ``A'A`` where the caller has it), without forming ``As`` on the
-        Cholesky QR path: its Gram matrix is ``A'A`` scaled, and ``U1 = A (R1^-1 / scale)``."""
         if not exact:
-            if gram is None:
-                gram = A.T @ A
-            got = _cholesky_qr2(A, gram / np.outer(scale, scale), 1.0 / scale)
+            got = _cholesky_qr2(As)
             if got is not None:
                 U1, T, R = got
                 return cls("qr", U1, R=R, T=T)
-        U, s, Vt = np.linalg.svd(A / scale, full_matrices=False)
+        U, s, Vt = np.linalg.svd(As, full_matrices=False)
         keep = s > s[0] * 1e-12
         if not keep.all():
             U, s, Vt = U[:, keep], s[keep], Vt[keep]
@@ -146,19 +136,14 @@ class Range:
         return C if self._T is None else self._T.T @ C
 
     def project_out(self, J: np.ndarray) -> None:
-        """``J -= U U'J`` in place (``J`` contiguous, either order): the update is one BLAS
-        call that adds into ``J``, with no temporary of ``J``'s size."""
+        """``J -= U U'J`` in place (``J`` C-ordered): the update is one BLAS call that adds
+        into ``J``, with no temporary of ``J``'s size."""
         C = self.coordinates(J)
         if self._T is not None:
             C = self._T @ C
-        gemm = scipy.linalg.blas.dgemm
-        if J.flags.f_contiguous:
-            done = gemm(-1.0, self._U, C, beta=1.0, c=J, overwrite_c=1)
-        else:  # in Fortran order J is J' (p, m): J' <- J' - C' U1'
-            done = gemm(-1.0, C, self._U, beta=1.0, c=J.T, trans_a=1, trans_b=1,
-                        overwrite_c=1)
-        if not np.shares_memory(done, J):
-            raise ValueError("Range.project_out: J must be contiguous (it is updated in place)")
+        # In Fortran order J is J' (p, m): J' <- J' - C' U1'.
+        scipy.linalg.blas.dgemm(-1.0, C, self._U, beta=1.0, c=J.T, trans_a=1, trans_b=1,
+                                overwrite_c=1)
 
     def solve(self, c: np.ndarray) -> np.ndarray:
         """The least-squares solution of ``As x = c`` (minimum-norm where ``svd`` left out
@@ -178,12 +163,12 @@ QR_GRAM_DEVIATION = 0.5
 for which :class:`Range` keeps the second pass's basis (checked after the fact)."""
 
 
-def _cholesky_qr2(A: np.ndarray, gram: np.ndarray, inverse_scale: np.ndarray):
-    """``(U1, T, R)`` with ``As = A diag(inverse_scale) = U R``, ``U = U1 T`` orthonormal and
-    ``R`` upper triangular, by Cholesky QR twice (``gram``: ``As'As``); None where the first
-    factorization fails or its basis is too far from orthonormal (:class:`Range`)."""
+def _cholesky_qr2(As: np.ndarray):
+    """``(U1, T, R)`` with ``As = U R``, ``U = U1 T`` orthonormal and ``R`` upper triangular, by
+    Cholesky QR twice; None where the first factorization fails or its basis is too far from
+    orthonormal (:class:`Range`)."""
     potrf, trtri = scipy.linalg.lapack.dpotrf, scipy.linalg.lapack.dtrtri
-    R1, info = potrf(gram, lower=0, clean=1)
+    R1, info = potrf(As.T @ As, lower=0, clean=1)
     if info != 0:
         return None
     sv = np.linalg.svd(R1, compute_uv=False)  # those of As, to about u * kappa**2
@@ -192,7 +177,7 @@ def _cholesky_qr2(A: np.ndarray, gram: np.ndarray, inverse_scale: np.ndarray):
     inv1, info = trtri(R1, lower=0)
     if info != 0:
         return None
-    U1 = A @ (inv1 * inverse_scale[:, None])
+    U1 = As @ inv1
     G = U1.T @ U1
     # The 2-norm of G - I is at most k times its largest entry.
     if len(G) * np.abs(G - np.eye(len(G))).max() > QR_GRAM_DEVIATION:
@@ -284,16 +269,13 @@ class SeparableCost:
             i += rows
         if w.orthogonal > 0:
             self._net_cols = np.ones((n, self.n_hidden + 1))
-        # Jacobian: the linear-system rows (projected), column-major (each column is written
-        # and read contiguously: network_jacobian, the projection and J'J are fastest so);
-        # the hidden-weight decay rows (constant) apart.
+        # Jacobian: the linear-system rows (projected), then the hidden-weight decay rows.
         n_decay = int(self.decayed.sum()) if w.weight_decay > 0 else 0
-        self._J = np.zeros((m, self.n_beta), order="F")
-        self._J_decay = np.zeros((n_decay, self.n_beta))
+        self._J = np.zeros((m + n_decay, self.n_beta))
         if n_decay:
-            self._J_decay[np.arange(n_decay), np.flatnonzero(self.decayed)] = \
+            self._J[m + np.arange(n_decay), np.flatnonzero(self.decayed)] = \
                 np.sqrt(w.weight_decay)
-        self._jf = np.empty((n, self.n_beta), order="F")
+        self._jf = np.empty((n, self.n_beta))
 
     def _fill(self, h: np.ndarray) -> np.ndarray:
         """``self._A`` for hidden outputs ``h`` (N, n): the blocks that depend on them."""
@@ -322,10 +304,9 @@ class SeparableCost:
         layers = self.net.layer_outputs(beta, self.zs)
         h = layers[1][-1].numpy()
         A, c = self._fill(h), self._c
-        gram = A.T @ A  # the column norms from its diagonal: no pass over A for them
-        scale = np.sqrt(np.diag(gram))
+        scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
-        span = Range.of_scaled(A, scale, gram)
+        span = Range.of(A / scale)
         x = span.solve(c) / scale
         r_lin = A @ x - c
         out = {"h": h, "layers": layers, "x": x, "range": span, "r_lin": r_lin}
@@ -379,33 +360,13 @@ class SeparableCost:
         r = self._residual(beta, sol)
         if not jacobian:
             return r
-        J = self._projected(beta, sol)
-        return r, (np.vstack([J, self._J_decay]) if len(self._J_decay) else J)
-
-    def _projected(self, beta: np.ndarray, sol: dict) -> np.ndarray:
-        """Kaufman's Jacobian of the linear-system rows at ``beta``: ``d(A x)/d beta`` with the
-        range of ``A`` projected out (the buffer ``self._J``)."""
         w_out = sol["x"][self.n_theta:self.n_theta + self.n_hidden]
-        self._beta_rows(beta, w_out, sol["layers"], out=self._J)
-        sol["range"].project_out(self._J)
-        return self._J
-
-    def normal_equations(self, beta: np.ndarray):
-        """``(r, J'J, J'r)`` at ``beta`` for :func:`controllers.optim.levenberg_marquardt`
-        (``normal=``): the Gram matrix of the computed Jacobian, its linear-system rows and
-        its hidden-weight decay rows (one entry each, ``sqrt(alpha)``) added apart, without
-        stacking the two."""
-        sol = self._solve(beta)
-        r = self._residual(beta, sol)
-        J = self._projected(beta, sol)
         m = len(self._c)
-        normal, g = J.T @ J, J.T @ r[:m]
-        if len(self._J_decay):
-            cols = np.flatnonzero(self.decayed)
-            s = self._J_decay[np.arange(len(cols)), cols]
-            normal[cols, cols] += s * s
-            g[cols] += s * r[m:]
-        return r, normal, g
+        J = self._J[:m]
+        self._beta_rows(beta, w_out, sol["layers"], out=J)
+        # Kaufman: project out the range of A.
+        sol["range"].project_out(J)
+        return r, self._J
 
     def _beta_rows(self, beta, w_out, layers=None, out=None) -> np.ndarray:
         """``d (A(beta) x) / d beta`` for the linear-system rows, at output weights ``w_out``."""
@@ -435,7 +396,7 @@ class SeparableCost:
         """``J`` with the rows of the hidden-weight decay (which depend on beta only)."""
         if not self.w.weight_decay > 0:
             return J
-        decay = self._J_decay
+        decay = self._J[len(self._c):]
         Jd = np.zeros((len(decay), J.shape[1]))
         Jd[:, J.shape[1] - len(beta):] = decay
         return np.vstack([J, Jd])

@@ -504,8 +504,7 @@ class PGNNFeedforward:
 
             res = optim.levenberg_marquardt(cost, net.get_nonlinear(),
                                             max_iter=self.settings.max_iter,
-                                            ftol=self.settings.ftol, atol=atol, callback=record,
-                                            normal=cost.normal_equations)
+                                            ftol=self.settings.ftol, atol=atol, callback=record)
             theta, w, b = cost.linear(res.p)
             net.set_nonlinear(res.p)
             net.set_linear(theta, w, b)
@@ -584,9 +583,8 @@ class PGNNFeedforward:
         if s.optimizer == "adam":
             result = optim.adam(fun, p0, max_iter=s.max_iter, lr=s.adam_lr, callback=record)
         else:
-            result = optim.levenberg_marquardt(
-                fun, p0, max_iter=s.max_iter, ftol=s.ftol, callback=record,
-                normal=cost.normal_equations if varpro else None)
+            result = optim.levenberg_marquardt(fun, p0, max_iter=s.max_iter, ftol=s.ftol,
+                                               callback=record)
         beta, (theta, w, b) = unpack(best["p"])
         net.set_nonlinear(beta)
         net.set_linear(theta, w, b)

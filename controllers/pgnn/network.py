@@ -168,10 +168,8 @@ class PGNNNetwork(nn.Module):
         params = self._split(beta)
         n = zs.shape[0]
         if out is None:
-            out = np.empty((n, len(beta)), order="F")
+            out = np.empty((n, len(beta)))
         offsets = {k: i for k, _, i in self._pieces}
-        if out.strides[0] == out.itemsize:  # column-major: each column written contiguously
-            return self._jacobian_by_columns(params, w_out, zs, pres, outs, offsets, out)
         with torch.no_grad():
             grad = torch.from_numpy(np.ascontiguousarray(w_out, dtype=np.float64))
             for li in range(len(pres) - 1, -1, -1):
@@ -183,28 +181,6 @@ class PGNNNetwork(nn.Module):
                 dw = torch.from_numpy(out[:, w_at:w_at + width * fan_in]).view(n, width, fan_in)
                 torch.mul(delta[:, :, None], inputs[:, None, :], out=dw)
                 out[:, b_at:b_at + width] = delta.numpy()
-                if li > 0:
-                    grad = delta @ params[f"hidden.{li}.weight"]
-        return out
-
-    def _jacobian_by_columns(self, params, w_out, zs, pres, outs, offsets, out):
-        """:meth:`network_jacobian` into a column-major ``out`` (the same products, element by
-        element): per layer, the weight block ``(width, fan_in, N)`` of ``out.T`` is the outer
-        product of the transposed sensitivities and inputs, every sample contiguous (three
-        times faster than the row-major outer products with fan_in = 4)."""
-        outT = out.T
-        with torch.no_grad():
-            grad = torch.from_numpy(np.ascontiguousarray(w_out, dtype=np.float64))
-            for li in range(len(pres) - 1, -1, -1):
-                delta = grad * DERIVATIVES[self.mlp.activation](pres[li], outs[li])
-                inputs = outs[li - 1] if li > 0 else zs
-                w_at, b_at = offsets[f"hidden.{li}.weight"], offsets[f"hidden.{li}.bias"]
-                width, fan_in = delta.shape[1], inputs.shape[1]
-                d_t = delta.numpy().T.copy()
-                dw = outT[w_at:w_at + width * fan_in]
-                dw.shape = (width, fan_in, dw.shape[1])  # a view (raises rather than copy)
-                np.multiply(d_t[:, None, :], inputs.numpy().T.copy()[None, :, :], out=dw)
-                outT[b_at:b_at + width] = d_t
                 if li > 0:
                     grad = delta @ params[f"hidden.{li}.weight"]
         return out
