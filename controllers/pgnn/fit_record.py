@@ -163,8 +163,9 @@ class FitRecord:
     settings they were tested against. A free fit (``fit``) also has: iterations_total (over
     every start listed, whoever ran it), iterations_run and iterations_reused (of every
     optimization the fit ran, listed or not, and of those it took from other fits' start cache:
-    over a table, the first sums to the iterations its command ran), theta_moved (how far theta_phy's force still moved over the last quarter of
-    the iterations, a fraction of the training force's rms) and theta_ftol, theta_path (theta_phy
+    over a table, the first sums to the iterations its command ran), theta_moved (how far
+    theta_phy's force still moved over the last quarter of the iterations, a fraction of the
+    training force's rms) and theta_ftol, theta_path (theta_phy
     at checkpoint iterations), continuation_lam (the lambda of the continuation start where one
     ran, else 0), start (the kind of start kept), starts and start_rtol (two starts agree when
     their objectives differ by at most this fraction of the lower). A pinned fit
