@@ -28,11 +28,12 @@ thread, CPU time, for an accepted step (a rejected step adds a trial, on every s
 
 It checks that the three give the same normal matrix and gradient at the start (relative
 difference printed), and prints each rate, the product's ratio to the restructured one and
-what the table's iterations cost at each rate (``--iterations``: the table's LM iterations at
-n_l = 16 and 8, as its ``table.json`` records them; ``--table``: read them from that file).
+what the table's iterations cost at each rate (``--table``: the LM iterations at n_l = 16 and
+8 that a ``table.json`` records as run by its command, default the page's
+``docs/results/paper_table.json``; ``--iterations``: given instead).
 
     python benchmarks/bench_iteration_floor.py [--rounds 7] [--repeats 20]
-                                               [--iterations 6907,6213 | --table DIR/table.json]
+                                               [--table DIR/table.json | --iterations N16,N8]
 """
 
 from __future__ import annotations
@@ -195,14 +196,41 @@ def cpu_ms(fn, repeats):
     return (time.process_time() - c0) / repeats * 1e3
 
 
+SIDES = ("product", "reference", "restructured")
+
+
+def iteration_ms(data, theta_lip, hidden, seed, sides=SIDES, rounds=7, repeats=20):
+    """CPU ms of one LM iteration per side (the median of ``rounds`` interleaved rounds of
+    ``repeats``: every side sees the same load) at ``hidden`` neurons, and each side's largest
+    relative difference from the reference's normal matrix and gradient at the start (call
+    inside :func:`clm_sim.numerics.single_threaded`)."""
+    cost, beta = cost_at_start(data, theta_lip, hidden, seed)
+    make = {"product": lambda: product_iteration(cost, beta),
+            "reference": lambda: reference_iteration(cost, beta),
+            "restructured": lambda: Restructured(cost).iteration(beta)}
+    fns = {k: make[k]() for k in dict.fromkeys(("reference", *sides))}
+    got = {k: fn() for k, fn in fns.items()}
+    n0, g0 = got["reference"]
+    diff = {k: (np.abs(n - n0).max() / np.abs(n0).max(),
+                np.abs(g - g0).max() / np.abs(g0).max()) for k, (n, g) in got.items()}
+    times = {k: [] for k in sides}
+    for _ in range(rounds):
+        for k in sides:
+            times[k].append(cpu_ms(fns[k], repeats))
+    return {k: float(np.median(v)) for k, v in times.items()}, diff
+
+
 def table_iterations(path) -> list[int]:
-    """The LM iterations a table's ``table.json`` records, at n_l = 16 and 8 (every start)."""
+    """The LM iterations a table's ``table.json`` records as run by its command, at n_l = 16
+    and 8 (a start one fit took from another's cache counted once, where it ran)."""
     import json
+
+    from experiments.table import lm_iterations
 
     counts = {16: 0, 8: 0}
     for row in json.loads(Path(path).read_text())["rows"]:
         if row.get("kind") == "pgnn" and row.get("hidden") in counts:
-            counts[row["hidden"]] += sum(f["iterations_total"] for f in row["fits"])
+            counts[row["hidden"]] += lm_iterations(row["fits"])[0]
     return [counts[16], counts[8]]
 
 
@@ -211,13 +239,13 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=20, help="iterations per round")
     ap.add_argument("--rounds", type=int, default=7,
                     help="rounds, the sides interleaved; the median round is printed")
-    ap.add_argument("--iterations", default="6907,6213",
-                    help="the table's LM iterations at n_l = 16 and 8")
-    ap.add_argument("--table", default=None,
-                    help="a table.json to read the iterations from (instead of --iterations)")
+    ap.add_argument("--iterations", default=None,
+                    help="the table's LM iterations at n_l = 16 and 8 (instead of --table)")
+    ap.add_argument("--table", default=str(ROOT / "docs/results/paper_table.json"),
+                    help="a table.json to read the iterations run from (default: the page's)")
     args = ap.parse_args(argv)
-    counts = (table_iterations(args.table) if args.table
-              else [int(v) for v in args.iterations.split(",")])
+    counts = ([int(v) for v in args.iterations.split(",")] if args.iterations
+              else table_iterations(args.table))
 
     tb = Testbed.from_config(ROOT / "experiments/configs/paper_table.yaml")
     run = tb.training_run()
@@ -226,24 +254,12 @@ def main(argv=None) -> int:
     data = TrainingData(d.phi, d.target, d.ts)
     print(f"data: {len(data.target)} samples; one LM iteration of a paper's-cost fit "
           f"(lambda = 0), CPU ms on one thread", flush=True)
-    sides = ("product", "reference", "restructured")
+    sides = SIDES
     totals = dict.fromkeys(sides, 0.0)
     with single_threaded():
         for hidden, count in zip((16, 8), counts):
-            cost, beta = cost_at_start(data, theta_lip, hidden, tb.config.seed)
-            fns = {"product": product_iteration(cost, beta),
-                   "reference": reference_iteration(cost, beta),
-                   "restructured": Restructured(cost).iteration(beta)}
-            got = {k: fn() for k, fn in fns.items()}
-            n0, g0 = got["reference"]
-            diff = {k: (np.abs(n - n0).max() / np.abs(n0).max(),
-                        np.abs(g - g0).max() / np.abs(g0).max()) for k, (n, g) in got.items()}
-            # Interleaved rounds, the median of each side: all see the same load.
-            rounds = {k: [] for k in sides}
-            for _ in range(args.rounds):
-                for k in sides:
-                    rounds[k].append(cpu_ms(fns[k], args.repeats))
-            ms = {k: float(np.median(v)) for k, v in rounds.items()}
+            ms, diff = iteration_ms(data, theta_lip, hidden, tb.config.seed, sides,
+                                    args.rounds, args.repeats)
             for k in totals:
                 totals[k] += ms[k] * count / 1e3
             print(f"n_l = {hidden:2d}: product {ms['product']:6.2f} ms, reference "

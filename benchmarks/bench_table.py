@@ -27,7 +27,11 @@ The difference of the two runs' totals is what the pool costs.
                                      [--rows 2,3] [--seeds 10] [--pool]
 
 Every timing is CPU time (``time.process_time`` in this process, ``getrusage`` of the
-children): on a shared machine the fair figure.
+children): on a shared machine the fair figure. At the end, in the same process and sitting,
+it times one LM iteration at the restructured rate (``bench_iteration_floor.py``'s least
+arithmetic, n_l = 16 and 8) and prints the bar of the table's cost: its CPU against that rate
+times the LM iterations its ``table.json`` records as run (a start taken from another fit's
+cache runs none, and is counted apart as reused). ``--no-floor`` leaves that out.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from __future__ import annotations
 import argparse
 import collections
 import dataclasses
+import json
 import os
 import resource
 import sys
@@ -44,6 +49,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from clm_sim.numerics import pin_portable_kernels  # noqa: E402
 
@@ -100,6 +106,8 @@ def main(argv=None) -> int:
                     "the config's)")
     ap.add_argument("--pool", action="store_true",
                     help="the fits on the worker pool, as clm-sim run (default: in this process)")
+    ap.add_argument("--no-floor", action="store_true",
+                    help="do not time the restructured rate at the end (no bar printed)")
     args = ap.parse_args(argv)
     if not args.pool:
         try:  # one core: the fits run in this process (experiments.processes.workers.map_fits)
@@ -151,6 +159,14 @@ def main(argv=None) -> int:
     clock.patch("writing", PGNNFeedforward, "save")
     clock.patch("writing", table, "to_json", "to_markdown", "to_csv")
     evaluate = testbed_cls.evaluate
+    fit_lip, seen = testbed_cls.fit_lip, {}
+
+    def keep_lip(self, run, *a, **k):  # the training run and LIP, for the floor's fits
+        lip = fit_lip(self, run, *a, **k)
+        seen.setdefault("run", (run, lip))
+        return lip
+
+    testbed_cls.fit_lip = keep_lip
 
     def evaluate_row(self, spec, *a, **k):
         label[0] = spec.label()
@@ -171,9 +187,15 @@ def main(argv=None) -> int:
             (out / sub).mkdir(parents=True)
         run_all = clock.wrap("rest", runner._run)
         run_all(config, out, testbed.Progress(quiet=True), args.config)
-    workers.stop_fits()  # the pool's workers reaped: their CPU is the children's
-    children = _children_cpu() - children0
-    clock._switch()
+        workers.stop_fits()  # the pool's workers reaped: their CPU is the children's
+        children = _children_cpu() - children0
+        clock._switch()
+        whole = time.process_time()
+        recorded = json.loads((out / "table.json").read_text()).get("lm_iterations", {})
+        by_hidden = collections.Counter()
+        for row in json.loads((out / "table.json").read_text())["rows"]:
+            if row.get("kind") == "pgnn":
+                by_hidden[row["hidden"]] += sum(f["iterations_run"] for f in row["fits"])
 
     print(f"{'row':<72} {'fits':>6} {'replays':>8} {'refs':>5} {'rest':>5} "
           f"{'iterations':>10} {'per it':>7}  stops")
@@ -184,8 +206,9 @@ def main(argv=None) -> int:
               f"{spent['references and features']:5.1f} {spent['rest']:5.1f} {its:10d} "
               f"{per_it:>7}  {spent['stops']}")
     total_its = sum(iterations.values())
-    print(f"LM iterations run: {total_its:,}")
-    whole = time.process_time()
+    print(f"LM iterations run: {total_its:,} counted here; table.json records "
+          f"{recorded.get('run', 0):,} run and {recorded.get('reused', 0):,} reused "
+          f"(taken from another fit's start cache)")
     print("stage                              CPU s")
     for stage in STAGES:
         print(f"  {stage:<32} {clock.spent[stage]:7.1f}")
@@ -194,7 +217,36 @@ def main(argv=None) -> int:
     print(f"  {'this process, in all':<32} {whole:7.1f}")
     print(f"total_cpu_s={whole + children:.1f} fits_s={clock.spent['fits'] + children:.1f} "
           f"not_fitting_s={whole - clock.spent['fits']:.1f} iterations={total_its}")
+    if args.no_floor or not by_hidden or "run" not in seen:
+        return 0
+    floor_s = restructured_floor(config, *seen["run"], by_hidden)
+    print(f"bar: the table's CPU {whole + children:.1f} s against {floor_s:.1f} s at the "
+          f"restructured rate for its {sum(by_hidden.values()):,} iterations run: "
+          f"{(whole + children) / floor_s:.2f}x (bar 1.5x)")
+    print(f"floor_s={floor_s:.1f} bar_ratio={(whole + children) / floor_s:.3f}")
     return 0
+
+
+def restructured_floor(config, run, lip, by_hidden) -> float:
+    """CPU seconds of ``by_hidden`` (neurons -> LM iterations) at the restructured rate of
+    ``bench_iteration_floor.py``, timed now on this table's training data (n_l other than 16
+    and 8: the rate of the nearer of the two)."""
+    from bench_iteration_floor import iteration_ms
+
+    from clm_sim.numerics import single_threaded
+    from controllers.pgnn import TrainingData, training_data
+
+    d = training_data(config.features, y=run.y, u=run.u, ts=run.ts)
+    data = TrainingData(d.phi, d.target, d.ts)
+    rate = {}
+    with single_threaded():
+        for hidden in (16, 8):
+            ms, _ = iteration_ms(data, dict(lip.theta_), hidden, config.seed,
+                                 sides=("restructured",))
+            rate[hidden] = ms["restructured"]
+            print(f"restructured rate at n_l = {hidden}: {rate[hidden]:.2f} ms per iteration "
+                  f"({by_hidden.get(hidden, 0):,} iterations run)")
+    return sum(n * rate[min(rate, key=lambda k: abs(k - h))] for h, n in by_hidden.items()) / 1e3
 
 
 if __name__ == "__main__":

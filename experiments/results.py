@@ -60,6 +60,7 @@ class SeedFit:
         f = self.record
         out = {"seed": self.seed, "stop": f.stop, "cost_stop": f.cost_stop,
                "iterations": f.iterations, "iterations_total": f.iterations_total,
+               "iterations_run": f.iterations_run, "iterations_reused": f.iterations_reused,
                "data_cost": f.data_cost, "reg_cost": f.reg_cost, "grad_norm": f.grad_norm,
                "first_order": f.first_order, "theta_moved": f.theta_moved,
                "theta_path": [p.to_json() for p in f.theta_path],

@@ -252,8 +252,8 @@ class Testbed:
                           f"({model.fit_.stop}, {model.fit_.iterations} it)")
 
         fitted = parallel.map_fits(payloads, fn=parallel.fit_pgnn_reusing, on_done=report)
-        for s, (_, starts) in zip(indices, fitted):  # a pool's worker filled its own copy
-            self._starts[(run_seed, s)] = starts
+        for s, (_, added) in zip(indices, fitted):  # a pool's worker filled its own copy
+            self._starts[(run_seed, s)].update(added)
         return [model for model, _ in fitted]
 
     def fit_row(self, spec: FeedforwardSpec, run: Run, lip: LIPFeedforward) -> list:

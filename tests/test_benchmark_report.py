@@ -19,8 +19,14 @@ OUTPUTS = {
     "exit": ("exit collected: median 0.80 s (range 0.7 to 0.9 s)\n"
              "exit ended    : median 0.04 s (range 0.03 to 0.05 s)\n"),
     "diagnose": "samples: 400000  diagnose wall time: 2.1 s, CPU 2.0 s  (target <= 5 s)\n",
-    "table": ("all rows" + " " * 67 + "100.0     20.0   10.0      12268\n"
-              "total 140.0 s CPU in this process\n"),
+    "iteration_floor": (
+        "n_l = 16: product  12.00 ms, reference  15.00 ms, restructured  10.00 ms; ...\n"
+        "n_l =  8: product   6.00 ms, reference   7.50 ms, restructured   5.00 ms; ...\n"
+        "the table's 12,268 iterations (6,134 at n_l = 16, 6,134 at n_l = 8): 110.4 s at the "
+        "product rate, 138.0 s at the reference rate, 92.0 s at the restructured rate (the "
+        "fits' iterations alone)\n"),
+    "table": ("total_cpu_s=140.0 fits_s=100.0 not_fitting_s=40.0 iterations=12268\n"
+              "floor_s=100.0 bar_ratio=1.400\n"),
 }
 
 
@@ -48,7 +54,10 @@ def test_the_page_has_each_figure_with_its_benchmark_and_ratio(tmp_path, capsys)
     assert "0.1 % of it" in rows["closed loop, one 10 kHz sample"]  # 100 ns of 100 µs
     assert "0.40×" in rows["`diagnose` on a 400,000-sample record (every candidate)"]
     assert "20× faster" in rows["a finished command's exit (torch, control, scipy, numba loaded)"]
+    assert "1.20×" in rows["one LM iteration of a paper's-cost fit, n_l = 16"]
+    assert "1.20×" in rows["the paper table's 12,268 LM iterations (run)"]  # 110.4 / 92.0
     assert "71 % fits" in rows["the paper table on one core"]
+    assert "1.40×" in rows["the paper table on one core, against its floor"]
     assert "<!-- provenance:" in text and "abc1234" in text
     assert all(len(line) <= 100 for line in text.splitlines() if not line.startswith("|"))
 

@@ -200,6 +200,36 @@ def test_a_continuation_row_reuses_the_starts_of_earlier_rows(monkeypatch):
         assert np.array_equal(v.numpy(), shared[2].network_.state_dict()[k].numpy()), k
 
 
+def test_fit_records_count_the_iterations_run_apart_from_those_taken(monkeypatch):
+    """Over a table's rows the fits' ``iterations_run`` sum to the LM iterations run, and an
+    optimization one fit takes from another's is counted as reused where it is taken, listed
+    start or not (the continuation row's lambda = 0.01 start is not listed), never twice as
+    run: the count a table's CPU is judged by."""
+    from controllers import optim
+    from experiments.results import SeedFit
+    from experiments.table import lm_iterations
+
+    tb = short_testbed()
+    run = tb.training_run()
+    lip = tb.fit_lip(run)
+    ran, lm = [], optim.levenberg_marquardt
+
+    def counted(*a, **k):
+        res = lm(*a, **k)
+        ran.append(res.iterations)
+        return res
+
+    monkeypatch.setattr(optim, "levenberg_marquardt", counted)
+    free, pulled, cont = [tb.fit_row(spec, run, lip)[0] for spec in continuation_rows(seeds=1)]
+    assert len(ran) == 3 and min(ran) > 0
+    assert (free.fit_.iterations_run, pulled.fit_.iterations_run, cont.fit_.iterations_run) \
+        == tuple(ran)
+    assert cont.fit_.iterations_reused == ran[0] + ran[1]  # the draw's and the lambda = 0.01
+    assert cont.fit_.iterations_total == ran[0] + ran[2]  # the listed starts, whoever ran them
+    fits = [SeedFit(0, m.fit_).to_json() for m in (free, pulled, cont)]
+    assert lm_iterations(fits) == (sum(ran), ran[0] + ran[1])
+
+
 def test_rows_that_reuse_starts_give_the_same_bits_on_the_fit_pool(monkeypatch, fit_pool):
     """On the fit pool a worker fills a copy of a draw's start cache, which comes back and
     replaces the testbed's: a continuation row after its lambda = 0 and lambda = 0.01 rows gives

@@ -161,8 +161,11 @@ class FitRecord:
     of its other terms (N**2); grad_norm, first_order: the optimizer's last gradient norm and
     first-order measure (:func:`controllers.optim.first_order_measure`); ftol, max_iter: the
     settings they were tested against. A free fit (``fit``) also has: iterations_total (over
-    every start), theta_moved (how far theta_phy's force still moved over the last quarter of
-    the iterations, a fraction of the training force's rms) and theta_ftol, theta_path (theta_phy
+    every start listed, whoever ran it), iterations_run and iterations_reused (of every
+    optimization the fit ran, listed or not, and of those it took from other fits' start cache:
+    over a table, the first sums to the iterations its command ran), theta_moved (how far
+    theta_phy's force still moved over the last quarter of the iterations, a fraction of the
+    training force's rms) and theta_ftol, theta_path (theta_phy
     at checkpoint iterations), continuation_lam (the lambda of the continuation start where one
     ran, else 0), start (the kind of start kept), starts and start_rtol (two starts agree when
     their objectives differ by at most this fraction of the lower). A pinned fit
@@ -179,6 +182,9 @@ class FitRecord:
     ftol: float
     max_iter: int
     iterations_total: int | None = None
+    # bookkeeping, not the outcome (a fit that took a start from the cache equals one that ran it)
+    iterations_run: int | None = field(default=None, compare=False)
+    iterations_reused: int | None = field(default=None, compare=False)
     theta_moved: float | None = None
     theta_ftol: float | None = None
     theta_path: tuple[ThetaPoint, ...] = ()
@@ -246,7 +252,9 @@ class FitRecord:
                     "first_order": self.first_order, "grad_norm": self.grad_norm,
                     "ftol": self.ftol, "max_iter": self.max_iter}
         return {"stop": self.stop, "cost_stop": self.cost_stop, "iterations": self.iterations,
-                "iterations_total": self.iterations_total, "theta_moved": self.theta_moved,
+                "iterations_total": self.iterations_total,
+                "iterations_run": self.iterations_run,
+                "iterations_reused": self.iterations_reused, "theta_moved": self.theta_moved,
                 "theta_ftol": self.theta_ftol,
                 "theta_path": [p.to_json() for p in self.theta_path],
                 "continuation_lambda": self.continuation_lam, "data_cost": self.data_cost,
@@ -270,6 +278,8 @@ class FitRecord:
                 first_order=_number(d.get("first_order")), ftol=float(d["ftol"]),
                 max_iter=int(d["max_iter"]),
                 iterations_total=_integer(d.get("iterations_total")),
+                iterations_run=_integer(d.get("iterations_run")),
+                iterations_reused=_integer(d.get("iterations_reused")),
                 theta_moved=_number(d.get("theta_moved")),
                 theta_ftol=_number(d.get("theta_ftol")),
                 theta_path=tuple(ThetaPoint.from_json(p) for p in d.get("theta_path") or ()),

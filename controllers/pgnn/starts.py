@@ -63,6 +63,27 @@ class StartCache:
             return None
         return copy.deepcopy(self._outcomes[key])
 
+    def since(self, keys) -> StartCache:
+        """The outcomes held now whose key is not in ``keys`` (those added since), in the order
+        they were added, as a cache of their own (what a worker process returns: the caller
+        merges them with :meth:`update`, not the whole cache back)."""
+        new = StartCache(self.kept)
+        new._outcomes = {k: v for k, v in self._outcomes.items() if k not in keys}
+        return new
+
+    def keys(self) -> list[str]:
+        return list(self._outcomes)
+
+    def update(self, other: StartCache) -> None:
+        """Hold every outcome of ``other`` not held yet, in its order (as :meth:`keep`, without
+        copying again: ``other`` is handed over)."""
+        for key, outcome in other._outcomes.items():
+            if key not in self._outcomes:
+                self._outcomes[key] = outcome
+                if self.kept is not None:
+                    for old in list(self._outcomes)[:-self.kept]:
+                        del self._outcomes[old]
+
     def keep(self, key: str | None, outcome: StartOutcome) -> None:
         """Hold a copy of ``outcome`` under ``key`` (None: not cacheable, nothing held), and
         forget the oldest beyond ``kept``."""

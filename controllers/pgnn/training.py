@@ -79,6 +79,10 @@ def fit_data(model, *, data: TrainingData, theta_lip: dict[str, float],
     model._check_size(len(fit.target), len(data.target))
     cache = StartCache() if reuse is None else reuse
     best, starts = None, []
+    # The LM iterations of every optimization this fit ran, and of those it took from the
+    # cache (each once): listed starts or not (a sequential twin, the regularized side of
+    # an exchange), so that a table's sum is what its command ran.
+    counted, spent = set(), {"run": 0, "reused": 0}
 
     def optimize(beta0, weights=None, model=model) -> tuple[StartOutcome, bool, str]:
         """The outcome from ``beta0`` of ``model``'s cost (``weights``), whether it was
@@ -86,9 +90,14 @@ def fit_data(model, *, data: TrainingData, theta_lip: dict[str, float],
         key = start_key(model, fit, held_out, theta_lip_v, beta0, weights)
         got = cache.take(key)
         if got is not None:
+            if key not in counted:
+                counted.add(key)
+                spent["reused"] += got.result.iterations
             return got, True, key
         got = one_start(model, fit, held_out, theta_lip_v, rng, beta0, weights)
         cache.keep(key, got)
+        counted.add(key)
+        spent["run"] += got.result.iterations
         return got, False, key
 
     with single_threaded():
@@ -118,7 +127,8 @@ def fit_data(model, *, data: TrainingData, theta_lip: dict[str, float],
     model.ts_ = data.ts
     model.fit_ = FitRecord(
         stop=stop, cost_stop=res.stop, iterations=res.iterations,
-        iterations_total=int(sum(s.iterations for s in starts)), theta_moved=moved,
+        iterations_total=int(sum(s.iterations for s in starts)),
+        iterations_run=spent["run"], iterations_reused=spent["reused"], theta_moved=moved,
         theta_ftol=opt.theta_ftol, theta_path=theta_path(best.history),
         continuation_lam=(float(opt.continuation_lam)
                           if model._continues() or model._exchanges() else 0.0),

@@ -130,18 +130,20 @@ def fit_pgnn(payload: tuple):
 
 def fit_pgnn_reusing(payload: tuple):
     """One PGNN fit that reuses and adds to a start cache: ``(settings, features, data,
-    theta_lip, seed_sequence, starts)`` -> ``(fitted model, starts)`` (``starts``: a
+    theta_lip, seed_sequence, starts)`` -> ``(fitted model, added)`` (``starts``: a
     :class:`controllers.pgnn.starts.StartCache`, see
-    :meth:`controllers.pgnn.PGNNFeedforward.fit_data`; returned because a pool's worker fills
-    its own copy)."""
+    :meth:`controllers.pgnn.PGNNFeedforward.fit_data`; ``added``: the outcomes the fit added to
+    it, for the caller to merge, because a pool's worker fills its own copy: only they travel
+    back)."""
     import numpy as np
 
     from controllers.pgnn import PGNNFeedforward
 
     settings, features, data, theta_lip, seq, starts = payload
+    held = set() if starts is None else set(starts.keys())
     model = PGNNFeedforward(**settings, features=features)
     model.fit_data(data=data, theta_lip=theta_lip, rng=np.random.default_rng(seq), reuse=starts)
-    return model, starts
+    return model, None if starts is None else starts.since(held)
 
 
 def fit_pinned(payload: tuple):
