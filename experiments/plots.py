@@ -22,7 +22,7 @@ from matplotlib.ticker import FuncFormatter
 from matplotlib.transforms import offset_copy
 
 from clm_sim.outdir import atomic_write
-from experiments.table import series
+from experiments.stats.seeds import series
 
 
 # Okabe & Ito's colour-blind-safe set (yellow left out: unreadable on white), then grey, and
@@ -184,7 +184,7 @@ def tracking_figure(replays: dict, ref: str, colors: dict | None = None,
     feedforward is zero throughout. ``colors``: per label (default: the palette in order).
     ``rows``: the table rows; a row over several seeds then says that its panel shows seed 0
     and gives the table's mean ± std beside it."""
-    stats = {row["label"]: row for row in rows or ()}
+    stats = {row.label: row for row in rows or ()}
     runs = {label: r[ref] for label, r in replays.items()}
     colors = colors or {label: color(i) for i, label in enumerate(runs)}
     fb = [label for label, run in runs.items() if not np.any(run.u_ff)]
@@ -197,10 +197,10 @@ def tracking_figure(replays: dict, ref: str, colors: dict | None = None,
                       fontsize=10)
     for ax, label in zip(axes[1:], fb + ff):
         row, note = stats.get(label), ""
-        if row is not None and row["n_seeds"] > 1:
-            mae = row["mae"][ref]
-            note = (f" (seed 0 of {row['n_seeds']}; table: {mae['mean'] * UM:.3f} ± "
-                    f"{mae['std'] * UM:.3f} µm over the seeds)")
+        if row is not None and row.n_seeds > 1:
+            mae = row.mae[ref]
+            note = (f" (seed 0 of {row.n_seeds}; table: {mae.mean * UM:.3f} ± "
+                    f"{mae.std * UM:.3f} µm over the seeds)")
         plot_tracking_error(runs[label], ax, label=label, color=colors[label], note=note)
     for ax in axes[:-1]:
         ax.set_xlabel("")
@@ -234,13 +234,13 @@ def feedforward_figure(replays: dict, ref: str) -> Figure:
 
 def plot_mae_vs_key(rows: list[dict], swept: list[str], x: str, ref: str, ax=None):
     """MAE (µm) on ``ref`` against swept key ``x``: one line per series
-    (:func:`experiments.table.series`), the spread over seeds as a band, or with more than
+    (:func:`experiments.stats.seeds.series`), the spread over seeds as a band, or with more than
     three series as error bars set slightly apart (overlapping bands hide each other)."""
     ax = _ax(ax)
     data = {name: by_x for (name, r), by_x in series(rows, swept, x, _describe).items()
             if r == ref}
     label, factor = key_label(x)
-    xs = [row[x] for row in rows]
+    xs = [row.value(x) for row in rows]
     numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in xs)
     cats = None if numeric else list(dict.fromkeys(map(str, xs)))
     if numeric:
@@ -321,9 +321,9 @@ def mae_vs_key_figure(rows: list[dict], swept: list[str], x: str) -> Figure:
     """MAE against swept key ``x``, one panel per reference, the legend below the panels. With
     more than three series over at most three values of ``x``, a dot plot per series
     (:func:`plot_mae_dots`) instead of lines."""
-    refs = list(rows[0]["mae"])
+    refs = rows[0].references
     n_series = len({name for name, _ in series(rows, swept, x, _describe)})
-    if n_series > 3 and len({str(row[x]) for row in rows}) <= 3:
+    if n_series > 3 and len({str(row.value(x)) for row in rows}) <= 3:
         fig = _figure(4.6 * len(refs) + 2.4, 0.9 + 0.42 * n_series)
         axes = np.atleast_1d(fig.subplots(1, len(refs), sharey=True))
         for ax, ref in zip(axes, refs):
