@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from experiments import table
+from experiments.table import read as read_table
 from experiments.report.table_md import fmt_diff
 from experiments.stats.comparisons import Comparison, ComparisonFamily
 
@@ -69,7 +69,7 @@ def run_summary(out: Path) -> str:
     of ``out/table.json`` in a few lines, and where the full report and the figures are."""
     out = Path(out)
     table = (out / "table.md").read_text().split("\n\n", 1)[0].rstrip("\n")
-    rows, pairs = table.read(json.loads((out / "table.json").read_text()), out / "table.json")
+    rows, pairs = read_table(json.loads((out / "table.json").read_text()), out / "table.json")
     lines = [table, ""]
     fits = [f for row in rows for f in row.fits or ()]
     if fits:
