@@ -18,16 +18,13 @@ from typing import TYPE_CHECKING
 
 from clm_sim.plant import THETA_UNITS  # noqa: F401 (re-exported for the studies)
 from clm_sim.errors import UserError
-from experiments.rows import FILE_KEY, Row, rows_entry, table_rows
+from experiments.rows import CONTINUATION, LAM, LAM_DIAG, Row, rows_entry, table_rows
 from experiments.stats.checks import optimum_checks
 from experiments.stats.comparisons import ComparisonFamily, comparisons
 from experiments.stats.paired import holm, t_interval  # noqa: F401 (re-exported for the studies)
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
-
-
-LAM, LAM_DIAG, CONTINUATION = (FILE_KEY[k] for k in ("lam", "lam_diag", "continuation_lam"))
 
 
 def regularizers(spec, fits: list[FitRecord]) -> dict:

@@ -23,11 +23,10 @@ import numpy as np
 from clm_sim.errors import UserError
 from clm_sim.modelfile import read_json
 from experiments import table
-from experiments.rows import FILE_KEY, Row
+from experiments.rows import CONTINUATION, LAM, Row
 from experiments.stats.comparisons import Comparison, ComparisonFamily
 
-LAM = FILE_KEY["lam"]
-VARIED = (LAM, "weight_decay", FILE_KEY["continuation_lam"])
+VARIED = (LAM, "weight_decay", CONTINUATION)
 
 
 def _short(label: str) -> str:
