@@ -5,9 +5,9 @@ and the row built from them.
 
 :class:`SeedResult` replaces the per-seed dict that carried the fit under a ``"fit"`` key beside
 the references; :class:`TableRow` replaces the row dict that ``make_row`` assembled. The files
-keep their keys: ``TableRow.to_json`` is the row of ``table.json`` (its schema is documented in
-:mod:`experiments.table`, whose Markdown, CSV and comparisons read that form, as the sweeps do
-when they read a table back).
+keep their keys: ``TableRow.row`` is the row of ``table.json``, an :class:`experiments.table.Row`
+(the one place its keys are written and read), which the renderers, comparisons, sweeps and
+figures take.
 """
 
 from __future__ import annotations
@@ -20,8 +20,7 @@ import numpy as np
 from clm_sim.plant import THETA_NAMES
 from clm_sim.record import Run
 from experiments.config import FeedforwardSpec
-from experiments.rows import FitSummary, Row, Settings, Stat
-from experiments.table import regularizers, row_settings
+from experiments.table import FitSummary, Row, Settings, Stat, regularizers, row_settings
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
@@ -129,7 +128,7 @@ class TableRow:
         return self.row().to_json()
 
     def row(self) -> Row:
-        """The row as ``table.json`` holds it (:class:`experiments.rows.Row`)."""
+        """The row as ``table.json`` holds it (:class:`experiments.table.Row`)."""
         spec, refs, thetas = self.spec, self.references, list(self.thetas)
         theta = ({k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES}
                  if thetas else None)

@@ -21,12 +21,11 @@ from clm_sim.errors import UserError
 from clm_sim.numerics import environment, versions
 from clm_sim.outdir import atomic_folder
 from clm_sim.record import save_npz
-from experiments import table
 from experiments.config import ExperimentConfig, resolved
-from experiments.report import table_md
+from experiments.report import table_json, table_md
 from experiments.results import TableRow
 from experiments.stats.comparisons import comparisons
-from experiments.rows import RecordRow, Row
+from experiments.table import RecordRow, Row
 from experiments.testbed import Progress, Testbed
 
 
@@ -185,7 +184,8 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
         from experiments.diagnosis.emulate import diagnose_emulated
         diagnose_emulated(tb, record=train, out=out / "diagnosis", progress=progress)
     pairs = comparisons(rows)
-    (out / "table.json").write_text(table.to_json(rows, environment=environment(), pairs=pairs))
+    (out / "table.json").write_text(table_json.to_json(rows, environment=environment(),
+                                                       pairs=pairs))
     (out / "table.md").write_text(table_md.to_markdown(rows, pairs=pairs))
     (out / "table.csv").write_text(table_md.to_csv(rows))
     from experiments import (

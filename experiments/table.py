@@ -1,30 +1,343 @@
-"""The results table shared by every experiment: ``table.json`` and what a PGNN row's settings are.
+"""The results table shared by every experiment, typed: its rows and what a PGNN row's settings are.
 
-``table.json`` is ``{"rows": [row, ...], "comparisons": [...], "checks": [...]}``: each row an
-:class:`experiments.rows.Row` (built once by :class:`experiments.results.TableRow`; MAE in
-metres, theta_phy per seed, a PGNN row's fits, settings and regularizers from
-:func:`regularizers` and :func:`row_settings`), the comparisons an
-:class:`experiments.stats.comparisons.ComparisonFamily` (paired differences over seeds with
-Holm's adjustment) and the checks at an optimum (:mod:`experiments.stats.checks`). The Markdown
-and CSV are :mod:`experiments.report.table_md`; the summaries over a sweep's seeds
-:mod:`experiments.stats.seeds`.
+    TableRow (results) -> Row.to_json -> table.json -> Row.from_json -> renderers, comparisons,
+    sweep aggregates, figures, ``clm-sim compare``
+
+``table.json`` is ``{"rows": [row, ...], "comparisons": [...], "checks": [...]}``, written and
+read by :mod:`experiments.report.table_json`. A row here is the one place its keys are written
+and read: :class:`Row` a simulation row (MAE in metres per reference, theta_phy per seed, a PGNN
+row's fits, costs, settings and regularizers from :func:`regularizers` and
+:func:`row_settings`), :class:`RecordRow` a row identified from measured records (``data:``),
+:class:`FitSummary` one seed's entry of a PGNN row's ``fits`` and :class:`Stat` a mean and
+spread over seeds. Keys a row does not know (a sweep's swept keys, its task key and row
+position, a task's warnings) ride along in ``extra``, in their order, after the row's own. The
+Python names are the files' keys but where lambda is spelled out (``lam``:
+:data:`controllers.pgnn_settings.LAMBDA_KEYS`). The comparisons between rows are
+:mod:`experiments.stats.comparisons`; the Markdown and CSV :mod:`experiments.report.table_md`;
+the summaries over a sweep's seeds :mod:`experiments.stats.seeds`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from clm_sim.plant import THETA_UNITS  # noqa: F401 (re-exported for the studies)
 from clm_sim.errors import UserError
-from experiments.rows import CONTINUATION, LAM, LAM_DIAG, Row, rows_entry, table_rows
-from experiments.stats.checks import optimum_checks
-from experiments.stats.comparisons import ComparisonFamily, comparisons
+from clm_sim.plant import THETA_UNITS  # noqa: F401 (re-exported for the studies)
+from controllers.pgnn.fit_record import Start, ThetaPoint, fit_fields
+from controllers.pgnn_settings import LAMBDA_KEYS
 from experiments.stats.paired import holm, t_interval  # noqa: F401 (re-exported for the studies)
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
+
+FILE_KEY = {python: key for key, python in LAMBDA_KEYS.items()}
+"""Python name -> the key a results file spells lambda with."""
+LAM, LAM_DIAG, CONTINUATION = (FILE_KEY[k] for k in ("lam", "lam_diag", "continuation_lam"))
+
+
+@dataclass(frozen=True)
+class Stat:
+    """A quantity over seeds: its mean and sample std (and, for measured records, median)."""
+
+    mean: float
+    std: float
+    median: float | None = None
+
+    def to_json(self) -> dict:
+        out = {"mean": self.mean, "std": self.std}
+        if self.median is not None:
+            out["median"] = self.median
+        return out
+
+    @classmethod
+    def from_json(cls, d) -> Stat | None:
+        return None if d is None else cls(d["mean"], d.get("std", 0.0), d.get("median"))
+
+
+def _stats(d) -> dict[str, Stat] | None:
+    return None if d is None else {k: Stat.from_json(v) for k, v in d.items()}
+
+
+def _stats_json(d) -> dict | None:
+    return None if d is None else {k: v.to_json() for k, v in d.items()}
+
+
+@dataclass(frozen=True)
+class FitSummary:
+    """One seed's fit in a PGNN row's ``fits``: how it stopped, its costs (N**2), iterations,
+    the path of theta_phy, its starts and the largest relative theta_phy drift from theta_LIP
+    (None where not computed)."""
+
+    seed: int
+    stop: str
+    cost_stop: str
+    iterations: int
+    iterations_total: int | None
+    data_cost: float
+    reg_cost: float
+    grad_norm: float | None
+    first_order: float | None
+    theta_moved: float | None
+    theta_path: tuple[ThetaPoint, ...]
+    continuation_lam: float | None
+    start: str | None
+    objective: float
+    starts: tuple[Start, ...]
+    start_rtol: float | None
+    agree: int
+    spread: float
+    multiple_optima: bool
+    theta_drift: float | None = None
+
+    @classmethod
+    def of(cls, seed: int, f, theta_drift: float | None = None) -> FitSummary:
+        """From a seed's :class:`controllers.pgnn.fit_record.FitRecord`."""
+        return cls(seed, f.stop, f.cost_stop, f.iterations, f.iterations_total, f.data_cost,
+                   f.reg_cost, f.grad_norm, f.first_order, f.theta_moved, tuple(f.theta_path),
+                   f.continuation_lam, f.start, f.objective, tuple(f.starts), f.start_rtol,
+                   f.agree, f.spread, f.multiple_optima, theta_drift)
+
+    @property
+    def converged(self) -> bool:
+        return self.stop == "converged"
+
+    def to_json(self) -> dict:
+        out = {"seed": self.seed, "stop": self.stop, "cost_stop": self.cost_stop,
+               "iterations": self.iterations, "iterations_total": self.iterations_total,
+               "data_cost": self.data_cost, "reg_cost": self.reg_cost,
+               "grad_norm": self.grad_norm, "first_order": self.first_order,
+               "theta_moved": self.theta_moved,
+               "theta_path": [p.to_json() for p in self.theta_path],
+               CONTINUATION: self.continuation_lam, "start": self.start,
+               "objective": self.objective, "starts": [s.to_json() for s in self.starts],
+               "start_rtol": self.start_rtol, "agree": self.agree, "spread": self.spread,
+               "multiple_optima": self.multiple_optima}
+        if self.theta_drift is not None:
+            out["theta_drift"] = self.theta_drift
+        return out
+
+    @classmethod
+    def from_json(cls, d: dict) -> FitSummary:
+        # (the objective and the starts' agreement are missing from older tables: None)
+        return cls(seed=d["seed"], objective=d.get("objective"), agree=d.get("agree"),
+                   spread=d.get("spread"), multiple_optima=d.get("multiple_optima"),
+                   theta_drift=d.get("theta_drift"), **fit_fields(d))
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What a PGNN row is, setting by setting (``table.json``'s ``settings`` or
+    ``regularizers``): file key -> value, compared key by key by
+    :func:`experiments.stats.comparisons.varies`."""
+
+    values: dict
+
+    def get(self, key: str):
+        return self.values.get(key)
+
+    def __iter__(self):
+        return iter(self.values)
+
+    @property
+    def lam(self) -> float | None:
+        return self.values.get(LAM)
+
+    @property
+    def hidden(self):
+        return self.values.get("hidden")
+
+    @property
+    def weight_decay(self) -> float | None:
+        return self.values.get("weight_decay")
+
+    @property
+    def starts(self) -> list:
+        """The starts per draw (``["draw"]`` where the row names none)."""
+        return self.values.get("starts") or ["draw"]
+
+    def to_json(self) -> dict:
+        return self.values
+
+
+def _settings(d) -> Settings | None:
+    return None if d is None else Settings(d)
+
+
+_HEAD = ("kind", "training", LAM, "hidden", "n_seeds")
+
+
+@dataclass(frozen=True)
+class _Common:
+    kind: str
+    training: str | None
+    lam: float | None
+    hidden: int | tuple | list | None
+    n_seeds: int
+    label: str
+    theta_phy: dict[str, float] | None
+    theta_phy_per_seed: list[dict[str, float]] | None
+
+    def value(self, key: str):
+        """The value of a row key given by name (a swept key, ``row``, ``task``, ``seed``;
+        None where the row has none)."""
+        if key in self.extra:
+            return self.extra[key]
+        return getattr(self, LAMBDA_KEYS.get(key, key), None)
+
+    def with_extra(self, **extra):
+        """This row with ``extra`` keys after its own (a sweep's swept keys and task)."""
+        return type(self)(**{**self.__dict__, "extra": {**self.extra, **extra}})
+
+    def _head(self) -> dict:
+        return dict(zip(_HEAD, (self.kind, self.training, self.lam, self.hidden,
+                                self.n_seeds)))
+
+
+@dataclass(frozen=True)
+class Row(_Common):
+    """One simulation row: MAE, RMS and peak tracking error per reference (m, over seeds), the
+    per-seed MAE and theta_phy, and for a PGNN row its fits, costs (N**2), theta_phy drift and
+    peak network force beyond the training range (N) per reference."""
+
+    mae: dict[str, Stat] = field(default_factory=dict)
+    rms: dict[str, Stat] | None = None
+    max: dict[str, Stat] | None = None
+    mae_per_seed: dict[str, list[float]] | None = None
+    regularizers: Settings | None = None
+    settings: Settings | None = None
+    fits: tuple[FitSummary, ...] | None = None
+    converged: int | None = None
+    at_edge: int | None = None
+    data_cost: Stat | None = None
+    reg_cost: Stat | None = None
+    theta_drift: Stat | None = None
+    network_peak_beyond_n: dict[str, Stat] | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def references(self) -> list[str]:
+        return list(self.mae)
+
+    def to_json(self) -> dict:
+        out = {**self._head(), "mae": _stats_json(self.mae), "theta_phy": self.theta_phy,
+               "label": self.label}
+        if self.rms is not None:
+            out.update(rms=_stats_json(self.rms), max=_stats_json(self.max),
+                       mae_per_seed=self.mae_per_seed)
+        out["theta_phy_per_seed"] = self.theta_phy_per_seed
+        if self.fits is not None:
+            out.update(regularizers=self.regularizers.to_json(),
+                       settings=self.settings.to_json(),
+                       fits=[f.to_json() for f in self.fits], converged=self.converged,
+                       at_edge=self.at_edge, data_cost=self.data_cost.to_json(),
+                       reg_cost=self.reg_cost.to_json(),
+                       theta_drift=self.theta_drift.to_json(),
+                       network_peak_beyond_n=_stats_json(self.network_peak_beyond_n))
+        return {**out, **self.extra}
+
+    @classmethod
+    def from_json(cls, d: dict, *, with_fits: bool = True) -> Row:
+        """The row of ``d``; ``with_fits`` False: without the fits' entries (what ``clm-sim
+        compare`` reads is the table's columns; ``fits`` then None)."""
+        own = {*_HEAD, "mae", "theta_phy", "label", "rms", "max", "mae_per_seed",
+               "theta_phy_per_seed", "regularizers", "settings", "fits", "converged",
+               "at_edge", "data_cost", "reg_cost", "theta_drift", "network_peak_beyond_n"}
+        fits = d.get("fits") if with_fits else None
+        return cls(*(d.get(k) for k in _HEAD), d["label"], d.get("theta_phy"),
+                   d.get("theta_phy_per_seed"), mae=_stats(d.get("mae")) or {}, rms=_stats(d.get("rms")),
+                   max=_stats(d.get("max")), mae_per_seed=d.get("mae_per_seed"),
+                   regularizers=_settings(d.get("regularizers")),
+                   settings=_settings(d.get("settings")),
+                   fits=None if fits is None else tuple(map(FitSummary.from_json, fits)),
+                   converged=d.get("converged"), at_edge=d.get("at_edge"),
+                   data_cost=Stat.from_json(d.get("data_cost")),
+                   reg_cost=Stat.from_json(d.get("reg_cost")),
+                   theta_drift=Stat.from_json(d.get("theta_drift")),
+                   network_peak_beyond_n=_stats(d.get("network_peak_beyond_n")),
+                   extra={k: v for k, v in d.items() if k not in own})
+
+
+SIDES = ("inside", "outside")
+
+
+@dataclass(frozen=True)
+class RecordRow(_Common):
+    """One row identified from measured records: the rms force prediction error (N) per record
+    and side of the training window (None where the record has no such sample), over seeds and
+    per seed; the LIP's force offset (N); a PGNN row's fits and settings."""
+
+    force_rms: dict[str, dict[str, Stat | None]] = field(default_factory=dict)
+    force_rms_per_seed: list[dict[str, dict[str, float | None]]] = field(default_factory=list)
+    offset_n: float | None = None
+    fits: tuple[FitSummary, ...] | None = None
+    converged: int | None = None
+    regularizers: Settings | None = None
+    settings: Settings | None = None
+    extra: dict = field(default_factory=dict)
+
+    at_edge = None  # the measured-record table does not count fits at the edge
+
+    def to_json(self) -> dict:
+        out = {**self._head(), "label": self.label,
+               "force_rms": {r: {s: v and v.to_json() for s, v in sides.items()}
+                             for r, sides in self.force_rms.items()},
+               "force_rms_per_seed": self.force_rms_per_seed, "theta_phy": self.theta_phy,
+               "theta_phy_per_seed": self.theta_phy_per_seed}
+        if self.offset_n is not None:
+            out["offset_n"] = self.offset_n
+        if self.fits is not None:
+            out.update(fits=[f.to_json() for f in self.fits], converged=self.converged,
+                       regularizers=self.regularizers.to_json(),
+                       settings=self.settings.to_json())
+        return {**out, **self.extra}
+
+    @classmethod
+    def from_json(cls, d: dict, *, with_fits: bool = True) -> RecordRow:
+        own = {*_HEAD, "label", "force_rms", "force_rms_per_seed", "theta_phy",
+               "theta_phy_per_seed", "offset_n", "fits", "converged", "regularizers",
+               "settings"}
+        fits = d.get("fits") if with_fits else None
+        return cls(*(d.get(k) for k in _HEAD), d["label"], d.get("theta_phy"),
+                   d.get("theta_phy_per_seed"),
+                   force_rms={r: {s: Stat.from_json(v) for s, v in sides.items()}
+                              for r, sides in d["force_rms"].items()},
+                   force_rms_per_seed=d.get("force_rms_per_seed") or [],
+                   offset_n=d.get("offset_n"),
+                   fits=None if fits is None else tuple(map(FitSummary.from_json, fits)),
+                   converged=d.get("converged"),
+                   regularizers=_settings(d.get("regularizers")),
+                   settings=_settings(d.get("settings")),
+                   extra={k: v for k, v in d.items() if k not in own})
+
+
+def read_row(d: dict, *, with_fits: bool = True) -> Row | RecordRow:
+    """A stored row of either kind (a simulation row, or one identified from records)."""
+    return (RecordRow if "force_rms" in d else Row).from_json(d, with_fits=with_fits)
+
+
+def table_rows(doc, source) -> list:
+    """The ``rows`` list of a ``table.json`` document as stored (``UserError`` naming
+    ``source`` where there is none)."""
+    rows = doc.get("rows") if isinstance(doc, dict) else None
+    if not isinstance(rows, list):
+        raise UserError(f"{source}: not a clm-sim table.json (no 'rows' list)")
+    return rows
+
+
+def rows_entry(d, i: int, *, with_fits: bool = True) -> Row | RecordRow:
+    """Entry ``i`` of a ``table.json``'s rows, of either kind; ``UserError`` where it is not
+    an object with a label and an integer seed count, or not a row."""
+    if not (isinstance(d, dict) and isinstance(d.get("label"), str)
+            and isinstance(d.get("n_seeds"), int) and not isinstance(d["n_seeds"], bool)):
+        raise UserError(f"rows[{i}]: expected an object with a 'label' and an integer "
+                        f"'n_seeds'")
+    try:
+        return read_row(d, with_fits=with_fits)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"rows[{i}]: not a clm-sim table row ({type(exc).__name__}: {exc})") \
+            from None
 
 
 def regularizers(spec, fits: list[FitRecord]) -> dict:
@@ -70,34 +383,3 @@ def row_settings(spec, fits: list[FitRecord]) -> dict:
         # with the simultaneous rows that exchange, as one procedure applied to each.
         out[CONTINUATION] = spec.pgnn.continuation_lam
     return out
-
-
-def to_json(rows: list[Row], environment: dict | None = None,
-            pairs: ComparisonFamily | None = None) -> str:
-    """``{"rows": ...}``, with ``"comparisons"`` when there are PGNN rows to compare, the checks
-    at an optimum and ``"environment"`` (library versions, CPU, kernels:
-    :func:`clm_sim.numerics.environment`) when given. ``pairs``: :func:`comparisons` of ``rows``
-    when the caller has them (their Wilcoxon p-values cost up to 0.2 s each where a difference
-    is zero)."""
-    doc = {"rows": [row.to_json() for row in rows]}
-    pairs = comparisons(rows) if pairs is None else pairs
-    if pairs:
-        doc["comparisons"] = pairs.to_json()
-    checks = optimum_checks(rows)
-    if checks:
-        doc["checks"] = [c.to_json() for c in checks]
-        doc["checks_passed"] = all(c.passed for c in checks if c.at_optimum)
-    if environment is not None:
-        doc["environment"] = environment
-    return json.dumps(doc, indent=1)
-
-
-def read(doc: dict, source) -> tuple[list, ComparisonFamily]:
-    """The rows (:func:`experiments.rows.read_row`) and comparisons of a ``table.json``
-    document read from ``source``; ``UserError`` where it has no rows list or a row is not one."""
-    rows = [rows_entry(row, i) for i, row in enumerate(table_rows(doc, source))]
-    try:
-        return rows, ComparisonFamily.from_json(doc.get("comparisons"))
-    except (AttributeError, KeyError, TypeError, ValueError) as exc:
-        raise UserError(f"{source}: comparisons: not a clm-sim comparison "
-                        f"({type(exc).__name__}: {exc})") from None

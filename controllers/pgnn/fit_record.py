@@ -296,7 +296,7 @@ def _integer(x) -> int | None:
 
 def fit_fields(d) -> dict:
     """The fields of a :class:`FitRecord` that a table row's ``fits`` entry
-    (:class:`experiments.rows.FitSummary`) carries too, read from either (the keys are the
+    (:class:`experiments.table.FitSummary`) carries too, read from either (the keys are the
     files'): how the fit stopped, its iterations and costs (N**2), theta_phy's path, the
     continuation lambda and the starts."""
     return dict(stop=str(d["stop"]), cost_stop=str(d.get("cost_stop", d["stop"])),

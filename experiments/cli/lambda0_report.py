@@ -22,8 +22,8 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.modelfile import read_json
-from experiments import table
-from experiments.rows import CONTINUATION, LAM, Row
+from experiments.report import table_json
+from experiments.table import CONTINUATION, LAM, Row
 from experiments.stats.comparisons import Comparison, ComparisonFamily
 
 VARIED = (LAM, "weight_decay", CONTINUATION)
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     ap.add_argument("table", help="a paper-table run's table.json")
     args = ap.parse_args(argv)
     try:
-        rows, pairs = table.read(read_json(args.table, "clm-sim table.json"), args.table)
+        rows, pairs = table_json.read(read_json(args.table, "clm-sim table.json"), args.table)
         out = rows_table(rows) + "\n" + comparisons_table(rows, pairs)
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)

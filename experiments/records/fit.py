@@ -22,14 +22,14 @@ import dataclasses
 import numpy as np
 
 from clm_sim.errors import UserError
-from clm_sim.plant import THETA_NAMES
-from experiments import table
+from clm_sim.plant import THETA_NAMES, THETA_UNITS
 from experiments.config import ExperimentConfig
 from experiments.report.table_md import SHORT, fmt_p, theta_paths
 from experiments.results import SeedFit
-from experiments.rows import SIDES, RecordRow, Settings, Stat
 from experiments.stats.comparisons import AGAINST_LIP, Comparison, ComparisonFamily, varies
 from experiments.stats.paired import Paired
+from experiments.table import (SIDES, RecordRow, Settings, Stat, regularizers,
+                               row_settings)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,7 +57,7 @@ def _rms(x) -> float | None:
 
 
 def force_rms(pred: np.ndarray, rec: Prepared) -> dict:
-    """Per side of the window (:data:`experiments.rows.SIDES`: inside, outside): rms force
+    """Per side of the window (:data:`experiments.table.SIDES`: inside, outside): rms force
     prediction error (N; None where the record has no such sample)."""
     err = rec.target - pred
     return dict(zip(SIDES, (_rms(err[rec.inside]), _rms(err[~rec.inside]))))
@@ -196,8 +196,8 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
             offset_n=lip.offset_n if spec.kind == "lip" else None,
             fits=None if fits is None else tuple(f.summary() for f in fits),
             converged=None if kept is None else sum(k.converged for k in kept),
-            regularizers=None if kept is None else Settings(table.regularizers(spec, kept)),
-            settings=None if kept is None else Settings(table.row_settings(spec, kept)))
+            regularizers=None if kept is None else Settings(regularizers(spec, kept)),
+            settings=None if kept is None else Settings(row_settings(spec, kept)))
         rows.append((row, models))
         progress(f"{spec.label()}: " + "; ".join(
             f"{r.name} " + ", ".join(f"{side} {_fmt(row.force_rms[r.name][side])} N"
@@ -251,7 +251,7 @@ def to_markdown(rows: list[RecordRow], pairs: ComparisonFamily) -> str:
     recs = list(rows[0].force_rms)
     head = (["feedforward", "seeds"]
             + [f"force rms {r} {side} [N]" for r in recs for side in SIDES]
-            + [f"{SHORT[k]} [{table.THETA_UNITS[k]}]" for k in THETA_NAMES]
+            + [f"{SHORT[k]} [{THETA_UNITS[k]}]" for k in THETA_NAMES]
             + ["offset [N]", "fits converged"])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:

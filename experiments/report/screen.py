@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from experiments.table import read as read_table
+from experiments.report.table_json import read as read_table
 from experiments.report.table_md import fmt_diff
 from experiments.stats.comparisons import Comparison, ComparisonFamily
 

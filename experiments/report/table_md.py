@@ -15,7 +15,7 @@ import numpy as np
 
 from clm_sim.plant import THETA_NAMES, THETA_UNITS
 from controllers.pgnn.fit_record import VERDICT_MARGIN
-from experiments.rows import LAM, Row, Stat
+from experiments.table import LAM, Row, Stat
 from experiments.stats.agreement import Cell
 from experiments.stats.checks import at_optimum, check_lines, optimum_checks
 from experiments.stats.comparisons import Comparison, ComparisonFamily, comparisons

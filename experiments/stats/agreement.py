@@ -41,7 +41,7 @@ from pathlib import Path
 from clm_sim.errors import UserError
 from clm_sim.modelfile import read_json, regular_file
 from clm_sim.plant import THETA_UNITS
-from experiments.rows import RecordRow, Row, Stat, rows_entry, table_rows
+from experiments.table import RecordRow, Row, Stat, rows_entry, table_rows
 
 _SHORT = {"m": "mass", "fv": "viscous", "fc": "coulomb", "fk": "stiffness"}
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?"
@@ -117,7 +117,7 @@ def _mean_std(text: str) -> tuple[Cell, Cell | None]:
 
 def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
     """Cells of the ``expected`` Markdown rows (:func:`parse_markdown`) that a fresh
-    ``table.json`` document (its rows read by :func:`experiments.rows.rows_entry`) does not
+    ``table.json`` document (its rows read by :func:`experiments.table.rows_entry`) does not
     reproduce within the tolerance (module docstring).
 
     A row or column missing on either side is a mismatch too (``allowed`` 0). A table that
@@ -131,7 +131,7 @@ def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
                         f"{', '.join(expected[0])}")
     for column in expected[0]:
         _check_unit(column)
-    fresh_rows = [rows_entry(row, i) for i, row in enumerate(table_rows(fresh, "table.json"))]
+    fresh_rows = [rows_entry(row, i, with_fits=False) for i, row in enumerate(table_rows(fresh, "table.json"))]
     rows = {row.label: row for row in fresh_rows}
     out: list[Mismatch] = []
     for exp in expected:

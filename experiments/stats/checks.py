@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from experiments.rows import LAM, Row
+from experiments.table import LAM, Row
 from experiments.stats.comparisons import varies
 
 BOUND_RTOL = 1e-12  # the lambda = 0 bound holds by construction; this is rounding

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from experiments.rows import LAM, LAM_DIAG, Row
+from experiments.table import LAM, LAM_DIAG, Row
 from experiments.stats.paired import Paired, holm
 
 # What a PGNN row is, setting by setting, for "one setting at a time". The regularizer that pulls

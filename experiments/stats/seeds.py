@@ -1,7 +1,7 @@
 """A sweep's rows summarized over its swept seeds: merged rows (:func:`over_seeds`) and the MAE
 series a figure draws against a swept key (:func:`series`).
 
-A sweep's row is a :class:`experiments.rows.Row` whose ``extra`` holds the swept keys, its task
+A sweep's row is a :class:`experiments.table.Row` whose ``extra`` holds the swept keys, its task
 key and its feedforward position ``row``.
 """
 
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES
-from experiments.rows import Row, Stat
+from experiments.table import Row, Stat
 
 POSITION = "row"  # a sweep row's feedforward position in its task's config
 

@@ -28,7 +28,7 @@ from clm_sim.schema import build
 from experiments.config import ExperimentConfig
 from experiments.processes.workers import cores
 from experiments.report import table_md
-from experiments.rows import Row, read_row
+from experiments.table import Row, read_row
 from experiments.runner import run_task, slug
 from experiments.stats.seeds import POSITION, over_seeds
 from experiments.sweeps.grid import Sweep

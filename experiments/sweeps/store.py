@@ -27,7 +27,6 @@ _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 # diagnosis code do not change a task's numbers.
 _RESULT_SOURCES = ("clm_sim", "controllers", "experiments/config.py", "experiments/runner.py",
                    "experiments/table.py", "experiments/testbed.py", "experiments/records/fit.py",
-                   "experiments/results.py", "experiments/rows.py",
                    "experiments/studies/profiles/identifiability.py")
 _NOT_RESULT_SOURCES = ("experiments/diagnosis",)
 
