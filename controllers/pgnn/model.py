@@ -82,7 +82,7 @@ from controllers.pgnn_settings import (CONSTRAINTS, LAMBDA_KEYS, PGNNSettings, c
 
 _OPTIONS = frozenset(f.name for f in fields(PGNNSettings))  # a model's options, by name
 # A model file's settings keys are the Python names but where it spells lambda out.
-_FILE_KEYS = {v: k for k, v in LAMBDA_KEYS.items() if k != "lambda"}
+_FILE_KEYS = {v: k for k, v in LAMBDA_KEYS.items() if v != "lam"}
 
 
 def _as_theta(theta) -> np.ndarray:
