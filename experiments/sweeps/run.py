@@ -244,9 +244,10 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
     atomic_write(out / "table.csv", table_md.to_csv(rows, swept))
     if rows:
         from experiments import plots
+        from experiments.sweeps.figures import mae_vs_key_figure
         for key in swept:
             if key != "seed":
-                fig = plots.mae_vs_key_figure(rows, swept, key)
+                fig = mae_vs_key_figure(rows, swept, key)
                 plots.save(fig, out / "figures" / f"mae_vs_{slug(key)}.png")
 
 
