@@ -153,6 +153,13 @@ def _stat(values) -> Stat | None:
 
 
 def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
+             lip: RecordLIP | None = None) -> list[tuple[dict, list]]:
+    """:func:`fit_rows` with each row as ``table.json`` holds it (for a caller that still reads
+    rows by key: the EMPS runaway study)."""
+    return [(row.to_json(), models) for row, models in fit_rows(config, records, progress, lip)]
+
+
+def fit_rows(config: ExperimentConfig, records: list[Prepared], progress,
              lip: RecordLIP | None = None) -> list[tuple[RecordRow, list]]:
     """Every row of ``config`` identified on ``records[0]`` and scored on all ``records``, with
     its models (``lip``: the LIP of the window, if already fitted)."""
@@ -334,7 +341,7 @@ def compute(config: ExperimentConfig, progress, warn=None) -> RecordsResult:
                  f"{int((~p.inside).sum())} outside")
     lip, warnings = record_checks(config, recs[0][1], prepared[0], source)
     warn(source, warnings)
-    done = evaluate(config, prepared, progress, lip)
+    done = fit_rows(config, prepared, progress, lip)
     rows = [row for row, _ in done]
     return RecordsResult(
         rows, comparisons(rows), [m for _, m in done], warnings,
