@@ -34,11 +34,6 @@ class SeedStat:
         return cls(float(means.mean()), spread, len(means))
 
 
-def seed_stat(stats: list[Stat]) -> SeedStat:
-    """:meth:`SeedStat.of`."""
-    return SeedStat.of(stats)
-
-
 def over_seeds(rows: list[Row], swept: list[str]) -> list[Row]:
     """Rows of a sweep that differ only in the swept ``seed`` merged into one row each, in the
     order they first appear: MAE mean ± sample std over the seeds, theta_phy averaged (each
