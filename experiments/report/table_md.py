@@ -1,7 +1,7 @@
 """``table.md`` and ``table.csv``: the results table and the fit report, rendered from typed rows.
 
 :func:`results_table` is the table ``clm-sim compare`` reads (:mod:`experiments.stats.agreement`);
-:func:`to_markdown` adds a sweep's failures or, for a run with PGNN rows, :func:`fit_report`
+:func:`to_markdown` adds, for a run with PGNN rows, :func:`fit_report`
 (costs, starts, the checks at an optimum, the fits that did not converge, θ_phy's paths and
 every paired comparison).
 """
@@ -73,16 +73,12 @@ def results_table(rows: list[Row], swept: list[str] = ()) -> str:
     return "\n".join(lines) + "\n"
 
 
-def to_markdown(rows: list[Row], swept: list[str] = (), failures: list[dict] = (),
+def to_markdown(rows: list[Row], swept: list[str] = (),
                 pairs: ComparisonFamily | None = None) -> str:
-    """:func:`results_table`; then the ``failures`` of a sweep (``{key: value, ..., "error"}``)
-    as a list; then :func:`fit_report` for PGNN rows (not for a sweep; ``pairs``: the rows'
-    :func:`comparisons` when the caller has them)."""
+    """:func:`results_table`; then :func:`fit_report` for PGNN rows (not for a sweep, whose
+    ``swept`` keys head the table; ``pairs``: the rows' :func:`comparisons` when the caller has
+    them)."""
     text = results_table(rows, swept)
-    if failures:
-        text += f"\n{len(failures)} failed task(s):\n\n" + "".join(
-            "- " + ", ".join(f"{k}={fmt(f[k])}" for k in swept) + f": {f['error']}\n"
-            for f in failures)
     if any(row.fits is not None for row in rows) and not swept:
         text += fit_report(rows, pairs)
     return text

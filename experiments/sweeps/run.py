@@ -254,7 +254,11 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
 def markdown(rows: list[Row], swept: list[str], failures: list[dict]) -> str:
     """``table.md`` of a sweep: with ``seed`` swept, the mean ± std over the seeds first, then
     the rows of every task (and the failures)."""
-    every = table_md.to_markdown(rows, swept, failures)
+    every = table_md.to_markdown(rows, swept)
+    if failures:
+        every += f"\n{len(failures)} failed task(s):\n\n" + "".join(
+            "- " + ", ".join(f"{k}={table_md.fmt(f[k])}" for k in swept) + f": {f['error']}\n"
+            for f in failures)
     if "seed" not in swept or not rows:
         return every
     others = [k for k in swept if k != "seed"]
