@@ -246,7 +246,8 @@ class Row(_Common):
                "at_edge", "data_cost", "reg_cost", "theta_drift", "network_peak_beyond_n"}
         fits = d.get("fits") if with_fits else None
         return cls(*(d.get(k) for k in _HEAD), d["label"], d.get("theta_phy"),
-                   d.get("theta_phy_per_seed"), mae=_stats(d.get("mae")) or {}, rms=_stats(d.get("rms")),
+                   d.get("theta_phy_per_seed"), mae=_stats(d.get("mae")) or {},
+                   rms=_stats(d.get("rms")),
                    max=_stats(d.get("max")), mae_per_seed=d.get("mae_per_seed"),
                    regularizers=_settings(d.get("regularizers")),
                    settings=_settings(d.get("settings")),

@@ -1,6 +1,6 @@
-"""``experiments.stats.checks.optimum_checks``: what must hold where rows report fits at their optimum
-(the lambda = 0 bound, the mean data cost, no converged fit beaten by another start), on rows
-built by hand so that each check can be made to fail."""
+"""``experiments.stats.checks.optimum_checks``: what must hold where rows report fits at their
+optimum (the lambda = 0 bound, the mean data cost, no converged fit beaten by another start), on
+rows built by hand so that each check can be made to fail."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ RTOL = 1e-3
 def _fit(seed, objective, data, starts, stop="converged"):
     return {"seed": seed, "stop": stop, "objective": objective, "data_cost": data,
             "reg_cost": objective - data, "iterations": 10, "agree": 1, "spread": 0.0,
-            "multiple_optima": False, "start_rtol": RTOL, "starts": [{"start": f"s{i}", "cost": c, "stop": "converged",
-                                            "iterations": 10, "reused": False}
-                                           for i, c in enumerate(starts)]}
+            "multiple_optima": False, "start_rtol": RTOL,
+            "starts": [{"start": f"s{i}", "cost": c, "stop": "converged", "iterations": 10,
+                        "reused": False} for i, c in enumerate(starts)]}
 
 
 def _row(lam, fits, starts=("draw", "lip", "exchange")):

@@ -82,8 +82,8 @@ def test_rows_at_their_optimum_keep_their_convergence_counts(stored):
 
 
 def test_the_optimum_checks_hold_in_the_stored_run(stored):
-    """What must hold at an optimum (experiments.stats.checks.optimum_checks), as the run wrote it and
-    recomputed from its rows: the lambda = 0 bound, the mean data cost and no converged fit
+    """What must hold at an optimum (``experiments.stats.checks.optimum_checks``), as the run
+    wrote it and recomputed from its rows: the lambda = 0 bound, the mean data cost and no converged fit
     beaten by another start, for n_l = 16 and 8."""
     from experiments.report import table_json
     from experiments.stats.checks import optimum_checks

@@ -131,7 +131,8 @@ def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
                         f"{', '.join(expected[0])}")
     for column in expected[0]:
         _check_unit(column)
-    fresh_rows = [rows_entry(row, i, with_fits=False) for i, row in enumerate(table_rows(fresh, "table.json"))]
+    fresh_rows = [rows_entry(row, i, with_fits=False)
+                  for i, row in enumerate(table_rows(fresh, "table.json"))]
     rows = {row.label: row for row in fresh_rows}
     out: list[Mismatch] = []
     for exp in expected:

@@ -237,8 +237,9 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
     if unfinished:
         return  # no table from a partial grid; the next run completes it
     swept = list(sweep.grid)
+    # the store holds no NaN; table.json stays JSON
     text = json.dumps({"rows": [row.to_json() for row in rows], "failures": failures,
-                       "swept": swept}, indent=1, allow_nan=False)  # the store holds no NaN; table.json stays JSON
+                       "swept": swept}, indent=1, allow_nan=False)
     atomic_write(out / "table.json", text)
     atomic_write(out / "table.md", markdown(rows, swept, failures))
     atomic_write(out / "table.csv", table_md.to_csv(rows, swept))
