@@ -225,12 +225,13 @@ def table_iterations(path) -> list[int]:
     and 8 (a start one fit took from another's cache counted once, where it ran)."""
     import json
 
-    from experiments.table import lm_iterations
+    from experiments.table import FitSummary, lm_iterations
 
     counts = {16: 0, 8: 0}
     for row in json.loads(Path(path).read_text())["rows"]:
         if row.get("kind") == "pgnn" and row.get("hidden") in counts:
-            counts[row["hidden"]] += lm_iterations(row["fits"])[0]
+            counts[row["hidden"]] += lm_iterations([FitSummary.from_json(f)
+                                                     for f in row["fits"]])[0]
     return [counts[16], counts[8]]
 
 

@@ -208,7 +208,7 @@ class FeedforwardSpec:
     seeds: int = 1
     name: str | None = None
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases = {"lambda": LAMBDA_KEYS["lambda"]}
+    aliases = {k: v for k, v in LAMBDA_KEYS.items() if v == "lam"}
 
     def __post_init__(self):
         if self.kind == "pgnn":

@@ -5,9 +5,9 @@ and the row built from them.
 
 :class:`SeedResult` replaces the per-seed dict that carried the fit under a ``"fit"`` key beside
 the references; :class:`TableRow` replaces the row dict that ``make_row`` assembled. The files
-keep their keys: ``TableRow.to_json`` is the row of ``table.json`` (its schema is documented in
-:mod:`experiments.table`, whose Markdown, CSV and comparisons read that form, as the sweeps do
-when they read a table back).
+keep their keys: ``TableRow.row`` is the row of ``table.json``, an :class:`experiments.table.Row`
+(the one place its keys are written and read), which the renderers, comparisons, sweeps and
+figures take.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 from clm_sim.plant import THETA_NAMES
 from clm_sim.run import Run
 from experiments.config import FeedforwardSpec
-from experiments.table import regularizers, row_settings
+from experiments.table import FitSummary, Row, Settings, Stat, regularizers, row_settings
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord
@@ -57,20 +57,10 @@ class SeedFit:
 
     def to_json(self) -> dict:
         """One entry of a row's ``"fits"`` in ``table.json``."""
-        f = self.record
-        out = {"seed": self.seed, "stop": f.stop, "cost_stop": f.cost_stop,
-               "iterations": f.iterations, "iterations_total": f.iterations_total,
-               "iterations_run": f.iterations_run, "iterations_reused": f.iterations_reused,
-               "data_cost": f.data_cost, "reg_cost": f.reg_cost, "grad_norm": f.grad_norm,
-               "first_order": f.first_order, "theta_moved": f.theta_moved,
-               "theta_path": [p.to_json() for p in f.theta_path],
-               "continuation_lambda": f.continuation_lam, "start": f.start,
-               "objective": f.objective, "starts": [s.to_json() for s in f.starts],
-               "start_rtol": f.start_rtol, "agree": f.agree, "spread": f.spread,
-               "multiple_optima": f.multiple_optima}
-        if self.theta_drift is not None:
-            out["theta_drift"] = self.theta_drift
-        return out
+        return self.summary().to_json()
+
+    def summary(self) -> FitSummary:
+        return FitSummary.of(self.seed, self.record, self.theta_drift)
 
 
 def theta_drift(theta: dict[str, float], theta_lip: dict[str, float]) -> float:
@@ -103,9 +93,9 @@ class RowResult:
         return [dict(m.theta_) for m in self.models if m is not None]
 
 
-def _stat(vals) -> dict:
+def _stat(vals) -> Stat:
     vals = np.asarray(vals, dtype=float)
-    return {"mean": float(vals.mean()), "std": float(vals.std(ddof=1) if len(vals) > 1 else 0.0)}
+    return Stat(float(vals.mean()), float(vals.std(ddof=1) if len(vals) > 1 else 0.0))
 
 
 @dataclass(frozen=True)
@@ -131,40 +121,41 @@ class TableRow:
         fits = [s.fit for s in self.seeds]
         return None if any(f is None for f in fits) else fits
 
-    def _stat(self, ref: str, key: str) -> dict:
+    def _stat(self, ref: str, key: str) -> Stat:
         return _stat([getattr(s.references[ref], key) for s in self.seeds])
 
     def to_json(self) -> dict:
+        return self.row().to_json()
+
+    def row(self) -> Row:
+        """The row as ``table.json`` holds it (:class:`experiments.table.Row`)."""
         spec, refs, thetas = self.spec, self.references, list(self.thetas)
         theta = ({k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES}
                  if thetas else None)
-        row = {
-            "kind": spec.kind, "training": spec.training, "lambda": spec.lam,
-            "hidden": spec.hidden, "n_seeds": len(self.seeds),
-            "mae": {ref: self._stat(ref, "mae") for ref in refs},
-            "theta_phy": theta,
-            "label": spec.label(),
-            "rms": {ref: self._stat(ref, "rms") for ref in refs},
-            "max": {ref: self._stat(ref, "max") for ref in refs},
-            "mae_per_seed": {ref: [s.references[ref].mae for s in self.seeds] for ref in refs},
-            "theta_phy_per_seed": thetas or None,
-        }
+        common = dict(
+            kind=spec.kind, training=spec.training, lam=spec.lam, hidden=spec.hidden,
+            n_seeds=len(self.seeds), label=spec.label(), theta_phy=theta,
+            theta_phy_per_seed=thetas or None,
+            mae={ref: self._stat(ref, "mae") for ref in refs},
+            rms={ref: self._stat(ref, "rms") for ref in refs},
+            max={ref: self._stat(ref, "max") for ref in refs},
+            mae_per_seed={ref: [s.references[ref].mae for s in self.seeds] for ref in refs})
         fits = self.fits
-        if fits is not None:
-            records = [f.record for f in fits]
-            row["regularizers"] = regularizers(spec, records)
-            row["settings"] = row_settings(spec, records)
-            row["fits"] = [f.to_json() for f in fits]
-            row["converged"] = sum(r.converged for r in records)
-            row["at_edge"] = sum(r.at_edge for r in records)
-            row["data_cost"] = _stat([r.data_cost for r in records])
-            row["reg_cost"] = _stat([r.reg_cost for r in records])
-            row["theta_drift"] = _stat([f.theta_drift for f in fits])
-            first = self.seeds[0].references
-            row["network_peak_beyond_n"] = {
-                ref: _stat([s.references[ref].network_peak_beyond_n for s in self.seeds])
-                for ref in refs if first[ref].network_peak_beyond_n is not None}
-        return row
+        if fits is None:
+            return Row(**common)
+        records = [f.record for f in fits]
+        first = self.seeds[0].references
+        return Row(**common, regularizers=Settings(regularizers(spec, records)),
+                   settings=Settings(row_settings(spec, records)),
+                   fits=tuple(f.summary() for f in fits),
+                   converged=sum(r.converged for r in records),
+                   at_edge=sum(r.at_edge for r in records),
+                   data_cost=_stat([r.data_cost for r in records]),
+                   reg_cost=_stat([r.reg_cost for r in records]),
+                   theta_drift=_stat([f.theta_drift for f in fits]),
+                   network_peak_beyond_n={
+                       ref: _stat([s.references[ref].network_peak_beyond_n for s in self.seeds])
+                       for ref in refs if first[ref].network_peak_beyond_n is not None})
 
 
 @dataclass(frozen=True)

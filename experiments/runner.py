@@ -21,9 +21,11 @@ from clm_sim.errors import UserError
 from clm_sim.numerics import environment, versions
 from clm_sim.outdir import atomic_folder
 from clm_sim.records.write import save_npz
-from experiments import table
 from experiments.config import ExperimentConfig, resolved
+from experiments.report import table_json, table_md
 from experiments.results import TableRow
+from experiments.stats.comparisons import comparisons
+from experiments.table import RecordRow, Row
 from experiments.testbed import Progress, Testbed
 
 
@@ -52,7 +54,7 @@ def check_row_names(config: ExperimentConfig) -> None:
 
 
 def run_experiment(config: ExperimentConfig, out: Path, *, quiet: bool = False,
-                   config_path: str | None = None) -> list[dict]:
+                   config_path: str | None = None) -> list[Row | RecordRow]:
     """Run ``config`` and write its results into ``out`` (replaced atomically). Returns rows."""
     progress = Progress(quiet)
     try:
@@ -109,31 +111,29 @@ def preflight(config: ExperimentConfig) -> None:
                         f"where it starts to be repeated")
 
 
-def _run_records(config: ExperimentConfig, out: Path | None, progress) -> list[dict]:
+def _run_records(config: ExperimentConfig, out: Path | None, progress) -> list[RecordRow]:
     """The rows of a config with a ``data:`` section (:mod:`experiments.records.fit`); with
     ``out`` also table.json, table.md and the fitted models."""
     from experiments.records import fit as record_fit
     result = record_fit.compute(config, progress)
     if out is not None:
-        for row, models in zip(result["rows"], result["models"]):
+        for row, models in zip(result.rows, result.models):
             for s, model in enumerate(models):
                 if model is not None:
-                    model.save(out / "params" / f"{slug(row['label'])}_seed{s}")
-        doc = {k: v for k, v in result.items() if k != "models"}
-        (out / "table.json").write_text(json.dumps({**doc, "environment": environment()},
-                                                   indent=1))
-        (out / "table.md").write_text(record_fit.to_markdown(result["rows"],
-                                                             result["comparisons"]))
-    return result["rows"]
+                    model.save(out / "params" / f"{slug(row.label)}_seed{s}")
+        (out / "table.json").write_text(json.dumps({**result.to_json(),
+                                                    "environment": environment()}, indent=1))
+        (out / "table.md").write_text(record_fit.to_markdown(result.rows, result.comparisons))
+    return result.rows
 
 
-def run_task(config: ExperimentConfig, *, progress=None) -> list[dict]:
+def run_task(config: ExperimentConfig, *, progress=None) -> list[Row | RecordRow]:
     """The table rows of ``config``, computed without writing any file (one sweep task)."""
     preflight(config)
     return _run(config, None, progress or Progress(quiet=True), None)
 
 
-def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> list[dict]:
+def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> list:
     """Compute the rows of ``config``; with ``out`` also write runs, parameters and figures."""
     if out is not None:
         (out / "config.resolved.yaml").write_text(yaml.safe_dump(resolved(config),
@@ -166,9 +166,10 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     rows, shown = [], {}
     for spec in config.feedforwards:
         result = tb.evaluate(spec, train, lip)
-        rows.append(TableRow.from_result(result).to_json())
+        row = TableRow.from_result(result).row()
         if tb.warnings:  # every row rests on the LIP (a PGNN starts from it): said with each
-            rows[-1]["warnings"] = list(tb.warnings)
+            row = row.with_extra(warnings=list(tb.warnings))
+        rows.append(row)
         if out is not None:
             shown[spec.label()] = result.first_replays
             for name, run in result.first_replays.items():
@@ -182,10 +183,11 @@ def _run(config: ExperimentConfig, out: Path | None, progress, config_path) -> l
     if config.truth is not None:  # diagnose the model against the emulated machine
         from experiments.diagnosis.emulate import diagnose_emulated
         diagnose_emulated(tb, record=train, out=out / "diagnosis", progress=progress)
-    pairs = table.comparisons(rows)
-    (out / "table.json").write_text(table.to_json(rows, environment=environment(), pairs=pairs))
-    (out / "table.md").write_text(table.to_markdown(rows, pairs=pairs))
-    (out / "table.csv").write_text(table.to_csv(rows))
+    pairs = comparisons(rows)
+    (out / "table.json").write_text(table_json.to_json(rows, environment=environment(),
+                                                       pairs=pairs))
+    (out / "table.md").write_text(table_md.to_markdown(rows, pairs=pairs))
+    (out / "table.csv").write_text(table_md.to_csv(rows))
     from experiments import (
         plots,  # matplotlib only where figures are drawn (not in tasks)
     )

@@ -187,7 +187,7 @@ def test_record_run_writes_force_rms_inside_and_outside(tmp_path):
              "pgnn": {"max_iter": 3, "weight_decay": 0, "continuation_lambda": 0}},
             {"kind": "pgnn", "training": "simultaneous", "lambda": 0.01, "hidden": 3,
              "seeds": 2, "pgnn": {"max_iter": 3}}]}, "config")
-    rows = run_experiment(config, tmp_path / "out", quiet=True)
+    rows = [row.to_json() for row in run_experiment(config, tmp_path / "out", quiet=True)]
     for row in rows:
         for rec in ("training", "validation"):
             assert set(row["force_rms"][rec]) == {"inside", "outside"}
@@ -226,7 +226,7 @@ def test_emps_pgnn_runs_on_the_measured_records(tmp_path, monkeypatch):
     config = dataclasses.replace(config, feedforwards=tuple(
         dataclasses.replace(s, seeds=3) if s.kind == "pgnn" else s
         for s in config.feedforwards))
-    rows = run_experiment(config, tmp_path / "emps", quiet=True)
+    rows = [row.to_json() for row in run_experiment(config, tmp_path / "emps", quiet=True)]
     lip = rows[0]["force_rms"]["training"]["inside"]["mean"]
     reg = next(r for r in rows if r["lambda"] == 0.01)
     assert reg["force_rms"]["training"]["inside"]["mean"] <= lip
@@ -320,8 +320,8 @@ def test_table_compares_only_rows_that_differ_in_one_setting():
     differ in exactly one setting and names it; the paper's-cost lambda = 0 / 0.01 pair exists
     per n_l and varies lambda, and so does the pair at the optimum (both rows exchange their
     starts); no pair mixes lambda with weight decay or the starts."""
-    from experiments import table
     from experiments.results import ReferenceMetrics, SeedFit, SeedResult, TableRow
+    from experiments.stats.comparisons import comparisons
 
     config = load_config(PAPER)
     rows = []
@@ -335,8 +335,9 @@ def test_table_compares_only_rows_that_differ_in_one_setting():
         seeds = [SeedResult({"r1": ReferenceMetrics(float(rng.uniform(2e-7, 4e-7)), 1e-7, 1e-6)},
                             SeedFit(s, record, float(rng.uniform(0, 1))))
                  for s in range(spec.seeds)]
-        rows.append(TableRow(spec, tuple(seeds)).to_json())
-    pairs = table.comparisons(rows)
+        rows.append(TableRow(spec, tuple(seeds)).row())
+    pairs = comparisons(rows).to_json()
+    rows = [row.to_json() for row in rows]
     by_label = {r["label"]: r for r in rows}
     mae = [c for c in pairs if c["metric"] == "mae"]
     for c in mae:
@@ -362,9 +363,9 @@ def test_table_compares_only_rows_that_differ_in_one_setting():
 
 
 def test_holm_adjusts_step_down():
-    from experiments import table
+    from experiments.stats.paired import holm
 
-    assert table.holm([0.01, 0.04, None, 0.03]) == [0.03, 0.06, None, 0.06]
+    assert holm([0.01, 0.04, None, 0.03]) == [0.03, 0.06, None, 0.06]
 
 
 def test_cluster_bootstrap_covers_the_spread_between_records():
@@ -533,6 +534,7 @@ def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
     wins and a log ratio; one exploded seed moves the mean difference but not the median."""
     from experiments import table
     from experiments.records import fit as record_fit
+    from experiments.table import RecordRow
     config = load_config(EMPS_CONFIG)
     rng = np.random.default_rng(0)
     rows = []
@@ -541,13 +543,14 @@ def test_emps_comparisons_are_one_setting_at_a_time_with_rank_statistics():
         per_seed = [{"training": {"inside": float(rng.uniform(0.4, 0.5)),
                                   "outside": float(rng.uniform(5, 50))}} for _ in range(n)]
         row = {"kind": spec.kind, "label": spec.label(), "n_seeds": n,
-               "force_rms": {"training": {}}, "force_rms_per_seed": per_seed}
+               "force_rms": {"training": {}}, "force_rms_per_seed": per_seed,
+               "theta_phy": None}
         if spec.kind == "pgnn":
             fits = [_record("draw", 0.01 if "continuation" in spec.label() else 0.0)] * n
             row["settings"] = table.row_settings(spec, fits)
         rows.append(row)
     rows[1]["force_rms_per_seed"][0]["training"]["outside"] = 2.1e5  # one exploded seed
-    pairs = record_fit.comparisons(rows)
+    pairs = record_fit.comparisons([RecordRow.from_json(r) for r in rows]).to_json()
     assert pairs and all(c["varies"] for c in pairs)
     by = {r["label"]: r for r in rows}
     for c in pairs:
@@ -605,22 +608,24 @@ def test_the_page_table_is_what_the_report_prints_for_the_stored_run():
     import json
 
     from experiments.cli import lambda0_report
-    doc = json.loads((ROOT / "docs/results/paper_table.json").read_text(encoding="utf-8"))
+    from experiments.report import table_json
+    doc = table_json.read(json.loads((ROOT / "docs/results/paper_table.json").read_text(
+        encoding="utf-8")), "paper_table.json")
     page = (ROOT / "docs/results/lambda0.md").read_text(encoding="utf-8")
     section = page[:page.index("## Method")]
-    lines = lambda0_report.comparisons_table(doc).strip().splitlines()
+    lines = lambda0_report.comparisons_table(*doc).strip().splitlines()
     start = section.index(lines[0])
     assert section[start:].splitlines()[:len(lines)] == lines
-    assert len(lambda0_report.rows_table(doc).strip().splitlines()) == 2 + 10
+    assert len(lambda0_report.rows_table(doc[0]).strip().splitlines()) == 2 + 10
     varied = {line.split(" | ")[1] for line in
-              lambda0_report.comparisons_table(doc).strip().splitlines()[2:]}
+              lambda0_report.comparisons_table(*doc).strip().splitlines()[2:]}
     assert varied == {"lambda"}
 
 
 @pytest.mark.parametrize("content, expected", [
     (None, "not found"),
     ('{"rows": 3}', "no 'rows' list"),
-    ('{"rows": [{"kind": "pgnn"}]}', "not a paper-table run's table.json"),
+    ('{"rows": [{"kind": "pgnn"}]}', "rows[0]: expected an object with a 'label'"),
 ])
 def test_the_report_refuses_what_it_cannot_read_in_one_line(content, expected, tmp_path, capsys):
     from experiments.cli import lambda0_report

@@ -1,35 +1,38 @@
-"""``experiments.table.optimum_checks``: what must hold where rows report fits at their optimum
-(the lambda = 0 bound, the mean data cost, no converged fit beaten by another start), on rows
-built by hand so that each check can be made to fail."""
+"""``experiments.stats.checks.optimum_checks``: what must hold where rows report fits at their
+optimum (the lambda = 0 bound, the mean data cost, no converged fit beaten by another start), on
+rows built by hand so that each check can be made to fail."""
 
 from __future__ import annotations
 
 import pytest
 
-from experiments import table
+from experiments.table import Row
+from experiments.stats.checks import optimum_checks
 
 RTOL = 1e-3
 
 
 def _fit(seed, objective, data, starts, stop="converged"):
     return {"seed": seed, "stop": stop, "objective": objective, "data_cost": data,
-            "start_rtol": RTOL, "starts": [{"start": f"s{i}", "cost": c, "stop": "converged",
-                                            "iterations": 10, "reused": False}
-                                           for i, c in enumerate(starts)]}
+            "reg_cost": objective - data, "iterations": 10, "agree": 1, "spread": 0.0,
+            "multiple_optima": False, "start_rtol": RTOL,
+            "starts": [{"start": f"s{i}", "cost": c, "stop": "converged", "iterations": 10,
+                        "reused": False} for i, c in enumerate(starts)]}
 
 
 def _row(lam, fits, starts=("draw", "lip", "exchange")):
     settings = {"training": "simultaneous", "hidden": 8, "lambda": lam, "weight_decay": 1e-5,
                 "continuation_lambda": 0.01, "starts": list(starts)}
     data = [f["data_cost"] for f in fits]
-    return {"kind": "pgnn", "label": f"lambda={lam}", "lambda": lam, "hidden": 8,
-            "n_seeds": len(fits), "settings": settings, "fits": fits,
-            "data_cost": {"mean": sum(data) / len(data), "std": 0.0}}
+    return Row.from_json({
+        "kind": "pgnn", "label": f"lambda={lam}", "lambda": lam, "hidden": 8,
+        "n_seeds": len(fits), "settings": settings, "fits": fits,
+        "data_cost": {"mean": sum(data) / len(data), "std": 0.0}})
 
 
 def _checks(zero_fits, reg_fits, starts=("draw", "lip", "exchange")):
     rows = [_row(0.0, zero_fits, starts), _row(0.01, reg_fits, starts)]
-    return {(c["check"], c["a"]): c for c in table.optimum_checks(rows)}
+    return {(c.check, c.a): c.to_json() for c in optimum_checks(rows)}
 
 
 def test_every_check_holds_on_rows_at_their_optimum():
@@ -69,5 +72,5 @@ def test_rows_of_one_start_are_listed_but_not_counted():
     checks = _checks(zero, reg, starts=("draw",))
     assert not checks[("bound", "lambda=0.0")]["passed"]
     assert not any(c["at_optimum"] for c in checks.values())
-    doc = table.optimum_checks([_row(0.0, zero, ("draw",)), _row(0.01, reg, ("draw",))])
-    assert all(not c["at_optimum"] for c in doc)
+    doc = optimum_checks([_row(0.0, zero, ("draw",)), _row(0.01, reg, ("draw",))])
+    assert all(not c.at_optimum for c in doc)

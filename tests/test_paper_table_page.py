@@ -22,8 +22,9 @@ from pathlib import Path
 import pytest
 
 from clm_sim.numerics import environment
-from experiments import table
 from experiments.config import load_config
+from experiments.report.table_md import results_table
+from experiments.table import read_row
 from experiments.stats import agreement
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,12 +48,17 @@ def _page_table(text: str) -> list[str]:
     return lines[start:end]
 
 
+def _rendered(rows: list[dict]) -> list[str]:
+    """The results table of rows as stored in a table.json, line by line."""
+    return results_table([read_row(r) for r in rows]).splitlines()
+
+
 def test_the_page_prints_the_stored_run(stored):
     """The page's table is the stored run's table as the run renders it (no hand edits), the
     page names the command, and the stored run is of the shipped config."""
     page = PAGE.read_text(encoding="utf-8")
     assert "clm-sim run experiments/configs/paper_table.yaml" in page
-    rendered = table.results_table(stored["rows"]).splitlines()
+    rendered = _rendered(stored["rows"])
     shown = _page_table(page)
     assert shown == rendered[:len(shown)] and len(shown) == 2 + len(stored["rows"])
     mismatches = agreement.compare(agreement.parse_markdown(page, str(PAGE)), stored)
@@ -69,7 +75,7 @@ def test_the_regularizers_page_prints_its_stored_run():
     section = (PAGE.parent / "regularization_comparison.md").read_text(encoding="utf-8")
     assert "clm-sim run experiments/configs/regularization_comparison.yaml" in section
     run = json.loads(REGULARIZERS.read_text(encoding="utf-8"))
-    rendered = table.results_table(run["rows"]).splitlines()
+    rendered = _rendered(run["rows"])
     assert _page_table(section) == rendered
     specs = load_config(ROOT / "experiments" / "configs" / "regularization_comparison.yaml")
     assert [row["label"] for row in run["rows"]] == [s.label() for s in specs.feedforwards]
@@ -94,7 +100,7 @@ def test_a_run_on_other_kernels_reproduces_the_page_both_ways(stored):
               if r["theta_phy_per_seed"] != s["theta_phy_per_seed"]]
     assert len(differ) >= 2  # the kernels moved fits: a comparison, not a copy
     for page, fresh in ((stored, other), (other, stored)):
-        expected = agreement.parse_markdown(table.results_table(page["rows"]))
+        expected = agreement.parse_markdown("\n".join(_rendered(page["rows"])))
         mismatches = agreement.compare(expected, fresh)
         assert not mismatches, "\n".join(map(str, mismatches))
 
@@ -170,7 +176,7 @@ def test_a_fresh_run_of_the_first_seeds_reproduces_the_stored_run_seed_by_seed(s
     config = load_config(CONFIG)
     subset = tuple(dataclasses.replace(s, seeds=min(s.seeds, SEEDS))
                    for s in config.feedforwards)
-    fresh = run_task(dataclasses.replace(config, feedforwards=subset))
+    fresh = [r.to_json() for r in run_task(dataclasses.replace(config, feedforwards=subset))]
     assert [r["label"] for r in fresh] == [r["label"] for r in stored["rows"]]
     same_machine = stored["environment"] == environment()
     mismatches = []

@@ -11,6 +11,9 @@ import pytest
 
 from clm_sim.run import Run
 from experiments import plots
+from experiments.diagnosis.figures import plot_origin_scan
+from experiments.sweeps.figures import key_label, mae_vs_key_figure
+from experiments.table import Row
 
 
 def test_importing_plots_chooses_no_backend():
@@ -74,6 +77,10 @@ def test_feedforward_figure_shows_differences_from_the_lip(replays):
                                replays["PGNN b"]["r1"].u_ff - lip, atol=1e-12)
 
 
+def _typed(rows: list[dict]) -> list[Row]:
+    return [Row.from_json(r) for r in rows]
+
+
 def _sweep_rows():
     rows = []
     for res in (1e-8, 1e-7, 1e-6):
@@ -90,7 +97,7 @@ def _sweep_rows():
 
 def test_sweep_axes_have_readable_labels_units_and_the_legend_below():
     key = "plant.encoder_resolution"
-    fig = plots.mae_vs_key_figure(_sweep_rows(), [key, "seed"], key)
+    fig = mae_vs_key_figure(_typed(_sweep_rows()), [key, "seed"], key)
     assert [ax.get_xlabel() for ax in fig.axes] == ["encoder resolution q [µm]"] * 2
     assert [ax.get_ylabel() for ax in fig.axes] == ["MAE on r1 [µm]", "MAE on r2 [µm]"]
     np.testing.assert_allclose(fig.axes[0].lines[0].get_xdata(), [0.01, 0.1, 1.0])
@@ -108,7 +115,7 @@ def test_sweep_axes_have_readable_labels_units_and_the_legend_below():
     ("plant.effects[0].amplitude", "plant.effects[0].amplitude [SI]", 1.0),  # unknown: as is
 ])
 def test_key_labels(key, label, factor):
-    assert plots.key_label(key) == (label, factor)
+    assert key_label(key) == (label, factor)
 
 
 def _lab(color: str) -> np.ndarray:
@@ -133,7 +140,7 @@ def test_palette_colours_are_told_apart():
 def test_origin_scan_marks_the_registered_shift_in_mm():
     shifts = np.linspace(-1.25e-3, 1.25e-3, 65)
     rms = 2.5 - 0.2 * np.cos(2 * np.pi * (shifts + 0.672e-3) / 2.5e-3)
-    ax = plots.plot_origin_scan(-0.672e-3, shifts, rms)
+    ax = plot_origin_scan(-0.672e-3, shifts, rms)
     assert ax.get_xlabel() == "origin shift δ [mm]" and ax.get_ylabel() == "residual RMS [N]"
     marked = [ln.get_xdata()[0] for ln in ax.lines[1:]]
     assert marked == pytest.approx([0.0, -0.672])
@@ -163,7 +170,7 @@ def _many_series_rows():
 
 def test_many_series_over_few_values_are_a_dot_plot_not_crossing_lines(tmp_path):
     swept = ["feedforwards[1].hidden", "feedforwards[1].lambda", "seed"]
-    fig = plots.mae_vs_key_figure(_many_series_rows(), swept, "feedforwards[1].hidden")
+    fig = mae_vs_key_figure(_typed(_many_series_rows()), swept, "feedforwards[1].hidden")
     ax = fig.axes[0]
     assert ax.get_xlabel() == "MAE on r1 [µm]"
     names = [t.get_text() for t in ax.get_yticklabels()]

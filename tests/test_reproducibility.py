@@ -21,7 +21,8 @@ from clm_sim import numerics
 from clm_sim.plant import THETA_NAMES
 from controllers.pgnn import PGNNFeedforward, TrainingData
 from experiments.stats import agreement
-from experiments.table import to_markdown
+from experiments.report import table_md
+from experiments.table import read_row
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -216,7 +217,9 @@ def _row(label, mae_r2, thetas, converged=10, kind="pgnn"):
            "hidden": None, "mae": {ref: stat(v) for ref, v in per_seed.items()},
            "mae_per_seed": per_seed, "theta_phy": theta, "theta_phy_per_seed": thetas}
     if kind == "pgnn":
-        fit = {"theta_drift": 0.1, "data_cost": 1.0}
+        fit = {"theta_drift": 0.1, "data_cost": 1.0, "reg_cost": 0.0, "objective": 1.0,
+               "seed": 0, "iterations": 100, "agree": 1, "spread": 0.0,
+               "multiple_optima": False}
         row |= {"training": "simultaneous", "lambda": 0.0, "hidden": 16,
                 "regularizers": {"weight_decay": 0.0, "orthogonal_weight": 0.0,
                                  "pinn_weight": 0.0, "lambda_diag": None}}
@@ -227,6 +230,11 @@ def _row(label, mae_r2, thetas, converged=10, kind="pgnn"):
         row |= {k: {"mean": 0.0, "std": 0.0} for k in ("data_cost", "reg_cost", "theta_drift")}
         row["network_peak_beyond_n"] = {}
     return row
+
+
+def to_markdown(rows: list[dict]) -> str:
+    """table.md of rows as stored in a table.json."""
+    return table_md.to_markdown([read_row(r) for r in rows])
 
 
 def _doc(shift_mae=0.0, shift_theta=0.0, converged=10, lip_shift=0.0, std_scale=1.0,

@@ -217,3 +217,19 @@ def test_a_start_cache_keeps_the_latest():
     assert cache.take(None) is None and cache.take("a") is None
     with pytest.raises(ValueError, match="kept"):
         StartCache(kept=0)
+
+
+def test_a_table_row_reads_back_from_its_json_as_it_was_written(fitted):
+    """``Row.from_json`` is the reader of ``TableRow.to_json``: the row read back writes the
+    same JSON, key for key and in order (a sweep writes its table from rows read back)."""
+    from experiments.table import Row, read_row
+
+    spec = FeedforwardSpec.pgnn_row(training="simultaneous", lam=0.01, hidden=3, settings={})
+    seeds = tuple(SeedResult({"r1": ReferenceMetrics(m, 2 * m, 3 * m, 1.0, 0.5)},
+                             SeedFit(s, fitted.fit_, 0.1)) for s, m in enumerate([1e-6, 3e-6]))
+    text = json.dumps(TableRow(spec, seeds, (fitted.theta_, fitted.theta_)).to_json())
+    row = read_row(json.loads(text))
+    assert isinstance(row, Row) and row.lam == 0.01 and row.fits[1].seed == 1
+    assert json.dumps(row.to_json()) == text
+    swept = row.with_extra(seed=3, task="t", row=0)
+    assert list(swept.to_json())[-3:] == ["seed", "task", "row"] and swept.value("seed") == 3

@@ -26,12 +26,13 @@ from small_config import SMALL_CONFIG
 import clm_sim
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_write
-from experiments import table
+from experiments.report import table_md
+from experiments.table import Row
 from experiments.sweeps.grid import MAX_TASKS, load_sweep, parse_path, set_path
 from experiments.sweeps.store import ResultStore, code_version, result_sources, task_key
 from experiments.sweeps.run import Outcome, execute, results_line, run_sweep
 from experiments.sweeps.run import markdown as sweep_markdown
-from experiments.table import series
+from experiments.stats.seeds import over_seeds, series
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -200,12 +201,16 @@ def test_execute_records_a_failure_instead_of_raising(tmp_path):
     assert "unstable closed loop" in result["error"] and "\n" not in result["error"]
 
 
+def _typed(rows: list[dict]) -> list[Row]:
+    return [Row.from_json(r) for r in rows]
+
+
 def test_series_spread_is_sample_std_over_seeds():
     def row(x, seed, mae):
         return {"row": 0, "label": "LIP", "kind": "lip", "mae": {"r1": {"mean": mae, "std": 0.0}},
                 "k": x, "seed": seed}
     rows = [row(1.0, s, m) for s, m in enumerate([1.0, 2.0, 4.0])] + [row(2.0, 0, 5.0)]
-    data = series(rows, ["k", "seed"], "k")
+    data = series(_typed(rows), ["k", "seed"], "k")
     mean, spread, n = data[("LIP", "r1")][1.0]
     assert (mean, n) == (pytest.approx(7 / 3), 3)
     assert spread == pytest.approx(np.std([1.0, 2.0, 4.0], ddof=1))  # exact up to rounding
@@ -224,7 +229,7 @@ def test_row_that_the_swept_key_cannot_change_is_one_flat_series():
                              "mae": {"r2": {"mean": lv + h, "std": 0.0}}, **common})
                 rows.append({"row": 1, "label": "LIP", "kind": "lip",
                              "mae": {"r2": {"mean": lip_mae, "std": 0.0}}, **common})
-    data = series(rows, [lam, hidden, "seed"], lam)
+    data = series(_typed(rows), [lam, hidden, "seed"], lam)
     assert set(data) == {("PGNN simultaneous, hidden=8", "r2"),
                          ("PGNN simultaneous, hidden=16", "r2"), ("LIP", "r2")}
     # The LIP of seeds 1 and 2 once each (not once per lambda and n_l), at every lambda.
@@ -405,31 +410,30 @@ def _seed_rows():
 
 def test_rows_over_seeds_are_mean_and_sample_std():
     swept = ["feedforwards[0].lambda", "seed"]
-    merged = table.over_seeds(_seed_rows(), swept)
-    assert [m["feedforwards[0].lambda"] for m in merged] == [0.0, 0.1]
+    merged = over_seeds(_typed(_seed_rows()), swept)
+    assert [m.value("feedforwards[0].lambda") for m in merged] == [0.0, 0.1]
     for m, lam in zip(merged, (0.0, 0.1)):
-        assert m["n_seeds"] == 3 and "seed" not in m
-        assert m["mae"]["r1"]["mean"] == pytest.approx(3e-7 + lam * 1e-6, rel=1e-12)
-        assert m["mae"]["r1"]["std"] == pytest.approx(np.std([1e-7, 2e-7, 6e-7], ddof=1),
-                                                      rel=1e-12)
-        assert m["theta_phy"]["mass"] == pytest.approx(20.0)
+        assert m.n_seeds == 3 and m.value("seed") is None
+        assert m.mae["r1"].mean == pytest.approx(3e-7 + lam * 1e-6, rel=1e-12)
+        assert m.mae["r1"].std == pytest.approx(np.std([1e-7, 2e-7, 6e-7], ddof=1), rel=1e-12)
+        assert m.theta_phy["mass"] == pytest.approx(20.0)
 
 
 def test_a_row_the_swept_keys_cannot_change_is_summarized_once():
     swept = ["feedforwards[0].lambda", "seed"]
     lip = [{**row, "row": 1, "kind": "lip", "label": "LIP", "lambda": None,
             "mae": {"r1": {"mean": row["seed"] * 1e-7, "std": 0.0}}} for row in _seed_rows()]
-    merged = table.over_seeds(_seed_rows() + lip, swept)
-    lips = [m for m in merged if m["label"] == "LIP"]
-    assert len(lips) == 1 and lips[0]["feedforwards[0].lambda"] is None
+    merged = over_seeds(_typed(_seed_rows() + lip), swept)
+    lips = [m for m in merged if m.label == "LIP"]
+    assert len(lips) == 1 and lips[0].value("feedforwards[0].lambda") is None
     # Seeds 1, 2, 3 once each, not once per lambda.
-    assert lips[0]["n_seeds"] == 3 and lips[0]["mae"]["r1"]["mean"] == pytest.approx(2e-7)
-    assert "| – | LIP | 3 | 0.200 ± 0.100 |" in table.to_markdown(merged, swept[:1])
+    assert lips[0].n_seeds == 3 and lips[0].mae["r1"].mean == pytest.approx(2e-7)
+    assert "| – | LIP | 3 | 0.200 ± 0.100 |" in table_md.to_markdown(merged, swept[:1])
 
 
 def test_sweep_table_gives_mean_and_std_beside_the_per_seed_rows():
     swept = ["feedforwards[0].lambda", "seed"]
-    text = sweep_markdown(_seed_rows(), swept, [])
+    text = sweep_markdown(_typed(_seed_rows()), swept, [])
     summary, every = text.split("## Every task")
     assert "Mean ± std over the 3 swept seeds" in summary
     # std of 0.1, 0.2, 0.6 µm; mass 19, 20, 21 kg over the seeds, the other parameters equal
@@ -437,4 +441,5 @@ def test_sweep_table_gives_mean_and_std_beside_the_per_seed_rows():
     assert "| 0.1 | PGNN 0.1 | 3 | 0.400 ± 0.265 |" in summary
     assert sum(line.startswith("| 0") for line in every.splitlines()) == 6  # every task's row
     # Without a swept seed there is nothing to average: only the per-task table.
-    assert "Mean" not in sweep_markdown(_seed_rows()[:1], ["feedforwards[0].lambda"], [])
+    assert "Mean" not in sweep_markdown(_typed(_seed_rows()[:1]), ["feedforwards[0].lambda"],
+                                        [])

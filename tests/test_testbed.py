@@ -226,7 +226,7 @@ def test_fit_records_count_the_iterations_run_apart_from_those_taken(monkeypatch
         == tuple(ran)
     assert cont.fit_.iterations_reused == ran[0] + ran[1]  # the draw's and the lambda = 0.01
     assert cont.fit_.iterations_total == ran[0] + ran[2]  # the listed starts, whoever ran them
-    fits = [SeedFit(0, m.fit_).to_json() for m in (free, pulled, cont)]
+    fits = [SeedFit(0, m.fit_).summary() for m in (free, pulled, cont)]
     assert lm_iterations(fits) == (sum(ran), ran[0] + ran[1])
 
 

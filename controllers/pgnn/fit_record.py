@@ -16,6 +16,9 @@ from typing import TYPE_CHECKING
 
 from clm_sim.errors import UserError
 from clm_sim.plant import THETA_NAMES
+from controllers.pgnn_settings import LAMBDA_KEYS
+
+LAMBDA_FILE_KEYS = {python: key for key, python in LAMBDA_KEYS.items()}
 
 if TYPE_CHECKING:  # the cost module imports torch; a record is read without it
     from controllers.pgnn.cost import CostTerms
@@ -257,7 +260,8 @@ class FitRecord:
                 "iterations_reused": self.iterations_reused, "theta_moved": self.theta_moved,
                 "theta_ftol": self.theta_ftol,
                 "theta_path": [p.to_json() for p in self.theta_path],
-                "continuation_lambda": self.continuation_lam, "data_cost": self.data_cost,
+                LAMBDA_FILE_KEYS["continuation_lam"]: self.continuation_lam,
+                "data_cost": self.data_cost,
                 "reg_cost": self.reg_cost, "grad_norm": self.grad_norm,
                 "first_order": self.first_order, "ftol": self.ftol, "max_iter": self.max_iter,
                 "start": self.start, "starts": [s.to_json() for s in self.starts],
@@ -283,7 +287,7 @@ class FitRecord:
                 theta_moved=_number(d.get("theta_moved")),
                 theta_ftol=_number(d.get("theta_ftol")),
                 theta_path=tuple(ThetaPoint.from_json(p) for p in d.get("theta_path") or ()),
-                continuation_lam=_number(d.get("continuation_lambda")),
+                continuation_lam=_number(d.get(LAMBDA_FILE_KEYS["continuation_lam"])),
                 start=d.get("start"),
                 starts=tuple(Start.from_json(s) for s in d.get("starts") or ()),
                 start_rtol=_number(d.get("start_rtol")),
@@ -299,3 +303,21 @@ def _number(x) -> float | None:
 
 def _integer(x) -> int | None:
     return None if x is None else int(x)
+
+
+def fit_fields(d) -> dict:
+    """The fields of a :class:`FitRecord` that a table row's ``fits`` entry
+    (:class:`experiments.table.FitSummary`) carries too, read from either (the keys are the
+    files'): how the fit stopped, its iterations and costs (N**2), theta_phy's path, the
+    continuation lambda and the starts."""
+    return dict(stop=str(d["stop"]), cost_stop=str(d.get("cost_stop", d["stop"])),
+                iterations=int(d["iterations"]),
+                iterations_total=_integer(d.get("iterations_total")),
+                data_cost=float(d["data_cost"]), reg_cost=float(d["reg_cost"]),
+                grad_norm=_number(d.get("grad_norm")), first_order=_number(d.get("first_order")),
+                theta_moved=_number(d.get("theta_moved")),
+                theta_path=tuple(ThetaPoint.from_json(p) for p in d.get("theta_path") or ()),
+                continuation_lam=_number(d.get(LAMBDA_FILE_KEYS["continuation_lam"])),
+                start=d.get("start"),
+                starts=tuple(Start.from_json(s) for s in d.get("starts") or ()),
+                start_rtol=_number(d.get("start_rtol")))

@@ -21,7 +21,7 @@ from controllers.pgnn_settings import (CONSTRAINTS, LAMBDA_KEYS, check_settings,
                                        parameter_count)
 
 # A model file's settings keys are the Python names but where it spells lambda out.
-FILE_KEYS = {v: k for k, v in LAMBDA_KEYS.items() if k != "lambda"}
+FILE_KEYS = {v: k for k, v in LAMBDA_KEYS.items() if v != "lam"}
 
 
 def file_settings(values: dict) -> dict:

@@ -11,9 +11,10 @@ from experiments.diagnosis.diagnose import Diagnosis
 
 def _figures(d: Diagnosis, folder: Path) -> list[tuple[str, str]]:
     from experiments import plots  # matplotlib is loaded only when a report is written
+    from experiments.diagnosis.figures import diagnosis_figures
 
     shown = []
-    for name, (fig, caption) in plots.diagnosis_figures(d).items():
+    for name, (fig, caption) in diagnosis_figures(d).items():
         plots.save(fig, folder / name)
         shown.append((name, caption))
     return shown

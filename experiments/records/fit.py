@@ -22,11 +22,14 @@ import dataclasses
 import numpy as np
 
 from clm_sim.errors import UserError
-from clm_sim.plant import THETA_NAMES
-from experiments import table
+from clm_sim.plant import THETA_NAMES, THETA_UNITS
 from experiments.config import ExperimentConfig
+from experiments.report.table_md import SHORT, fmt_p, theta_paths
 from experiments.results import SeedFit
-from experiments.stats.paired import Paired, holm
+from experiments.stats.comparisons import AGAINST_LIP, Comparison, ComparisonFamily, varies
+from experiments.stats.paired import Paired
+from experiments.table import (SIDES, RecordRow, Settings, Stat, regularizers,
+                               row_settings)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,10 +57,10 @@ def _rms(x) -> float | None:
 
 
 def force_rms(pred: np.ndarray, rec: Prepared) -> dict:
-    """``{"inside", "outside"}``: rms force prediction error (N) inside and outside the window
-    (None where the record has no such sample)."""
+    """Per side of the window (:data:`experiments.table.SIDES`: inside, outside): rms force
+    prediction error (N; None where the record has no such sample)."""
     err = rec.target - pred
-    return {"inside": _rms(err[rec.inside]), "outside": _rms(err[~rec.inside])}
+    return dict(zip(SIDES, (_rms(err[rec.inside]), _rms(err[~rec.inside]))))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,19 +143,26 @@ def record_checks(config: ExperimentConfig, run, train: Prepared, source: str) -
         refit=refit)
 
 
-def _stat(values) -> dict | None:
+def _stat(values) -> Stat | None:
     values = [v for v in values if v is not None]
     if not values:
         return None
-    return {"mean": float(np.mean(values)),
-            "std": float(np.std(values, ddof=1)) if len(values) > 1 else 0.0,
-            "median": float(np.median(values))}
+    return Stat(float(np.mean(values)),
+                float(np.std(values, ddof=1)) if len(values) > 1 else 0.0,
+                float(np.median(values)))
 
 
 def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
-             lip: RecordLIP | None = None) -> list[dict]:
-    """Every row of ``config`` identified on ``records[0]`` and scored on all ``records``
-    (``lip``: the LIP of the window, if already fitted)."""
+             lip: RecordLIP | None = None) -> list[tuple[dict, list]]:
+    """:func:`fit_rows` with each row as ``table.json`` holds it (for a caller that still reads
+    rows by key: the EMPS runaway study)."""
+    return [(row.to_json(), models) for row, models in fit_rows(config, records, progress, lip)]
+
+
+def fit_rows(config: ExperimentConfig, records: list[Prepared], progress,
+             lip: RecordLIP | None = None) -> list[tuple[RecordRow, list]]:
+    """Every row of ``config`` identified on ``records[0]`` and scored on all ``records``, with
+    its models (``lip``: the LIP of the window, if already fitted)."""
     from controllers.pgnn import TrainingData
     from controllers.pgnn_settings import decimation_for
     from experiments.processes import workers
@@ -183,100 +193,86 @@ def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
             thetas = [dict(m.theta_) for m in models]
             fits = [SeedFit(s, m.fit_) for s, m in enumerate(models)]
         per_seed = [{r.name: force_rms(p, r) for p, r in zip(pred, records)} for pred in preds]
-        row = {"kind": spec.kind, "training": spec.training, "lambda": spec.lam,
-               "hidden": spec.hidden, "n_seeds": len(per_seed), "label": spec.label(),
-               "force_rms": {r.name: {side: _stat([s[r.name][side] for s in per_seed])
-                                      for side in ("inside", "outside")} for r in records},
-               "force_rms_per_seed": per_seed,
-               "theta_phy": {k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES},
-               "theta_phy_per_seed": thetas}
-        if spec.kind == "lip":
-            row["offset_n"] = lip.offset_n
-        if fits is not None:
-            kept = [f.record for f in fits]
-            row["fits"] = [f.to_json() for f in fits]
-            row["converged"] = sum(k.converged for k in kept)
-            row["regularizers"] = table.regularizers(spec, kept)
-            row["settings"] = table.row_settings(spec, kept)
+        kept = None if fits is None else [f.record for f in fits]
+        row = RecordRow(
+            spec.kind, spec.training, spec.lam, spec.hidden, len(per_seed), spec.label(),
+            {k: float(np.mean([t[k] for t in thetas])) for k in THETA_NAMES}, thetas,
+            force_rms={r.name: {side: _stat([s[r.name][side] for s in per_seed])
+                                for side in SIDES} for r in records},
+            force_rms_per_seed=per_seed,
+            offset_n=lip.offset_n if spec.kind == "lip" else None,
+            fits=None if fits is None else tuple(f.summary() for f in fits),
+            converged=None if kept is None else sum(k.converged for k in kept),
+            regularizers=None if kept is None else Settings(regularizers(spec, kept)),
+            settings=None if kept is None else Settings(row_settings(spec, kept)))
         rows.append((row, models))
         progress(f"{spec.label()}: " + "; ".join(
-            f"{r.name} inside {_fmt(row['force_rms'][r.name]['inside'])} N, outside "
-            f"{_fmt(row['force_rms'][r.name]['outside'])} N" for r in records))
+            f"{r.name} " + ", ".join(f"{side} {_fmt(row.force_rms[r.name][side])} N"
+                                     for side in SIDES) for r in records))
     return rows
 
 
-def _fmt(stat) -> str:
+def _fmt(stat: Stat | None) -> str:
     if stat is None:
         return "–"
-    if not stat["std"]:
-        return f"{stat['mean']:.3f}"
-    return f"{stat['mean']:.3f} ± {stat['std']:.3f} (median {stat['median']:.3f})"
+    if not stat.std:
+        return f"{stat.mean:.3f}"
+    return f"{stat.mean:.3f} ± {stat.std:.3f} (median {stat.median:.3f})"
 
 
-def comparisons(rows: list[dict]) -> list[dict]:
+def comparisons(rows: list[RecordRow]) -> ComparisonFamily:
     """Paired differences of ``force_rms`` over seeds, per record and side, between PGNN rows of
-    the same seed count that differ in one setting (:func:`experiments.table.varies`; ``b`` the
-    earlier row), and of every PGNN row against the LIP (one LIP, so one-sample): ``a - b``
-    with its 95 % t-interval, the t and Wilcoxon signed-rank p-values, the paired log ratio
-    ``a / b`` (the errors beyond the window are heavy-tailed: one seed reaches 1e5 N), the count
-    of seeds where ``a < b``, and Holm's adjustment of the Wilcoxon p-values over the family;
-    ``starred`` when that stays below 0.05."""
+    the same seed count that differ in one setting (:func:`experiments.stats.comparisons.varies`;
+    ``b`` the earlier row), and of every PGNN row against the LIP (one LIP, so one-sample):
+    ``a - b`` with its 95 % t-interval, the t and Wilcoxon signed-rank p-values, the paired log
+    ratio ``a / b`` (the errors beyond the window are heavy-tailed: one seed reaches 1e5 N), the
+    count of seeds where ``a < b``, and Holm's adjustment of the Wilcoxon p-values over the
+    family; ``starred`` when that stays below 0.05."""
     out = []
-    pgnn = [r for r in rows if r["kind"] == "pgnn"]
-    lip = next((r for r in rows if r["kind"] == "lip"), None)
+    pgnn = [r for r in rows if r.kind == "pgnn"]
+    lip = next((r for r in rows if r.kind == "lip"), None)
     pairs = []
     for j, a in enumerate(pgnn):
         for b in pgnn[:j]:
-            one = table.varies(a["settings"], b["settings"]) if a["n_seeds"] == b["n_seeds"] \
-                else None
+            one = varies(a.settings, b.settings) if a.n_seeds == b.n_seeds else None
             if one is not None:
                 pairs.append((a, b, *one))
     if lip is not None:
-        pairs += [(a, lip, "model (PGNN row vs the LIP)", None) for a in pgnn]
+        pairs += [(a, lip, AGAINST_LIP, None) for a in pgnn]
     for a, b, setting, values in pairs:
-        for rec in a["force_rms"]:
-            for side in ("inside", "outside"):
-                da = [s[rec][side] for s in a["force_rms_per_seed"]]
-                db = [s[rec][side] for s in b["force_rms_per_seed"]]
+        for rec in a.force_rms:
+            for side in SIDES:
+                da = [s[rec][side] for s in a.force_rms_per_seed]
+                db = [s[rec][side] for s in b.force_rms_per_seed]
                 if None in da or None in db:
                     continue
-                pair = Paired.of(da, db)
-                diff = pair.difference_json()
-                out.append({"a": a["label"], "b": b["label"], "metric": "force_rms",
-                            "record": rec, "side": side, "varies": setting, "values": values,
-                            "n": pair.n, "diff": pair.diff, "median_diff": pair.median_diff,
-                            "a_lower": pair.a_lower, "ci95": diff["ci95"],
-                            "excludes_zero": pair.excludes_zero, "p_t": pair.p_t,
-                            "p_wilcoxon": pair.p_wilcoxon,
-                            "log_ratio": pair.log_ratio and pair.log_ratio.to_json()})
-    for c, p in zip(out, holm([c["p_wilcoxon"] for c in out])):
-        c["p_holm"] = p
-        c["starred"] = bool(p is not None and p < 0.05)
-    return out
+                out.append(Comparison.of(Paired.of(da, db), a=a.label, b=b.label,
+                                         metric="force_rms", record=rec, side=side,
+                                         varies=setting, values=values))
+    return ComparisonFamily.adjusted(out, "p_wilcoxon")
 
 
-def to_markdown(rows: list[dict], pairs: list[dict]) -> str:
+def to_markdown(rows: list[RecordRow], pairs: ComparisonFamily) -> str:
     """The force prediction table (N, mean ± std over seeds), the fits and the paired
     differences."""
-    recs = list(rows[0]["force_rms"])
+    recs = list(rows[0].force_rms)
     head = (["feedforward", "seeds"]
-            + [f"force rms {r} {side} [N]" for r in recs for side in ("inside", "outside")]
-            + [f"{table._SHORT[k]} [{table.THETA_UNITS[k]}]" for k in THETA_NAMES]
+            + [f"force rms {r} {side} [N]" for r in recs for side in SIDES]
+            + [f"{SHORT[k]} [{THETA_UNITS[k]}]" for k in THETA_NAMES]
             + ["offset [N]", "fits converged"])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
-        cells = [row["label"], str(row["n_seeds"])]
-        cells += [_fmt(row["force_rms"][r][side]) for r in recs for side in ("inside",
-                                                                           "outside")]
-        cells += [f"{row['theta_phy'][k]:.4g}" for k in THETA_NAMES]
-        cells.append(f"{row['offset_n']:.4g}" if "offset_n" in row else "–")
-        cells.append(f"{row['converged']}/{len(row['fits'])}" if "fits" in row else "–")
+        cells = [row.label, str(row.n_seeds)]
+        cells += [_fmt(row.force_rms[r][side]) for r in recs for side in SIDES]
+        cells += [f"{row.theta_phy[k]:.4g}" for k in THETA_NAMES]
+        cells.append(f"{row.offset_n:.4g}" if row.offset_n is not None else "–")
+        cells.append(f"{row.converged}/{len(row.fits)}" if row.fits is not None else "–")
         lines.append("| " + " | ".join(cells) + " |")
-    stops = [(r["label"], f) for r in rows for f in r.get("fits", []) if f["stop"] != "converged"]
+    stops = [(r.label, f) for r in rows for f in r.fits or () if not f.converged]
     lines += ["", "Not converged: " + ("; ".join(
-        f"{label} seed {f['seed']} ({f['stop']} after {f['iterations']} iterations)"
+        f"{label} seed {f.seed} ({f.stop} after {f.iterations} iterations)"
         for label, f in stops) if stops else "none") + "."]
-    lines += table.theta_paths([r for r in rows if "fits" in r])
+    lines += theta_paths([r for r in rows if r.fits is not None])
     lines += ["", "**Paired differences** (a − b over the same seeds, between rows that differ "
               "in one setting, named after `varies`, and against the LIP; mean, 95 % "
               "t-interval and median; seeds where a is lower; p-values of the t-test and the "
@@ -284,22 +280,40 @@ def to_markdown(rows: list[dict], pairs: list[dict]) -> str:
               "* where the Wilcoxon p stays below 0.05 after Holm's adjustment over every "
               "difference listed here):", ""]
     for c in pairs:
-        ci = f"[{c['ci95'][0]:+.3f}, {c['ci95'][1]:+.3f}] N" if c["ci95"] else "(no interval)"
-        ratio = c["log_ratio"]
-        ratio = (f"; ratio {ratio['ratio']:.3f} [{ratio['ci95'][0]:.3f}, "
-                 f"{ratio['ci95'][1]:.3f}]" if ratio else "")
+        ci = f"[{c.ci95[0]:+.3f}, {c.ci95[1]:+.3f}] N" if c.ci95 else "(no interval)"
+        ratio = c.ratio
+        ratio = (f"; ratio {ratio.ratio:.3f} [{ratio.low:.3f}, {ratio.high:.3f}]"
+                 if ratio else "")
         lines.append(
-            f"- force rms, {c['record']} {c['side']}, varies {c['varies']}: {c['a']} − {c['b']} "
-            f"= {c['diff']:+.3f} N {ci}, median {c['median_diff']:+.3f} N (n = {c['n']}; a "
-            f"lower in {c['a_lower']}; p t {table._p(c['p_t'])}, Wilcoxon "
-            f"{table._p(c['p_wilcoxon'])}, Holm {table._p(c['p_holm'])}{ratio})"
-            + (" *" if c["starred"] else ""))
+            f"- force rms, {c.record} {c.side}, varies {c.varies}: {c.a} − {c.b} "
+            f"= {c.diff:+.3f} N {ci}, median {c.median_diff:+.3f} N (n = {c.n}; a "
+            f"lower in {c.a_lower}; p t {fmt_p(c.p_t)}, Wilcoxon "
+            f"{fmt_p(c.p_wilcoxon)}, Holm {fmt_p(c.p_holm)}{ratio})"
+            + (" *" if c.starred else ""))
     return "\n".join(lines) + "\n"
 
 
-def compute(config: ExperimentConfig, progress, warn=None) -> dict:
-    """Identify every row of ``config`` from its ``data:`` records: ``{"rows", "comparisons",
-    "models": [per row, per seed], "warnings", "samples"}``. The record guards refuse in one
+@dataclasses.dataclass
+class RecordsResult:
+    """The rows identified from a config's records, their comparisons, fitted models (per row,
+    per seed), the record guards' warnings, the training window and the samples per record and
+    side. ``to_json`` is the run's ``table.json`` (besides its environment)."""
+
+    rows: list[RecordRow]
+    comparisons: ComparisonFamily
+    models: list
+    warnings: list[str]
+    window: dict
+    samples: dict
+
+    def to_json(self) -> dict:
+        return {"rows": [r.to_json() for r in self.rows],
+                "comparisons": self.comparisons.to_json(), "warnings": self.warnings,
+                "window": self.window, "samples": self.samples}
+
+
+def compute(config: ExperimentConfig, progress, warn=None) -> RecordsResult:
+    """Identify every row of ``config`` from its ``data:`` records. The record guards refuse in one
     line a record or window that identifies nothing; ``warn(source, lines)`` receives the
     warnings where the result is suspect (default: stderr, one line each)."""
     from experiments.records.suspicions import warn as stderr_warn
@@ -327,11 +341,10 @@ def compute(config: ExperimentConfig, progress, warn=None) -> dict:
                  f"{int((~p.inside).sum())} outside")
     lip, warnings = record_checks(config, recs[0][1], prepared[0], source)
     warn(source, warnings)
-    done = evaluate(config, prepared, progress, lip)
+    done = fit_rows(config, prepared, progress, lip)
     rows = [row for row, _ in done]
-    return {"rows": rows, "comparisons": comparisons(rows), "models": [m for _, m in done],
-            "warnings": warnings,
-            "window": dataclasses.asdict(config.data.window),
-            "samples": {p.name: {"inside": int(p.inside.sum()),
-                                 "outside": int((~p.inside).sum()),
-                                 "rate_hz": 1 / p.ts} for p in prepared}}
+    return RecordsResult(
+        rows, comparisons(rows), [m for _, m in done], warnings,
+        dataclasses.asdict(config.data.window),
+        {p.name: {**dict(zip(SIDES, (int(p.inside.sum()), int((~p.inside).sum())))),
+                  "rate_hz": 1 / p.ts} for p in prepared})

@@ -13,49 +13,50 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from experiments.table import _fmt_diff
+from experiments.report.table_json import read as read_table
+from experiments.report.table_md import fmt_diff
+from experiments.stats.comparisons import Comparison, ComparisonFamily
 
 
-def _where(c: dict) -> str:
+def _where(c: Comparison) -> str:
     """The quantity a comparison measures, in a few words."""
-    if "record" in c:  # a run on measured records: force rms per record and side
-        return f"force rms, {c['record']} {c['side']}"
-    name = {"mae": "MAE", "theta_drift": "θ drift", "data_cost": "data cost"}.get(c["metric"],
-                                                                                 c["metric"])
-    return name + (f" on {c['reference']}" if c.get("reference") else "")
+    if c.on_records:  # a run on measured records: force rms per record and side
+        return f"force rms, {c.record} {c.side}"
+    name = {"mae": "MAE", "theta_drift": "θ drift", "data_cost": "data cost"}.get(c.metric,
+                                                                                 c.metric)
+    return name + (f" on {c.reference}" if c.reference else "")
 
 
-def _diff(c: dict, x: float) -> str:
-    return f"{x:+.3f} N" if "record" in c else _fmt_diff(c["metric"], x)
+def _diff(c: Comparison, x: float) -> str:
+    return f"{x:+.3f} N" if c.on_records else fmt_diff(c.metric, x)
 
 
-def comparison_lines(pairs: list[dict]) -> list[str]:
+def comparison_lines(pairs: ComparisonFamily) -> list[str]:
     """The paired comparisons in one line per (quantity, varied setting): how many hold after
     Holm (``starred``), with the difference and its interval where one does, the range of the
     differences where several do. MAE always; θ drift and data cost where one holds, the rest
     counted in one line."""
     if not pairs:
         return []
-    groups: dict[tuple[str, str], list[dict]] = {}
+    groups: dict[tuple[str, str], list[Comparison]] = {}
     for c in pairs:
-        groups.setdefault((_where(c), c["varies"]), []).append(c)
-    held = sum(bool(c.get("starred")) for c in pairs)
+        groups.setdefault((_where(c), c.varies), []).append(c)
+    held = sum(c.starred for c in pairs)
     lines = [f"Paired comparisons (a − b, same seeds; one setting apart or vs the LIP): "
              f"{len(pairs)}, {held} hold after Holm:"]
     quiet = 0
     for (where, varies), cs in groups.items():
-        stars = [c for c in cs if c.get("starred")]
-        if not stars and cs[0].get("metric", "mae") != "mae":  # MAE always; the rest where held
+        stars = [c for c in cs if c.starred]
+        if not stars and cs[0].metric != "mae":  # MAE always; the rest where held
             quiet += len(cs)
             continue
         text = f"  {where}, varies {varies}: {len(stars)} of {len(cs)} hold"
         if len(stars) == 1:
             c = stars[0]
-            ci = (f" [{_diff(c, c['ci95'][0])}, {_diff(c, c['ci95'][1])}]" if c.get("ci95")
-                  else "")
-            text += f" ({_diff(c, c['diff'])}{ci})"
+            ci = f" [{_diff(c, c.ci95[0])}, {_diff(c, c.ci95[1])}]" if c.ci95 else ""
+            text += f" ({_diff(c, c.diff)}{ci})"
         elif stars:
-            diffs = sorted(c["diff"] for c in stars)
+            diffs = sorted(c.diff for c in stars)
             text += f" ({_diff(stars[0], diffs[0])} to {_diff(stars[0], diffs[-1])})"
         lines.append(text)
     if quiet:
@@ -68,15 +69,15 @@ def run_summary(out: Path) -> str:
     of ``out/table.json`` in a few lines, and where the full report and the figures are."""
     out = Path(out)
     table = (out / "table.md").read_text().split("\n\n", 1)[0].rstrip("\n")
-    doc = json.loads((out / "table.json").read_text())
+    rows, pairs = read_table(json.loads((out / "table.json").read_text()), out / "table.json")
     lines = [table, ""]
-    fits = [f for row in doc["rows"] for f in row.get("fits", [])]
+    fits = [f for row in rows for f in row.fits or ()]
     if fits:
-        done = sum(f["stop"] == "converged" for f in fits)
+        done = sum(f.converged for f in fits)
         lines.append(f"Fits: {done} of {len(fits)} converged"
                      + (" (⚠ marks the rows; table.md names each stop)." if done < len(fits)
                         else "."))
-    lines += comparison_lines(doc.get("comparisons") or [])
+    lines += comparison_lines(pairs)
     lines.append(_files_line(out, "table.md", "every comparison with its rows, the fits"))
     return "\n".join(lines) + "\n"
 

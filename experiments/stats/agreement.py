@@ -41,6 +41,7 @@ from pathlib import Path
 from clm_sim.errors import UserError
 from clm_sim.modelfile import read_json, regular_file
 from clm_sim.plant import THETA_UNITS
+from experiments.table import RecordRow, Row, Stat, rows_entry, table_rows
 
 _SHORT = {"m": "mass", "fv": "viscous", "fc": "coulomb", "fk": "stiffness"}
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?"
@@ -116,7 +117,8 @@ def _mean_std(text: str) -> tuple[Cell, Cell | None]:
 
 def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
     """Cells of the ``expected`` Markdown rows (:func:`parse_markdown`) that a fresh
-    ``table.json`` document does not reproduce within the tolerance (module docstring).
+    ``table.json`` document (its rows read by :func:`experiments.table.rows_entry`) does not
+    reproduce within the tolerance (module docstring).
 
     A row or column missing on either side is a mismatch too (``allowed`` 0). A table that
     cannot be checked (no rows, no column this module knows, a cell that is not a number, a
@@ -129,12 +131,9 @@ def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
                         f"{', '.join(expected[0])}")
     for column in expected[0]:
         _check_unit(column)
-    for i, row in enumerate(fresh["rows"]):
-        if not (isinstance(row, dict) and isinstance(row.get("label"), str)
-                and isinstance(row.get("n_seeds"), int) and not isinstance(row["n_seeds"], bool)):
-            raise UserError(f"rows[{i}]: expected an object with a 'label' and an integer "
-                            f"'n_seeds'")
-    rows = {row["label"]: row for row in fresh["rows"]}
+    fresh_rows = [rows_entry(row, i, with_fits=False)
+                  for i, row in enumerate(table_rows(fresh, "table.json"))]
+    rows = {row.label: row for row in fresh_rows}
     out: list[Mismatch] = []
     for exp in expected:
         label = exp.get("feedforward", "")
@@ -142,7 +141,7 @@ def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
             out.append(Mismatch(label, "row", math.nan, math.nan, 0.0, "not in the fresh table"))
             continue
         row = rows[label]
-        n = row["n_seeds"]
+        n = row.n_seeds
         seeds = exp.get("seeds", "")
         if not seeds.isdecimal():
             raise UserError(f"row {label!r}: seeds: expected an integer, got {seeds!r}")
@@ -157,7 +156,8 @@ def compare(expected: list[dict[str, str]], fresh: dict) -> list[Mismatch]:
                 what = f"cannot read {text!r}" if isinstance(exc, ValueError) else \
                     f"the fresh row has no number for it ({type(exc).__name__}: {exc})"
                 raise UserError(f"row {label!r}, column {column!r}: {what}") from None
-    missing = [r["label"] for r in fresh["rows"] if r["label"] not in {e["feedforward"] for e in expected}]
+    labels = {e.get("feedforward") for e in expected}
+    missing = [r.label for r in fresh_rows if r.label not in labels]
     out += [Mismatch(label, "row", math.nan, math.nan, 0.0, "not in the expected table")
             for label in missing]
     return out
@@ -218,14 +218,14 @@ def _number(value, what: str) -> float:
     return float(value)
 
 
-def _check_spread(label: str, column: str, text: str, fresh: dict, n: int, undetermined: bool,
+def _check_spread(label: str, column: str, text: str, fresh: Stat, n: int, undetermined: bool,
                   factor: float, key: str = "") -> list[Mismatch]:
-    """A ``mean ± std`` cell against the fresh ``{"mean", "std"}`` (times ``factor``; ``key``:
+    """A ``mean ± std`` cell against the fresh :class:`Stat` (times ``factor``; ``key``:
     its place in table.json, for messages): the mean within one standard error over seeds, the
     std within its own standard error."""
     mean, std = _mean_std(text.split("(median")[0])
-    f_mean = _number(fresh["mean"], f"{key}mean") * factor
-    f_std = _number(fresh.get("std", 0.0), f"{key}std") * factor
+    f_mean = _number(fresh.mean, f"{key}mean") * factor
+    f_std = _number(fresh.std, f"{key}std") * factor
     s = max(std.value if std else 0.0, f_std)
     se = s / math.sqrt(n) if n > 1 else 0.0
     if undetermined:
@@ -244,38 +244,38 @@ def _check_spread(label: str, column: str, text: str, fresh: dict, n: int, undet
     return [m for m in found if m]
 
 
-def _check_cell(label: str, column: str, text: str, row: dict, n: int,
+def _check_cell(label: str, column: str, text: str, row: Row | RecordRow, n: int,
                 undetermined: bool) -> list[Mismatch]:
     if text in ("–", "-", "") or column in ("feedforward", "seeds"):
         return []
     kind = _kind(column)
     if kind == "force_rms":  # force rms <record> <side> [N]: a data: table
         _, _, record, side = column.split()[:4]
-        fresh = row["force_rms"][record][side]
+        fresh = row.force_rms[record][side]
         if fresh is None:
             return [Mismatch(label, column, Cell.parse(text.split()[0]).value, math.nan, 0.0,
                              "no such sample in the fresh run")]
         return _check_spread(label, column, text, fresh, n, undetermined, 1.0)
     if kind == "mae":
         ref = column.split()[1]
-        return _check_spread(label, column, text, row["mae"][ref], n, undetermined, 1e6,
+        return _check_spread(label, column, text, row.mae[ref], n, undetermined, 1e6,
                              f"mae.{ref}.")
     if kind == "theta":
         name = _SHORT[column.split()[0]]
-        per_seed = row.get("theta_phy_per_seed") or []
+        per_seed = row.theta_phy_per_seed or []
         values = [_number(t[name], f"theta_phy_per_seed.{name}") for t in per_seed]
         mean, std = _mean_std(text)
         spread = max(_sample_std(values), std.value if std else 0.0)
         m = _within(label, column, mean,
-                    _number(row["theta_phy"][name], f"theta_phy.{name}"), spread,
+                    _number(row.theta_phy[name], f"theta_phy.{name}"), spread,
                     "the seed-to-seed spread of the parameter")
         return [m] if m else []
     if kind == "fits":
         done = int(text.split("/")[0])
         edge = re.search(r"\((\d+) at the edge\)", text)
-        slack = 1 + max(int(edge.group(1)) if edge else 0, row.get("at_edge", 0))
-        if "converged" in row and abs(row["converged"] - done) > slack:
-            return [Mismatch(label, column, done, row["converged"], float(slack),
+        slack = 1 + max(int(edge.group(1)) if edge else 0, row.at_edge or 0)
+        if row.converged is not None and abs(row.converged - done) > slack:
+            return [Mismatch(label, column, done, row.converged, float(slack),
                              "one fit and those at the edge")]
         return []
     return []
@@ -296,9 +296,9 @@ def _page_undetermined(exp: dict[str, str], n: int) -> bool:
     return done.isdecimal() and n > 1 and int(done) < n / 2
 
 
-def _undetermined(row: dict, n: int) -> bool:
+def _undetermined(row: Row | RecordRow, n: int) -> bool:
     """Whether most of a PGNN row's fits did not converge (``converged`` below half)."""
-    return "converged" in row and n > 1 and row["converged"] < n / 2
+    return row.converged is not None and n > 1 and row.converged < n / 2
 
 
 def _sample_std(values: list[float]) -> float:
@@ -332,8 +332,7 @@ def compare_files(expected: Path, fresh: Path) -> list[Mismatch]:
         doc = read_json(fresh, "clm-sim table.json")  # strict: no NaN, no deep nesting
     except UserError as exc:
         raise unreadable(fresh, exc) from None
-    if not isinstance(doc.get("rows"), list):
-        raise UserError(f"{fresh}: not a clm-sim table.json (no 'rows' list)")
+    table_rows(doc, fresh)
     try:
         return compare(parse_markdown(text, str(expected)), doc)
     except UserError as exc:

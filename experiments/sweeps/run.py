@@ -25,10 +25,12 @@ from clm_sim.errors import UserError
 from clm_sim.outdir import (MANIFEST, atomic_write, check_writable, entries, manifest,
                             output_lock, write_manifest)
 from clm_sim.schema import build
-from experiments import table
 from experiments.config import ExperimentConfig
 from experiments.processes.workers import cores
+from experiments.report import table_md
+from experiments.table import Row, read_row
 from experiments.runner import run_task, slug
+from experiments.stats.seeds import POSITION, over_seeds
 from experiments.sweeps.grid import Sweep
 from experiments.sweeps.store import ResultStore
 from experiments.testbed import Progress
@@ -83,7 +85,7 @@ def execute(config_plain: dict) -> dict:
         if any(spec.kind == "pgnn" for spec in config.feedforwards):
             import torch
             torch.set_num_threads(1)  # one core per task; the sweep runs tasks in parallel
-        rows = run_task(config)
+        rows = [row.to_json() for row in run_task(config)]
         json.dumps(rows, allow_nan=False)  # a NaN or inf in the results is a failure
         return {"status": "ok", "rows": rows, "elapsed_s": time.perf_counter() - start}
     except Exception as exc:  # recorded, not raised: the sweep goes on with the other tasks
@@ -229,34 +231,41 @@ def _aggregate(sweep: Sweep, store: ResultStore, out: Path, outcome: Outcome) ->
             failures.append({"task": task.key, **task.overrides, "error": result["error"]})
         else:
             for position, row in enumerate(result["rows"]):
-                rows.append({**row, **task.overrides, "task": task.key, "row": position})
+                rows.append(read_row(row).with_extra(**task.overrides, task=task.key,
+                                                     **{POSITION: position}))
     outcome.rows, outcome.failures, outcome.unfinished = rows, failures, unfinished
     if unfinished:
         return  # no table from a partial grid; the next run completes it
     swept = list(sweep.grid)
-    text = json.dumps({"rows": rows, "failures": failures, "swept": swept}, indent=1,
-                      allow_nan=False)  # the store holds no NaN; table.json stays JSON
+    # the store holds no NaN; table.json stays JSON
+    text = json.dumps({"rows": [row.to_json() for row in rows], "failures": failures,
+                       "swept": swept}, indent=1, allow_nan=False)
     atomic_write(out / "table.json", text)
     atomic_write(out / "table.md", markdown(rows, swept, failures))
-    atomic_write(out / "table.csv", table.to_csv(rows, swept))
+    atomic_write(out / "table.csv", table_md.to_csv(rows, swept))
     if rows:
         from experiments import plots
+        from experiments.sweeps.figures import mae_vs_key_figure
         for key in swept:
             if key != "seed":
-                fig = plots.mae_vs_key_figure(rows, swept, key)
+                fig = mae_vs_key_figure(rows, swept, key)
                 plots.save(fig, out / "figures" / f"mae_vs_{slug(key)}.png")
 
 
-def markdown(rows: list[dict], swept: list[str], failures: list[dict]) -> str:
+def markdown(rows: list[Row], swept: list[str], failures: list[dict]) -> str:
     """``table.md`` of a sweep: with ``seed`` swept, the mean ± std over the seeds first, then
     the rows of every task (and the failures)."""
-    every = table.to_markdown(rows, swept, failures)
+    every = table_md.to_markdown(rows, swept)
+    if failures:
+        every += f"\n{len(failures)} failed task(s):\n\n" + "".join(
+            "- " + ", ".join(f"{k}={table_md.fmt(f[k])}" for k in swept) + f": {f['error']}\n"
+            for f in failures)
     if "seed" not in swept or not rows:
         return every
     others = [k for k in swept if k != "seed"]
-    n = len({row["seed"] for row in rows})
+    n = len({row.value("seed") for row in rows})
     return (f"## Mean ± std over the {n} swept seeds\n\n"
-            + table.to_markdown(table.over_seeds(rows, swept), others)
+            + table_md.to_markdown(over_seeds(rows, swept), others)
             + "\n## Every task (one seed each; ± is over a row's own training seeds)\n\n"
             + every)
 
