@@ -128,8 +128,7 @@ class FitSummary:
         # (the objective and the starts' agreement are missing from older tables: None)
         return cls(seed=d["seed"], objective=d.get("objective"), agree=d.get("agree"),
                    spread=d.get("spread"), multiple_optima=d.get("multiple_optima"),
-                   theta_drift=d.get("theta_drift"), iterations_run=d.get("iterations_run"),
-                   iterations_reused=d.get("iterations_reused"), **fit_fields(d))
+                   theta_drift=d.get("theta_drift"), **fit_fields(d))
 
 
 @dataclass(frozen=True)

@@ -36,8 +36,8 @@ HOMONYMS = {
     "reg_cost": {"controllers/pgnn/fit_record.py", "experiments/table.py"},
     "starts": {"controllers/pgnn/fit_record.py", "experiments/table.py"},
     # a model file's settings and width / a table row's
-    "settings": {"controllers/pgnn/model.py", "experiments/table.py"},
-    "hidden": {"controllers/pgnn/model.py", "experiments/table.py"},
+    "settings": {"controllers/pgnn/storage.py", "experiments/table.py"},
+    "hidden": {"controllers/pgnn/storage.py", "experiments/table.py"},
     # a LIP model file's standard errors / a statistic's spread
     "std": {"controllers/lip.py", "experiments/table.py"},
     # a logged run's meta / a fit's seed
@@ -46,9 +46,9 @@ HOMONYMS = {
     "record": {"experiments/cli/export_ff.py", "experiments/model_files.py",
                "experiments/stats/comparisons.py"},
     # a fit's iterates (its history, its starts) / the optimizer's state and a model file's
-    "cost": {"controllers/pgnn/fit_record.py", "controllers/pgnn/model.py"},
-    "iteration": {"controllers/pgnn/fit_record.py", "controllers/pgnn/model.py"},
-    "theta": {"controllers/pgnn/fit_record.py", "controllers/pgnn/model.py"},
+    "cost": {"controllers/pgnn/fit_record.py", "controllers/pgnn/storage.py"},
+    "iteration": {"controllers/pgnn/fit_record.py", "controllers/pgnn/training.py"},
+    "theta": {"controllers/pgnn/fit_record.py", "controllers/pgnn/storage.py"},
     # an iterate's data term (read by name from a list) / a config's records, a data set
     "data": {"controllers/pgnn/cost.py", "experiments/cli/export_ff.py", "experiments/config.py"},
     # a model file's kind / a table row's

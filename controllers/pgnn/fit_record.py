@@ -313,6 +313,8 @@ def fit_fields(d) -> dict:
     return dict(stop=str(d["stop"]), cost_stop=str(d.get("cost_stop", d["stop"])),
                 iterations=int(d["iterations"]),
                 iterations_total=_integer(d.get("iterations_total")),
+                iterations_run=_integer(d.get("iterations_run")),
+                iterations_reused=_integer(d.get("iterations_reused")),
                 data_cost=float(d["data_cost"]), reg_cost=float(d["reg_cost"]),
                 grad_norm=_number(d.get("grad_norm")), first_order=_number(d.get("first_order")),
                 theta_moved=_number(d.get("theta_moved")),

@@ -82,22 +82,24 @@ def fit_data(model, *, data: TrainingData, theta_lip: dict[str, float],
     # The LM iterations of every optimization this fit ran, and of those it took from the
     # cache (each once): listed starts or not (a sequential twin, the regularized side of
     # an exchange), so that a table's sum is what its command ran.
-    counted, spent = set(), {"run": 0, "reused": 0}
+    counted = set()
+    ran = took = 0
 
     def optimize(beta0, weights=None, model=model) -> tuple[StartOutcome, bool, str]:
         """The outcome from ``beta0`` of ``model``'s cost (``weights``), whether it was
         taken from the cache, and its key."""
+        nonlocal ran, took
         key = start_key(model, fit, held_out, theta_lip_v, beta0, weights)
         got = cache.take(key)
         if got is not None:
             if key not in counted:
                 counted.add(key)
-                spent["reused"] += got.result.iterations
+                took += got.result.iterations
             return got, True, key
         got = one_start(model, fit, held_out, theta_lip_v, rng, beta0, weights)
         cache.keep(key, got)
         counted.add(key)
-        spent["run"] += got.result.iterations
+        ran += got.result.iterations
         return got, False, key
 
     with single_threaded():
@@ -128,7 +130,7 @@ def fit_data(model, *, data: TrainingData, theta_lip: dict[str, float],
     model.fit_ = FitRecord(
         stop=stop, cost_stop=res.stop, iterations=res.iterations,
         iterations_total=int(sum(s.iterations for s in starts)),
-        iterations_run=spent["run"], iterations_reused=spent["reused"], theta_moved=moved,
+        iterations_run=ran, iterations_reused=took, theta_moved=moved,
         theta_ftol=opt.theta_ftol, theta_path=theta_path(best.history),
         continuation_lam=(float(opt.continuation_lam)
                           if model._continues() or model._exchanges() else 0.0),
