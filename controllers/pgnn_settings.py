@@ -132,7 +132,9 @@ class OrNone:
 # The one table of lambda's spellings: a config or a results file says "lambda", Python "lam".
 LAMBDA_KEYS = {"lambda": "lam", "lambda_diag": "lam_diag",
                "continuation_lambda": "continuation_lam", "lambdas": "lams",
-               "paper_lambda": "paper_lam"}
+               "paper_lambda": "paper_lam", "error_beyond_lambda_n": "error_beyond_lam_n"}
+# The same spellings the other way, Python name -> file key: where code writes or reads a key.
+FILE_KEYS = {python: key for key, python in LAMBDA_KEYS.items()}
 
 # setting -> (its key in a config file, what it may be)
 CONSTRAINTS = {

@@ -152,13 +152,6 @@ def _stat(values) -> Stat | None:
                 float(np.median(values)))
 
 
-def evaluate(config: ExperimentConfig, records: list[Prepared], progress,
-             lip: RecordLIP | None = None) -> list[tuple[dict, list]]:
-    """:func:`fit_rows` with each row as ``table.json`` holds it (for a caller that still reads
-    rows by key: the EMPS runaway study)."""
-    return [(row.to_json(), models) for row, models in fit_rows(config, records, progress, lip)]
-
-
 def fit_rows(config: ExperimentConfig, records: list[Prepared], progress,
              lip: RecordLIP | None = None) -> list[tuple[RecordRow, list]]:
     """Every row of ``config`` identified on ``records[0]`` and scored on all ``records``, with

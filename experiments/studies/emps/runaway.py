@@ -83,10 +83,10 @@ def compute(config, progress=print) -> dict:
     prepared = [record_fit.prepare(config, run, name) for name, run in recs]
     lip = record_fit.fit_lip(prepared[0])
     lip_err = {r.name: record_fit.force_rms(lip.predict(r.phi), r) for r in prepared}
-    rows = record_fit.evaluate(config, prepared, progress, lip)
+    rows = record_fit.fit_rows(config, prepared, progress, lip)
     out = {"lip": lip_err, "rows": [], "runaway_factor": RUNAWAY}
     for row, models in rows:
-        if row["kind"] != "pgnn":
+        if row.kind != "pgnn":
             continue
         seeds = []
         for s, m in enumerate(models):
@@ -95,8 +95,8 @@ def compute(config, progress=print) -> dict:
             v["runaway"] = any(v["force_rms"][r.name]["outside"]
                                > RUNAWAY * lip_err[r.name]["outside"] for r in prepared)
             seeds.append(v)
-        out["rows"].append({"label": row["label"], "seeds": seeds,
-                            "stops": [f["stop"] for f in row["fits"]],
+        out["rows"].append({"label": row.label, "seeds": seeds,
+                            "stops": [f.stop for f in row.fits],
                             "coverage": coverage(models[0], prepared)})
     return out
 

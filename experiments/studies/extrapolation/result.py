@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from clm_sim.features import TrainingRange
+from controllers.pgnn_settings import FILE_KEYS
 
 FEEDBACK = "feedback only"
 LIP = "LIP"
@@ -167,7 +168,7 @@ class ExtrapolationResult:
         return self.variants[variant_key(self.paper_lam)]
 
     def to_json(self) -> dict:
-        return {"lambdas": list(self.lams), "paper_lambda": self.paper_lam,
+        return {FILE_KEYS["lams"]: list(self.lams), FILE_KEYS["paper_lam"]: self.paper_lam,
                 "hidden": self.hidden, "seeds": self.seeds, "inside": self.inside,
                 "outside": list(self.outside),
                 "theta_lip": self.theta_lip, "lip_residual_rms_n": self.lip_residual_rms_n,
@@ -176,7 +177,7 @@ class ExtrapolationResult:
 
     @classmethod
     def from_json(cls, d: dict) -> ExtrapolationResult:
-        return cls(tuple(d["lambdas"]), d["paper_lambda"], d["hidden"], d["seeds"], d["inside"],
+        return cls(tuple(d[FILE_KEYS["lams"]]), d[FILE_KEYS["paper_lam"]], d["hidden"], d["seeds"], d["inside"],
                    tuple(d["outside"]), d["theta_lip"], d["lip_residual_rms_n"],
                    {r: TrainingRange(**v) for r, v in d["ranges"].items()},
                    {k: Variant.from_json(v) for k, v in d["variants"].items()})

@@ -23,7 +23,7 @@ from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import build, load_yaml, to_plain
-from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
+from controllers.pgnn_settings import FILE_KEYS, PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.results import BeyondRange, ForceSplit
@@ -53,7 +53,7 @@ class StudySettings:
     inside: str = "r1"
     outside: tuple[str, ...] = ("r2",)
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases: ClassVar[dict[str, str]] = {k: LAMBDA_KEYS[k] for k in ("lambdas", "paper_lambda")}
+    aliases: ClassVar[dict[str, str]] = {FILE_KEYS[k]: k for k in ("lams", "paper_lam")}
 
     def __post_init__(self):
         if not self.lams or any(lam < 0 for lam in self.lams):

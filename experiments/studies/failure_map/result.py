@@ -15,6 +15,7 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from clm_sim.schema import build, to_plain
+from controllers.pgnn_settings import FILE_KEYS, LAMBDA_KEYS
 from experiments.stats.paired import LogRatio
 from experiments.studies.failure_map.settings import FailureMapSettings
 
@@ -180,11 +181,11 @@ class FitRow:
     restarts: int | None
 
     def to_json(self) -> dict:
-        return {("lambda" if k == "lam" else k): v for k, v in dataclasses.asdict(self).items()}
+        return {FILE_KEYS.get(k, k): v for k, v in dataclasses.asdict(self).items()}
 
     @classmethod
     def from_json(cls, d: dict) -> FitRow:
-        return cls(**{("lam" if k == "lambda" else k): v for k, v in d.items()})
+        return cls(**{LAMBDA_KEYS.get(k, k): v for k, v in d.items()})
 
 
 @dataclass(frozen=True)

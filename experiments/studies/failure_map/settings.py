@@ -10,7 +10,7 @@ from clm_sim.effects.base import Effect
 from clm_sim.effects.friction import Stribeck
 from clm_sim.effects.position import CableSlab, Cogging, ForceRipple
 from clm_sim.errors import UserError
-from controllers.pgnn_settings import LAMBDA_KEYS, PGNNSettings
+from controllers.pgnn_settings import FILE_KEYS, PGNNSettings
 
 
 def _default_cases() -> dict[str, tuple[Effect, ...]]:
@@ -45,7 +45,7 @@ class FailureMapSettings:
     seeds: int = 10
     confidence: float = 0.95
     pgnn: PGNNSettings = field(default_factory=PGNNSettings)
-    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"]}  # config -> field
+    aliases: ClassVar[dict[str, str]] = {FILE_KEYS["lam"]: "lam"}  # config -> field
 
     def __post_init__(self):
         if not self.cases:

@@ -42,6 +42,7 @@ import numpy as np
 from clm_sim.features import TrainingRange
 from clm_sim.plant import THETA_NAMES
 from clm_sim.schema import to_plain
+from controllers.pgnn_settings import FILE_KEYS
 from experiments.config import ExperimentConfig, resolved
 from experiments.processes.workers import cores
 from experiments.results import BeyondRange, error_beyond_rms
@@ -99,7 +100,7 @@ class Fitted:
     fit: FitRecord
 
     def to_json(self) -> dict:
-        return {"lambda": self.lam, "theta": self.theta, "mae": self.mae,
+        return {FILE_KEYS["lam"]: self.lam, "theta": self.theta, "mae": self.mae,
                 "parts": {k: {"network_peak_beyond_n": b.network_peak_beyond_n,
                               "network_peak_within_n": b.network_peak_within_n,
                               "error_beyond_rms_n": b.error_beyond_rms_n}

@@ -8,6 +8,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from clm_sim.schema import build, to_plain
+from controllers.pgnn_settings import FILE_KEYS
 from experiments.studies.mechanism.settings import MechanismSettings
 
 
@@ -97,7 +98,7 @@ class Fit:
     units: dict | None = None
 
     def to_json(self) -> dict:
-        out = {"draw": self.draw, "lambda": self.lam, "stop": self.stop,
+        out = {"draw": self.draw, FILE_KEYS["lam"]: self.lam, "stop": self.stop,
                "iterations": self.iterations, "data_cost": self.data_cost, "theta": self.theta,
                "mae": self.mae, "error_beyond_rms_n": self.error_beyond_rms_n,
                "error_beyond_sides_rms_n": self.error_beyond_sides_rms_n,
@@ -111,7 +112,7 @@ class Fit:
 
     @classmethod
     def from_json(cls, d: dict) -> Fit:
-        return cls(d["draw"], d["lambda"], d["stop"], d["iterations"], d["data_cost"],
+        return cls(d["draw"], d[FILE_KEYS["lam"]], d["stop"], d["iterations"], d["data_cost"],
                    d["theta"], d["mae"], d["error_beyond_rms_n"], d["error_beyond_sides_rms_n"],
                    d["error_along_rms_n"], d["dwell_force_n"], d["drift_stiffness"],
                    d["network_linear"], d["remainder_cubic"], d["model_cubic"],
@@ -222,14 +223,14 @@ class WorstFit:
     error_along_rms_n: float
 
     def to_json(self) -> dict:
-        return {"record": self.record, "draw": self.draw, "lambda": self.lam,
+        return {"record": self.record, "draw": self.draw, FILE_KEYS["lam"]: self.lam,
                 "rms_n": self.rms_n, "sides_rms_n": self.sides_rms_n,
                 "mae_outside_um": self.mae_outside_um,
                 "error_along_rms_n": self.error_along_rms_n}
 
     @classmethod
     def from_json(cls, d: dict) -> WorstFit:
-        return cls(d["record"], d["draw"], d["lambda"], d["rms_n"], d["sides_rms_n"],
+        return cls(d["record"], d["draw"], d[FILE_KEYS["lam"]], d["rms_n"], d["sides_rms_n"],
                    d["mae_outside_um"], d["error_along_rms_n"])
 
 
@@ -310,11 +311,6 @@ class UnitsRow:
     from_json = classmethod(_plain)
 
 
-_MEASURED = ("measured_mae_diff_um", "measured_ci_um", "sign_held", "amount_held",
-             "measured_error_beyond_lambda0_n", "measured_error_beyond_lambda_n",
-             "error_beyond_lambda0_held", "error_beyond_lambda_held", "calibrated_amount_held")
-
-
 @dataclass(frozen=True)
 class Outcome:
     """The prediction written before the run (``predicted``: the config's numbers, µm and N,
@@ -345,7 +341,7 @@ class Outcome:
 
     @property
     def error_beyond_lambda_n(self) -> float:
-        return self.predicted["error_beyond_lambda_n"]
+        return self.predicted[FILE_KEYS["error_beyond_lam_n"]]
 
     @property
     def factor(self) -> float:
@@ -361,6 +357,9 @@ class Outcome:
     def from_json(cls, d: dict) -> Outcome:
         return cls({k: v for k, v in d.items() if k not in _MEASURED},
                    **{k: d[k] for k in _MEASURED if k in d})
+
+
+_MEASURED = tuple(f.name for f in dataclasses.fields(Outcome))[1:]  # what the run measured
 
 
 @dataclass(frozen=True)

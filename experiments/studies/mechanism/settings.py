@@ -9,7 +9,7 @@ from typing import ClassVar
 from clm_sim.effects.base import Effect
 from clm_sim.effects.position import CableSlab
 from clm_sim.errors import UserError
-from controllers.pgnn_settings import LAMBDA_KEYS, PerParameter, PGNNSettings
+from controllers.pgnn_settings import FILE_KEYS, PerParameter, PGNNSettings
 from experiments.config import ExperimentConfig
 from experiments.studies.kinds import load_case_study
 
@@ -55,7 +55,7 @@ class MechanismSettings:
     zero_lam_diag: dict[str, float] | None = None
     near_linear: float | None = None
     prediction: dict[str, dict[str, float]] | None = None
-    aliases: ClassVar[dict[str, str]] = {"lambda": LAMBDA_KEYS["lambda"],  # config -> field
+    aliases: ClassVar[dict[str, str]] = {FILE_KEYS["lam"]: "lam",  # config -> field
                                          "lambda0_diag": "zero_lam_diag"}
 
     def __post_init__(self):
@@ -87,7 +87,7 @@ class MechanismSettings:
         for case, p in (self.prediction or {}).items():
             if case not in self.cases:
                 raise UserError(f"prediction.{case}: not a case (cases: {', '.join(self.cases)})")
-            missing = {"mae_diff_um", "error_beyond_lambda0_n", "error_beyond_lambda_n",
+            missing = {"mae_diff_um", "error_beyond_lambda0_n", FILE_KEYS["error_beyond_lam_n"],
                        "factor"} - set(p)
             if missing:
                 raise UserError(f"prediction.{case}: expected the keys "

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.stats
 
+from controllers.pgnn_settings import FILE_KEYS
 from experiments.studies.mechanism.result import (CaseSummary, CellResult, Fit, ForceDifference,
                                                    LipSummary, MaeDifference, MechanismResult,
                                                    Outcome, Ratio, RowSummary, UnitsRow,
@@ -226,6 +227,6 @@ def outcome(pred: dict, mean_m: float, ci_m: list[float],
         amount_held=within(mean, pred["mae_diff_um"]),
         measured_error_beyond_lambda0_n=e0, measured_error_beyond_lambda_n=e1,
         error_beyond_lambda0_held=within(e0, pred["error_beyond_lambda0_n"]),
-        error_beyond_lambda_held=within(e1, pred["error_beyond_lambda_n"]),
+        error_beyond_lambda_held=within(e1, pred[FILE_KEYS["error_beyond_lam_n"]]),
         calibrated_amount_held=(within(mean, pred["mae_diff_calibrated_um"])
                                 if "mae_diff_calibrated_um" in pred else None))

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clm_sim.plant import THETA_NAMES
+from controllers.pgnn_settings import FILE_KEYS
 
 SIDES = ("down", "up")  # the two directions of a profile, in the file's words
 
@@ -316,11 +317,11 @@ class MarkedFit:
     theta: dict[str, float]
 
     def to_json(self) -> dict:
-        return {"lambda": self.lam, "data_cost": self.data_cost, "theta": dict(self.theta)}
+        return {FILE_KEYS["lam"]: self.lam, "data_cost": self.data_cost, "theta": dict(self.theta)}
 
     @classmethod
     def from_json(cls, d: dict) -> MarkedFit:
-        return cls(d["lambda"], d["data_cost"], _names(d["theta"]))
+        return cls(d[FILE_KEYS["lam"]], d["data_cost"], _names(d["theta"]))
 
 
 @dataclass(frozen=True)
