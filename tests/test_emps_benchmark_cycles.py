@@ -231,3 +231,42 @@ def test_a_benchmark_out_that_is_no_benchmark_is_refused_before_the_work(
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and str(mine) in err[0], err
     assert (mine / "notes.txt").read_text() == "mine"
+
+
+def test_the_page_table_and_choice_are_the_shipped_study_output():
+    """docs/results/emps_benchmark.md against the study output shipped beside it
+    (emps_models/benchmark.json): every table row's test RMSE, left-out mean and fit column
+    (measured or not, starts that reached the lowest end) is the JSON's; the page marks the
+    JSON's chosen row and no other; re-applying the config's rule (lowest left-out mean among
+    measured candidates) to the JSON gives that row; the answer quotes its test RMSE and the
+    published model's."""
+    import json
+    from pathlib import Path
+
+    docs = Path(__file__).resolve().parents[1] / "docs" / "results"
+    data = json.loads((docs / "emps_models" / "benchmark.json").read_text())
+    rows = {r["name"]: r for r in data["rows"]}
+    lines = (docs / "emps_benchmark.md").read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("| model |"))
+    marked = []
+    for line in lines[first + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.split("|")[1:-1]]
+        r = rows[cells[0]]
+        assert float(cells[2]) == pytest.approx(r["test_rmse_m"] * 1e3, abs=0.005), cells[0]
+        if r["left_one_cycle_out_rmse_m"]:
+            mean = float(cells[8].split("±")[0])
+            assert mean == pytest.approx(r["left_one_cycle_out_mean_m"] * 1e3, abs=0.005)
+        if r["fit"] is not None:
+            fit = r["fit"]
+            state = "measured" if fit["measured"] else "not a measurement"
+            assert cells[9] == f"{state}, {fit['reached']}/{len(fit['stops'])} starts"
+        if cells[10] == "**yes**":
+            marked.append(cells[0])
+    eligible = [r for r in data["rows"] if r["candidate"] and r["measured"]]
+    rule = min(eligible, key=lambda r: r["left_one_cycle_out_mean_m"])["name"]
+    assert marked == [data["chosen"]] == [rule]
+    answer = "\n".join(lines[:25])
+    assert f"**{rows[rule]['test_rmse_m'] * 1e3:.2f} mm**" in answer
+    assert f"**{rows['published model']['test_rmse_m'] * 1e3:.2f} mm**" in answer
