@@ -75,6 +75,18 @@ def _fit(statuses, rmses, masses=None):
     return oe.SimulationFit(Plant(effects=()), ("mass",), {}, stops)
 
 
+def test_an_unphysical_end_scores_nan():
+    """A start that stopped where the candidate is unphysical (a Stribeck dip deeper than the
+    Coulomb level: the fit's flat cost there) gets a NaN test score, not an error that ends the
+    study after its fits; a physical end is scored."""
+    from clm_sim.effects import Stribeck
+    from experiments.studies.emps_benchmark import end_score
+
+    plant = Plant(coulomb=20.0, effects=(Stribeck(peak=-5.0, velocity=0.01, exponent=2.0),))
+    assert np.isnan(end_score(plant, {"stribeck": -25.0}, lambda p: 1.0))
+    assert end_score(plant, {"stribeck": -10.0}, lambda p: 2.0) == 2.0
+
+
 def test_equal_costs_at_other_parameters_are_not_the_same_end():
     """Two converged starts within 1 % of the lowest training RMSE are one end only where their
     parameters agree within 2 % (of the size, 20 kg here): 20.3 kg is, 21 kg is a second

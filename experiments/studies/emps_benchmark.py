@@ -322,6 +322,16 @@ def sensitivity(name: str, plant: Plant, blocks: dict[str, tuple[float, ...]], r
     return Sensitivity(name, what, tuple(out))
 
 
+def end_score(plant: Plant, end: dict, rmse) -> float:
+    """``rmse`` of ``plant`` with a start's end values; NaN where that end is outside the
+    physical range (a start can stop where the fit's residual was the flat cost of an
+    unphysical candidate)."""
+    try:
+        return rmse(oe.with_values(plant, end))
+    except UserError:
+        return float("nan")
+
+
 def _safe(plant: Plant, k: str, x: float) -> Plant:
     try:
         return oe.with_values(plant, {k: x})
@@ -458,7 +468,7 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1)
         folds.append((cycle, fold))
     for c, m in zip(settings.candidates, made):
         scores = tuple(rmse_on(cy, n0)(f[c.name].fit.plant) for cy, f in folds)
-        ends = tuple(on_test(oe.with_values(m.fit.plant, s.end)) for s in m.fit.stops)
+        ends = tuple(end_score(m.fit.plant, s.end, on_test) for s in m.fit.stops)
         try:
             cond = oe.conditioning(m.fit.plant, train, oe.structure_parameters(m.fit.plant), n0)
         except UserError:  # a coefficient at its bound of 0 cannot be moved both ways
