@@ -4,6 +4,8 @@ training record's plateau friction, on records of the independent reference simu
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -64,11 +66,35 @@ def test_leaving_a_cycle_out_keeps_it_out_of_the_estimation_part(record):
     assert abs(rest.r[edges[1]] - rest.r[edges[1] - 1]) < 1e-5
 
 
-def _fit(statuses, rmses):
+def _fit(statuses, rmses, masses=None):
     from experiments.records import output_error as oe
-    stops = tuple(oe.Stop(f"s{i}", {"mass": 1.0}, {"mass": 1.0}, 1.0, r, st, "", 10, 0.0, 0.0)
-                  for i, (st, r) in enumerate(zip(statuses, rmses)))
+
+    masses = masses or [20.0] * len(rmses)
+    stops = tuple(oe.Stop(f"s{i}", {"mass": 20.0}, {"mass": m}, 1.0, r, st, "", 10, 0.0, 0.0)
+                  for i, (st, r, m) in enumerate(zip(statuses, rmses, masses)))
     return oe.SimulationFit(Plant(effects=()), ("mass",), {}, stops)
+
+
+def test_an_unphysical_end_scores_nan():
+    """A start that stopped where the candidate is unphysical (a Stribeck dip deeper than the
+    Coulomb level: the fit's flat cost there) gets a NaN test score, not an error that ends the
+    study after its fits; a physical end is scored."""
+    from clm_sim.effects.friction import Stribeck
+    from experiments.studies.emps.benchmark import end_score
+
+    plant = Plant(coulomb=20.0, effects=(Stribeck(peak=-5.0, velocity=0.01, exponent=2.0),))
+    assert np.isnan(end_score(plant, {"stribeck": -25.0}, lambda p: 1.0))
+    assert end_score(plant, {"stribeck": -10.0}, lambda p: 2.0) == 2.0
+
+
+def test_equal_costs_at_other_parameters_are_not_the_same_end():
+    """Two converged starts within 1 % of the lowest training RMSE are one end only where their
+    parameters agree within 2 % (of the size, 20 kg here): 20.3 kg is, 21 kg is a second
+    point of a flat valley (the fit is then not a measurement and the starts do not agree)."""
+    same = _fit([1, 2], [1.0, 1.002], [20.0, 20.3])
+    assert same.measured and len(same.reached()) == 2
+    valley = _fit([1, 2], [1.0, 1.002], [20.0, 21.0])
+    assert not valley.measured and not valley.agree and len(valley.reached()) == 1
 
 
 def _row(name, cycles, fit=None, candidate=True):
@@ -219,3 +245,47 @@ def test_a_benchmark_out_that_is_no_benchmark_is_refused_before_the_work(
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and str(mine) in err[0], err
     assert (mine / "notes.txt").read_text() == "mine"
+
+
+PAGE_JSON = (Path(__file__).resolve().parents[1] / "docs" / "results" / "emps_models"
+             / "benchmark.json")
+
+
+@pytest.mark.skipif(not PAGE_JSON.exists(), reason="the study's benchmark.json is not shipped "
+                    "beside the page")
+def test_the_page_table_and_choice_are_the_shipped_study_output():
+    """docs/results/emps_benchmark.md against the study output shipped beside it
+    (emps_models/benchmark.json): every table row's test RMSE, left-out mean and fit column
+    (measured or not, starts that reached the lowest end) is the JSON's; the page marks the
+    JSON's chosen row and no other; re-applying the config's rule (lowest left-out mean among
+    measured candidates) to the JSON gives that row; the answer quotes its test RMSE and the
+    published model's."""
+    import json
+
+    docs = PAGE_JSON.parents[1]
+    data = json.loads(PAGE_JSON.read_text())
+    rows = {r["name"]: r for r in data["rows"]}
+    lines = (docs / "emps_benchmark.md").read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("| model |"))
+    marked = []
+    for line in lines[first + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.split("|")[1:-1]]
+        r = rows[cells[0]]
+        assert float(cells[2]) == pytest.approx(r["test_rmse_m"] * 1e3, abs=0.005), cells[0]
+        if r["left_one_cycle_out_rmse_m"]:
+            mean = float(cells[8].split("±")[0])
+            assert mean == pytest.approx(r["left_one_cycle_out_mean_m"] * 1e3, abs=0.005)
+        if r["fit"] is not None:
+            fit = r["fit"]
+            state = "measured" if fit["measured"] else "not a measurement"
+            assert cells[9] == f"{state}, {fit['reached']}/{len(fit['stops'])} starts"
+        if cells[10] == "**yes**":
+            marked.append(cells[0])
+    eligible = [r for r in data["rows"] if r["candidate"] and r["measured"]]
+    rule = min(eligible, key=lambda r: r["left_one_cycle_out_mean_m"])["name"]
+    assert marked == [data["chosen"]] == [rule]
+    answer = "\n".join(lines[:25])
+    assert f"**{rows[rule]['test_rmse_m'] * 1e3:.2f} mm**" in answer
+    assert f"**{rows['published model']['test_rmse_m'] * 1e3:.2f} mm**" in answer

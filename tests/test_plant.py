@@ -433,3 +433,37 @@ def test_encoder_quantizes_within_half_a_count(resolution, default_pid, r1, r1_d
     # Rounding to the nearest count: half a count, plus float64 round-off of the product.
     assert np.max(np.abs(run.y - run.y_true)) <= resolution / 2 * (1 + 1e-6)
     assert len(np.unique(run.y)) > 100  # the stage really moved across many counts
+
+
+@pytest.mark.parametrize("stiffness", [2.0e3, 2.0e6, 1.0e8])
+def test_the_presliding_substep_solves_its_equation_to_rounding(stiffness):
+    """The implicit pre-sliding sub-step (``kernel.dahl_substep``) returns a displacement
+    whose residual is at the rounding level of the position, from states across the bristle
+    range, speeds of both signs and forces inside and beyond the sliding force; a bisection of
+    the same monotone equation to the last bit agrees within that level."""
+    from clm_sim import kernel
+
+    plant = Plant(coulomb=0.0, effects=(Presliding(sliding=7.21, stiffness=stiffness),))
+    motor = plant.kernel_plant(1e-3)
+    ad, bd = motor.ad, motor.bd
+    d_f, d_l = motor.effects.dahl_sliding, motor.effects.dahl_length
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        x, v = rng.uniform(-0.3, 0.3), rng.uniform(-0.2, 0.2)
+        g, z = rng.uniform(-50.0, 50.0), np.array([rng.uniform(-1.0, 1.0)])
+        x1, _, dx = kernel.dahl_substep.py_func(x, v, g, ad, bd, d_f, d_l, z.copy())
+        x0 = ad[0, 0] * x + ad[0, 1] * v - x
+
+        def phi(d):
+            return d - x0 - bd[0] * (g - kernel._dahl_mean.py_func(d_f, d_l, z, d)[0])
+
+        lo, hi = x0 + bd[0] * (g - d_f.sum()), x0 + bd[0] * (g + d_f.sum())
+        while True:  # plain bisection to adjacent floats
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            lo, hi = (lo, mid) if phi(mid) > 0 else (mid, hi)
+        # Rounding level of the position: the equation carries x's rounding (ad @ [x, v] - x).
+        tol = 1e-14 * (abs(x) + abs(dx))
+        assert abs(phi(dx)) <= tol
+        assert abs(dx - lo) <= tol and x1 == x + dx

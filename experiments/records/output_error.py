@@ -23,10 +23,12 @@ until a restart lowers the cost by less than ``RESTART_GAIN`` (relative; at most
 times); the fit has *converged* where that last run ended by the gradient test (first-order
 optimality below ``GTOL``) or the cost-decrease test (below a relative ``FTOL`` per step). The
 step-size test is off (``xtol`` 1e-15): a run that ends on it, or on ``max_nfev`` evaluations,
-is a *stop*, reported as such. The starts
-*agree* where every start that converged ends within ``agree_rtol`` of the lowest training
-RMSE found, and the fit is a *measurement* where the lowest end converged and at least two
-starts reached it.
+is a *stop*, reported as such. A start *reached* the lowest end where it converged, its
+training RMSE is within ``agree_rtol`` of the lowest found and every free parameter within
+``PARAM_RTOL`` of the lowest end's (relative to the parameter's size, or its typical size where
+that is larger): equal costs at other parameters are another point of a flat valley, not the
+same end. The fit is a *measurement* where the lowest end converged and at least two starts
+reached it; the starts *agree* where every converged start reached it.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
+from clm_sim.effects import lower_effects
 from clm_sim.effects.friction import FrictionAsymmetry, Presliding, Stribeck
 from clm_sim.effects.position import Cogging, ForceOffset, ForceRipple
 from clm_sim.errors import UserError
@@ -61,6 +64,10 @@ _NONNEGATIVE = ("viscous", "coulomb", "presliding")
 GTOL = 1e-8  # first-order optimality at which a fit has converged (scipy's scaled test)
 FTOL = 1e-10  # relative decrease of the cost per step below which a fit has converged
 AGREE_RTOL = 0.01  # starts whose training RMSEs lie within 1 % of the lowest agree
+# ... and whose parameters lie within 2 % of the lowest end's (of each one's size or typical
+# size): ten times finer than the perturbed starts' spread, so two starts that reach it from
+# different sides found one end, not two points of a valley.
+PARAM_RTOL = 0.02
 MAX_NFEV = 500  # evaluations of one start, its restarts included
 DIFF_STEP = 1e-4
 JAC = '2-point'
@@ -191,6 +198,7 @@ class SimulationFit:
     stops: tuple[Stop, ...]
     agree_rtol: float = AGREE_RTOL
     init_samples: int = INIT_SAMPLES
+    param_rtol: float = PARAM_RTOL
 
     @property
     def best(self) -> Stop:
@@ -201,9 +209,18 @@ class SimulationFit:
         return self.best.rmse_m
 
     def reached(self) -> list[Stop]:
-        """The converged stops that ended within ``agree_rtol`` of the lowest RMSE."""
-        low = self.best.rmse_m
-        return [s for s in self.stops if s.converged and s.rmse_m <= low * (1 + self.agree_rtol)]
+        """The converged stops that ended within ``agree_rtol`` of the lowest RMSE and with
+        every free parameter within ``param_rtol`` of the lowest end's (module docstring)."""
+        best = self.best
+        low = best.rmse_m
+
+        def near(s: Stop) -> bool:
+            return all(abs(s.end[k] - best.end[k]) <= self.param_rtol * max(abs(best.end[k]),
+                                                                              _FLOOR[k])
+                       for k in self.free)
+
+        return [s for s in self.stops if s.converged and s.rmse_m <= low * (1 + self.agree_rtol)
+                and near(s)]
 
     @property
     def agree(self) -> bool:
@@ -229,10 +246,11 @@ class SimulationFit:
         n = len(self.reached())
         return (f"{'a measurement' if self.measured else 'not a measurement'}: the lowest "
                 f"end {'converged' if self.best.converged else 'did not converge'}; {n} of "
-                f"{len(self.stops)} starts reached it within {100 * self.agree_rtol:g} % of its "
-                f"training RMSE ({self.rmse_m * 1e3:.4g} mm)"
-                + ("" if self.agree else "; a converged start ended elsewhere (another local "
-                   "minimum)"))
+                f"{len(self.stops)} starts reached it (within {100 * self.agree_rtol:g} % of its "
+                f"training RMSE, {self.rmse_m * 1e3:.4g} mm, and {100 * self.param_rtol:g} % of "
+                f"its parameters)"
+                + ("" if self.agree else "; a converged start ended elsewhere (another "
+                   "minimum, or another point of a flat valley)"))
 
     def summary(self) -> str:
         lines = [f"{k:12s} {self.best.end[k]:12.6g} {UNITS[k]:6s} (starts' spread "
@@ -249,7 +267,8 @@ class SimulationFit:
                 "convergence": {"gtol": GTOL, "ftol": FTOL, "xtol": 1e-15,
                                 "diff_step": DIFF_STEP, "restarts": RESTARTS,
                                 "restart_gain": RESTART_GAIN},
-                "agree_rtol": self.agree_rtol, "agree": self.agree, "measured": self.measured,
+                "agree_rtol": self.agree_rtol, "param_rtol": self.param_rtol,
+                "reached": len(self.reached()), "agree": self.agree, "measured": self.measured,
                 "rmse_m": self.rmse_m, "best": self.best.label,
                 "stops": [s.to_json() for s in self.stops]}
 
@@ -259,6 +278,48 @@ def training_rmse(plant: Plant, run: Run, init_samples: int = INIT_SAMPLES) -> f
     state = initial_state(run.y, run.ts, plant, init_samples)
     x, _ = simulate_input(plant, run.u, run.ts, state)
     return float(np.sqrt(np.mean((x - run.y)[init_samples:] ** 2)))
+
+
+@dataclass(frozen=True)
+class Conditioning:
+    """How well the simulation error determines a structure's parameters at a point: the
+    singular values of the Jacobian of the simulated position (m) with respect to the
+    parameters in units of their size (or typical size), relative to the largest, and the
+    weakest direction (its component per parameter, largest first), by central differences of
+    relative step ``rel``."""
+
+    rel: float
+    singular: tuple[float, ...]
+    weakest: dict
+
+    def line(self) -> str:
+        return (f"singular values (relative) " + ", ".join(f"{x:.2g}" for x in self.singular)
+                + "; weakest direction " + ", ".join(f"{k} {v:+.2f}"
+                                                     for k, v in self.weakest.items()))
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def conditioning(plant: Plant, run: Run, names, init_samples: int = INIT_SAMPLES,
+                 rel: float = 1e-3) -> Conditioning:
+    """:class:`Conditioning` of ``plant``'s parameters ``names`` on ``run``. A direction with
+    a small singular value moves the simulated position little: the simulation error does not
+    determine that combination (the route is to hold or drop the terms that make it)."""
+    state = initial_state(run.y, run.ts, plant, init_samples)
+    cols = []
+    for k in names:
+        v = value(plant, k)
+        h = rel * max(abs(v), _FLOOR[k])
+        up, _ = simulate_input(with_values(plant, {k: v + h}), run.u, run.ts, state)
+        down, _ = simulate_input(with_values(plant, {k: v - h}), run.u, run.ts, state)
+        cols.append((up - down)[init_samples:] / (2 * rel))
+    _, sv, vt = np.linalg.svd(np.column_stack(cols) / np.sqrt(len(cols[0])),
+                              full_matrices=False)
+    w = vt[-1] * (1.0 if vt[-1][np.argmax(np.abs(vt[-1]))] > 0 else -1.0)
+    order = np.argsort(-np.abs(w))
+    return Conditioning(rel, tuple(float(x / sv[0]) for x in sv),
+                        {names[i]: float(w[i]) for i in order})
 
 
 def perturbed(values: dict[str, float], rng: np.random.Generator, spread: float = 0.2
@@ -297,11 +358,21 @@ def fit(structure: Plant, run: Run, starts: list[tuple[str, dict]], *,
     def plant_at(x):
         return with_values(base, dict(zip(free, x)))
 
+    # The initial state depends on the record and the pre-sliding lengths alone (no free
+    # parameter moves a length; a pre-sliding force of 0 drops its element): made once per set
+    # of lengths, not per evaluation (its least-squares parabola cost as much as a simulation).
+    states = {}
+
+    def state_of(candidate):
+        key = tuple(lower_effects(candidate.effects).dahl_length)
+        if key not in states:
+            states[key] = initial_state(y, run.ts, candidate, init_samples)
+        return states[key]
+
     def residual(x):
         try:
             candidate = plant_at(x)
-            state = initial_state(y, run.ts, candidate, init_samples)
-            sim, _ = simulate_input(candidate, run.u, run.ts, state)
+            sim, _ = simulate_input(candidate, run.u, run.ts, state_of(candidate))
         except UserError:  # an unphysical or diverging candidate: a large, finite cost
             return np.full(n, 1.0)
         return (sim - y)[init_samples:]

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import resource
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -199,7 +200,9 @@ def make_candidate(c: Candidate, record: Run, settings: BenchmarkSettings, like:
         structure = dataclasses.replace(eq, effects=(*eq.effects, *added))
     structure = oe.merge_offsets(structure)
     names = oe.structure_parameters(structure)
-    hold = {k: oe.value(structure, k) for k in c.hold}
+    # A held term the diagnosis did not name on this data is not in the structure: nothing to
+    # hold (the row's note names the terms it did name).
+    hold = {k: oe.value(structure, k) for k in c.hold if k in names}
     free = [k for k in names if k not in hold]
     first = {k: oe.value(structure, k) for k in free}
     starts = [("equation-error fit", first)]
@@ -232,6 +235,7 @@ class Row:
     end_tests_m: tuple[float, ...] = ()
     note: str = ""
     chosen: bool = False
+    conditioning: oe.Conditioning | None = None
 
     @property
     def mean_m(self) -> float:
@@ -253,6 +257,8 @@ class Row:
                 "left_one_cycle_out_rmse_m": list(self.cycles_m),
                 "left_one_cycle_out_mean_m": self.mean_m if self.cycles_m else None,
                 "end_points_test_rmse_m": list(self.end_tests_m), "note": self.note,
+                "conditioning": (None if self.conditioning is None else
+                                 self.conditioning.to_json()),
                 "fit": None if self.fit is None else self.fit.to_json(),
                 "model_file": f"models/{slug(self.name)}.json",
                 "parameters": {k: oe.value(self.plant, k) for k in
@@ -291,13 +297,19 @@ def rmse_on(test: Run, n0: int):
 def sensitivity(name: str, plant: Plant, blocks: dict[str, tuple[float, ...]], rmse, *,
                 what: str) -> Sensitivity:
     """:class:`Sensitivity` of ``plant`` by central differences (a step of 1e-3 of each
-    parameter's size) and at the ends of its ``blocks`` values."""
+    parameter's size; one-sided where the other side leaves the parameter's physical range,
+    NaN where both do) and at the ends of its ``blocks`` values."""
     out = []
     for k in oe.structure_parameters(plant):
         v = oe.value(plant, k)
         h = 1e-3 * max(abs(v), oe._FLOOR[k])
-        grad = (rmse(oe.with_values(plant, {k: v + h})) -
-                rmse(oe.with_values(plant, {k: v - h}))) / (2 * h)
+        ok = [x for x in (v + h, v - h) if _safe(plant, k, x) is not plant]
+        if len(ok) == 2:
+            grad = (rmse(_safe(plant, k, v + h)) - rmse(_safe(plant, k, v - h))) / (2 * h)
+        elif ok:
+            grad = (rmse(_safe(plant, k, ok[0])) - rmse(plant)) / (ok[0] - v)
+        else:
+            grad = float("nan")
         b = blocks.get(k)
         if b:
             lo, hi = min(b), max(b)
@@ -307,6 +319,16 @@ def sensitivity(name: str, plant: Plant, blocks: dict[str, tuple[float, ...]], r
             at = [float("nan")] * 2
         out.append((k, v, grad, lo, hi, *at))
     return Sensitivity(name, what, tuple(out))
+
+
+def end_score(plant: Plant, end: dict, rmse) -> float:
+    """``rmse`` of ``plant`` with a start's end values; NaN where that end is outside the
+    physical range (a start can stop where the fit's residual was the flat cost of an
+    unphysical candidate)."""
+    try:
+        return rmse(oe.with_values(plant, end))
+    except UserError:
+        return float("nan")
 
 
 def _safe(plant: Plant, k: str, x: float) -> Plant:
@@ -376,6 +398,12 @@ def _make_task(payload) -> Made:
     return make_candidate(c, record, settings, like, np.random.default_rng(seed), published)
 
 
+def _cpu() -> float:
+    """CPU seconds of this process and of its ended worker processes."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
 def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1) -> dict:
     """Every row made from the training record and scored on both records; every candidate
     made again without each cycle and scored on it; the choice by the config's rule; the
@@ -405,7 +433,7 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1)
     streams = [s.spawn(settings.cycles + 1) for s in seeds]
 
     progress(f"whole training record ({len(train)} samples): reference rows")
-    cpu = time.process_time()
+    cpu = _cpu()
     procedure = equation_error(train, settings.published_procedure, published)
     extended, ext_note = diagnosed(train, published)
     rows = [Row("published model", "nothing (the published parameters)", published,
@@ -439,10 +467,14 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1)
         folds.append((cycle, fold))
     for c, m in zip(settings.candidates, made):
         scores = tuple(rmse_on(cy, n0)(f[c.name].fit.plant) for cy, f in folds)
-        ends = tuple(on_test(oe.with_values(m.fit.plant, s.end)) for s in m.fit.stops)
+        ends = tuple(end_score(m.fit.plant, s.end, on_test) for s in m.fit.stops)
+        try:
+            cond = oe.conditioning(m.fit.plant, train, oe.structure_parameters(m.fit.plant), n0)
+        except UserError:  # a coefficient at its bound of 0 cannot be moved both ways
+            cond = None
         rows.append(Row(c.name, "training record (simulation error)", m.fit.plant,
                         m.fit.rmse_m, on_test(m.fit.plant), True, m.fit, scores, ends,
-                        m.note))
+                        m.note, conditioning=cond))
         progress(f"{c.name}: left-out cycles "
                  + ", ".join(f"{x * 1e3:.2f}" for x in scores) + f" mm; test "
                  f"{rows[-1].test_rmse_m * 1e3:.2f} mm")
@@ -477,7 +509,8 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1)
     drift = dataclasses.replace(drift, steady=tuple(cycle_friction(plateaus(train, edges))))
     sens = []
     for r in rows:
-        if r.candidate and (r.chosen or r is rows[-1]):
+        structure = next((c.structure for c in settings.candidates if c.name == r.name), "")
+        if r.candidate and (r.chosen or structure == "diagnosis"):
             i = [c.name for c in settings.candidates].index(r.name)
             blocks = {}
             for _, f in folds:
@@ -493,7 +526,7 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1)
                             what="the force-residual fit on 5 contiguous blocks"))
     init = initial_state_effect(published, test, n0)
     return {"rows": rows, "pick": pick, "leak": leak, "drift": drift, "sensitivity": sens,
-            "initial_state": init, "cpu_s": time.process_time() - cpu,
+            "initial_state": init, "cpu_s": _cpu() - cpu,
             "folds": [{k: (v.fit.to_json() if isinstance(v, Made) else v.theta())
                        for k, v in f.items()} for _, f in folds]}
 
@@ -569,7 +602,16 @@ def to_markdown(result: dict, settings: BenchmarkSettings, command: str) -> str:
         if r.fit.held:
             out.append("- held: " + ", ".join(f"{k} {v:.6g}" for k, v in r.fit.held.items()))
         out.append("")
-    out += ["## Each fold's fits (made without one cycle; no start from the whole record)", ""]
+    out += ["## How well the simulation error determines each structure", "",
+            "At each candidate's lowest end on the whole training record (training data "
+            "only): the singular values of the Jacobian of the simulated position with "
+            "respect to the parameters, each in units of its size, relative to the largest, "
+            "and the weakest direction (central differences; held parameters included).", ""]
+    for r in cands:
+        out.append(f"- {r.name}: " + ("–" if r.conditioning is None else
+                                      r.conditioning.line()))
+    out += ["", "## Each fold's fits (made without one cycle; no start from the whole record)",
+            ""]
     for j, f in enumerate(result["folds"]):
         for name, v in f.items():
             if name == "procedure":
@@ -580,6 +622,7 @@ def to_markdown(result: dict, settings: BenchmarkSettings, command: str) -> str:
             out.append(f"- without cycle {j + 1}, {name}: "
                        f"{'measured' if v['measured'] else 'not a measurement'}, "
                        f"{sum(s['converged'] for s in v['stops'])}/{len(v['stops'])} converged, "
+                       f"{v['reached']} reached the lowest end, "
                        f"training {v['rmse_m'] * 1e3:.3f} mm; "
                        + ", ".join(f"{k} {x:.6g}" for k, x in best["end"].items()))
     out += ["", "## The leak of parameters identified on the whole record", "",
