@@ -12,7 +12,7 @@ package's modules never import a layer above them.
 
 from clm_sim.lazy import lazy_exports
 
-__version__ = "0.7.0"
+__version__ = "0.8.0"
 """The version of clm-sim (``MAJOR.MINOR.PATCH``), as ``clm-sim --version`` prints it and as
 ``table.json`` records it beside each result.
 
