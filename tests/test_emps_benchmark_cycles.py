@@ -128,7 +128,9 @@ def test_the_report_names_the_choice_and_the_band(tmp_path):
     first row) and gives the band over every end point; benchmark.json's row says chosen."""
     import json
 
-    from experiments.studies.emps.benchmark import BenchmarkSettings, choose, table, verdict
+    from experiments.studies.emps.benchmark import BenchmarkRun, choose
+    from experiments.studies.emps.report import table, verdict
+    from experiments.studies.emps.settings import BenchmarkSettings
 
     measured = _fit([2, 1], [1.0, 1.001])
     rows = choose([_row("published", (3e-3, 3e-3), candidate=False),
@@ -137,7 +139,9 @@ def test_the_report_names_the_choice_and_the_band(tmp_path):
     lines = table(rows, settings)
     assert lines[3].startswith("| a |") and lines[3].endswith("| **yes** |")
     assert lines[2].startswith("| published |") and "(reference)" in lines[2]
-    text = "\n".join(verdict({"rows": rows, "pick": rows[1]}, settings))
+    run = BenchmarkRun(rows=rows, pick=rows[1], leak={}, drift=None, sensitivity=[],
+                       initial_state={}, cpu_s=0.0, folds=[])
+    text = "\n".join(verdict(run, settings))
     assert "**a**, 2.00 ± 0.00 mm over the cycles" in text and "(+0.0 %)" in text
     assert "(whole training record, 2 end points): 2.00 to 2.00 mm" in text
     saved = json.loads(json.dumps(rows[1].to_json()))
@@ -145,7 +149,7 @@ def test_the_report_names_the_choice_and_the_band(tmp_path):
 
 
 def test_a_cycles_setting_of_one_is_one_line(tmp_path):
-    from experiments.studies.emps.benchmark import load_benchmark
+    from experiments.studies.emps.settings import load_benchmark
 
     path = tmp_path / "b.yaml"
     path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, cycles: 1}\n")

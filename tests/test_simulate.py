@@ -272,7 +272,7 @@ def test_simulation_error_returns_the_truth_from_wrong_starts(record):
 
 def test_a_benchmark_config_with_a_typo_is_one_line(tmp_path):
     from clm_sim.errors import UserError
-    from experiments.studies.emps.benchmark import load_benchmark
+    from experiments.studies.emps.settings import load_benchmark
 
     path = tmp_path / "b.yaml"
     path.write_text("name: b\nbenchmark: {training: a.mat, test: b.mat, init_sample: 20}\n")

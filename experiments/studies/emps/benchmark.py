@@ -31,7 +31,7 @@ import dataclasses
 import re
 import resource
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +41,6 @@ from clm_sim.open_loop import MIN_SCORED_SAMPLES, InitialState, initial_state, s
 from clm_sim.plant import Plant
 from clm_sim.records.read import load_record
 from clm_sim.run import Run
-from clm_sim.schema import build, load_yaml
 from controllers.idim import IDIMProtocol
 from experiments.records import output_error as oe
 from experiments.model_files import SimulationModel, load_model
@@ -49,94 +48,8 @@ from experiments.records.simulation import simulate_record
 from experiments.studies.emps.cycles import cycle_edges, left_out
 from experiments.studies.emps.drift import Drift, explain_drift
 from experiments.studies.emps.plateaus import cycle_friction, plateaus
-from experiments.studies.kinds import take_kind
+from experiments.studies.emps.settings import BenchmarkSettings, Candidate
 from experiments.processes.workers import map_in_order
-
-STRUCTURES = ("equation_error", "diagnosis")
-ADDABLE = ("friction_asymmetry",)
-SELECTIONS = ("minimum_mean",)
-
-
-@dataclass(frozen=True)
-class Baseline:
-    """A published score on the same protocol: ``name``, test RMSE (mm), ``source``."""
-
-    name: str
-    test_rmse_mm: float
-    source: str = ""
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """A structure fitted by simulation error: from the equation-error fit on the data at hand
-    (``offset``: with its constant force) with effects ``add``-ed at 0, or the structure the
-    diagnosis names there; ``hold``: parameters kept at the equation-error fit's values."""
-
-    name: str
-    structure: str = "equation_error"
-    offset: bool = True
-    add: tuple[str, ...] = ()
-    hold: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class BenchmarkSettings:
-    """The ``benchmark:`` section (the config file says what each key means)."""
-
-    training: str
-    test: str
-    columns: dict[str, str] = field(default_factory=dict)
-    scale: dict[str, str | float] = field(default_factory=dict)
-    init_samples: int = 20
-    published_model: str = "experiments/configs/emps_model.yaml"
-    published_procedure: IDIMProtocol = field(default_factory=IDIMProtocol)
-    candidates: tuple[Candidate, ...] = ()
-    perturbed_starts: int = 3
-    seed: int = 0
-    selection: str = "minimum_mean"
-    cycles: int = 4
-    baselines: tuple[Baseline, ...] = ()
-    max_nfev: int = oe.MAX_NFEV
-
-
-def load_benchmark(path) -> tuple[str, BenchmarkSettings]:
-    data = take_kind(load_yaml(path), path, "emps_benchmark")
-    unknown = set(data) - {"name", "benchmark"}
-    if unknown or "benchmark" not in data:
-        raise UserError(f"{path}: a benchmark config has 'name' and 'benchmark:' only"
-                        + (f" (unknown: {', '.join(sorted(unknown))})" if unknown else ""))
-    try:
-        s = build(BenchmarkSettings, data["benchmark"], "benchmark")
-    except UserError as exc:
-        raise UserError(f"{path}: {exc}") from None
-    if s.cycles < 2:
-        raise UserError(f"{path}: benchmark.cycles: expected at least 2 repetitions of the "
-                        f"training record's program, got {s.cycles}")
-    if s.selection not in SELECTIONS:
-        raise UserError(f"{path}: benchmark.selection: expected one of {', '.join(SELECTIONS)}, "
-                        f"got {s.selection!r}")
-    if not s.candidates:
-        raise UserError(f"{path}: benchmark.candidates: expected at least one candidate")
-    if s.perturbed_starts < 0:
-        raise UserError(f"{path}: benchmark.perturbed_starts: expected >= 0, got "
-                        f"{s.perturbed_starts}")
-    for i, c in enumerate(s.candidates):
-        where = f"{path}: benchmark.candidates[{i}]"
-        if c.structure not in STRUCTURES:
-            raise UserError(f"{where}.structure: expected one of {', '.join(STRUCTURES)}, got "
-                            f"{c.structure!r}")
-        bad = [a for a in c.add if a not in ADDABLE]
-        if bad:
-            raise UserError(f"{where}.add: expected among {', '.join(ADDABLE)}, got {bad[0]!r}")
-        bad = [h for h in c.hold if h not in oe.UNITS]
-        if bad:
-            raise UserError(f"{where}.hold: expected among {', '.join(oe.UNITS)}, got "
-                            f"{bad[0]!r}")
-    names = [c.name for c in s.candidates]
-    if len(set(names)) != len(names):
-        raise UserError(f"{path}: benchmark.candidates: two candidates named alike")
-    return str(data.get("name", Path(path).stem)), s
-
 
 def split(run: Run, fraction: float, init_samples: int) -> tuple[Run, Run]:
     """``run`` cut in time: the first ``fraction`` of its samples and the rest (simulated from
@@ -404,7 +317,8 @@ def _cpu() -> float:
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
-def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1) -> dict:
+def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1
+                  ) -> BenchmarkRun:
     """Every row made from the training record and scored on both records; every candidate
     made again without each cycle and scored on it; the choice by the config's rule; the
     leak, the sensitivities, the initial-state effect and the drift analysis."""
@@ -525,149 +439,28 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1)
                             drift_blocks(extended, drift), on_test,
                             what="the force-residual fit on 5 contiguous blocks"))
     init = initial_state_effect(published, test, n0)
-    return {"rows": rows, "pick": pick, "leak": leak, "drift": drift, "sensitivity": sens,
-            "initial_state": init, "cpu_s": _cpu() - cpu,
-            "folds": [{k: (v.fit.to_json() if isinstance(v, Made) else v.theta())
-                       for k, v in f.items()} for _, f in folds]}
+    return BenchmarkRun(rows=rows, pick=pick, leak=leak, drift=drift, sensitivity=sens,
+                        initial_state=init, cpu_s=_cpu() - cpu,
+                        folds=[{k: (v.fit if isinstance(v, Made) else v.theta())
+                                for k, v in f.items()} for _, f in folds])
+
+
+@dataclass(frozen=True)
+class BenchmarkRun:
+    """What :func:`run_benchmark` computed: the rows (the published model first), the chosen
+    candidate (None: none is a measurement), the leak of whole-record parameters (mm, m), the
+    drift of the force-residual extension, the sensitivities, the initial-state methods' test
+    RMSE (m), the CPU time (s) and, per left-out cycle, each candidate's simulation-error fit
+    (the published procedure's parameters under ``procedure``)."""
+
+    rows: list
+    pick: Row | None
+    leak: dict
+    drift: Drift
+    sensitivity: list
+    initial_state: dict[str, float]
+    cpu_s: float
+    folds: list[dict]
 
 
 # ----------------------------------------------------------------------------- the report
-
-def _mm(x: float) -> str:
-    return "–" if x is None or not np.isfinite(x) else f"{x * 1e3:.2f}"
-
-
-def _params(plant: Plant) -> str:
-    p = oe.merge_offsets(plant)
-    out = [f"{k} {oe.value(p, k):.6g}" for k in oe.structure_parameters(p)]
-    return ", ".join(out)
-
-
-def table(rows: list[Row], settings: BenchmarkSettings) -> list[str]:
-    k = settings.cycles
-    lines = ["| model | made from | test RMSE (mm) | training RMSE (mm) | "
-             + " | ".join(f"without cycle {j + 1} (mm)" for j in range(k))
-             + " | left-out mean ± se (mm) | fit | chosen |",
-             "|---" * (k + 7) + "|"]
-    for r in rows:
-        cyc = " | ".join(_mm(x) for x in r.cycles_m) if r.cycles_m else " | ".join("–" * k)
-        mean = (f"{r.mean_m * 1e3:.2f} ± {r.se_m * 1e3:.2f}" if r.cycles_m else "–")
-        fit = ("–" if r.fit is None else
-               ("measured" if r.fit.measured else "not a measurement")
-               + f", {len(r.fit.reached())}/{len(r.fit.stops)} starts")
-        lines.append(f"| {r.name} | {r.made_from} | {_mm(r.test_rmse_m)} | "
-                     f"{_mm(r.train_rmse_m)} | {cyc} | {mean} | {fit} | "
-                     f"{'**yes**' if r.chosen else ('no' if r.candidate else '(reference)')} |")
-    for b in settings.baselines:
-        lines.append(f"| {b.name} (black box; {b.source}) | – | {b.test_rmse_mm:.1f} | – | "
-                     + " | ".join("–" * k) + " | – | – | – |")
-    return lines
-
-
-def verdict(result: dict, settings: BenchmarkSettings) -> list[str]:
-    """The choice by the config's rule against the published model, and the band of test
-    scores over every end point."""
-    rows, pick = result["rows"], result["pick"]
-    pub = rows[0]
-    ends = [x for r in rows if r.candidate for x in r.end_tests_m if np.isfinite(x)]
-    if pick is None:
-        head = "No candidate's whole-record fit is a measurement: the rule chooses none."
-    else:
-        rel = 100 * (pick.test_rmse_m / pub.test_rmse_m - 1)
-        head = (f"Chosen by the rule in the config ({settings.selection}: the lowest mean "
-                f"left-out-cycle RMSE among the candidates whose whole-record fit is a "
-                f"measurement): **{pick.name}**, {pick.mean_m * 1e3:.2f} ± "
-                f"{pick.se_m * 1e3:.2f} mm over the cycles; test RMSE "
-                f"{pick.test_rmse_m * 1e3:.2f} mm against the published model's "
-                f"{pub.test_rmse_m * 1e3:.2f} mm ({rel:+.1f} %).")
-    return [head, "", f"Test RMSE over every end point of every candidate's starts (whole "
-            f"training record, {len(ends)} end points): {min(ends) * 1e3:.2f} to "
-            f"{max(ends) * 1e3:.2f} mm."]
-
-
-def to_markdown(result: dict, settings: BenchmarkSettings, command: str) -> str:
-    rows, leak = result["rows"], result["leak"]
-    pub = rows[0]
-    cands = [r for r in rows if r.candidate]
-    out = [f"<!-- generated by: {command} -->", "", "# EMPS benchmark: the study's report", "",
-           *table(rows, settings), ""]
-    out += [*verdict(result, settings), ""]
-    out += ["## Every start's stop (whole training record)", ""]
-    for r in cands:
-        out += [f"**{r.name}** ({r.fit.verdict()}; structure: {_params(r.plant)}"
-                + (f"; diagnosis named {r.note}" if r.note else "") + ")", ""]
-        out += [f"- {s.line()}; test RMSE {t * 1e3:.2f} mm; "
-                + ", ".join(f"{k} {v:.6g}" for k, v in s.end.items())
-                for s, t in zip(r.fit.stops, r.end_tests_m)]
-        if r.fit.held:
-            out.append("- held: " + ", ".join(f"{k} {v:.6g}" for k, v in r.fit.held.items()))
-        out.append("")
-    out += ["## How well the simulation error determines each structure", "",
-            "At each candidate's lowest end on the whole training record (training data "
-            "only): the singular values of the Jacobian of the simulated position with "
-            "respect to the parameters, each in units of its size, relative to the largest, "
-            "and the weakest direction (central differences; held parameters included).", ""]
-    for r in cands:
-        out.append(f"- {r.name}: " + ("–" if r.conditioning is None else
-                                      r.conditioning.line()))
-    out += ["", "## Each fold's fits (made without one cycle; no start from the whole record)",
-            ""]
-    for j, f in enumerate(result["folds"]):
-        for name, v in f.items():
-            if name == "procedure":
-                out.append(f"- without cycle {j + 1}, published procedure: "
-                           + ", ".join(f"{k} {x:.6g}" for k, x in v.items()))
-                continue
-            best = min(v["stops"], key=lambda s: s["rmse_m"])
-            out.append(f"- without cycle {j + 1}, {name}: "
-                       f"{'measured' if v['measured'] else 'not a measurement'}, "
-                       f"{sum(s['converged'] for s in v['stops'])}/{len(v['stops'])} converged, "
-                       f"{v['reached']} reached the lowest end, "
-                       f"training {v['rmse_m'] * 1e3:.3f} mm; "
-                       + ", ".join(f"{k} {x:.6g}" for k, x in best["end"].items()))
-    out += ["", "## The leak of parameters identified on the whole record", "",
-            f"- the last third of the training record ({leak['held_out_samples']} samples): "
-            f"the published parameters (identified on the whole record) simulate it to "
-            f"{_mm(leak['published_model_on_held_out_m'])} mm; the same procedure made on the "
-            f"first two thirds alone to {_mm(leak['procedure_remade_on_held_out_m'])} mm",
-            f"- the left-out cycles: published parameters "
-            f"{_mm(leak['published_model_cycles_mean_m'])} mm mean; the procedure remade "
-            f"without each cycle {_mm(leak['procedure_remade_cycles_mean_m'])} mm",
-            f"- the diagnosis on the first two thirds, started from the published model (keeps "
-            f"M {leak['extension_from_published_theta']['mass']:.2f}, Fv "
-            f"{leak['extension_from_published_theta']['viscous']:.1f}): "
-            f"{_mm(leak['extension_from_published_on_held_out_m'])} mm on the last third; "
-            f"started from the procedure's fit on that part (M "
-            f"{leak['extension_from_part_theta']['mass']:.2f}, Fv "
-            f"{leak['extension_from_part_theta']['viscous']:.1f}): "
-            f"{_mm(leak['extension_from_part_on_held_out_m'])} mm", ""]
-    out += ["## Sensitivity of the test score", ""]
-    for s in result["sensitivity"]:
-        out += [f"**{s.model}** (blocks: {s.blocks})", "",
-                "| parameter | value | d(test RMSE)/dθ (mm per unit) | block range | "
-                "test RMSE at its low end (mm) | at its high end (mm) |", "|---|---|---|---|---|---|"]
-        for k, v, g, lo, hi, a, b in s.rows:
-            rng = "–" if not np.isfinite(lo) else f"{lo:.4g} to {hi:.4g}"
-            out.append(f"| {k} ({oe.UNITS[k]}) | {v:.6g} | {g * 1e3:.4g} | {rng} | {_mm(a)} | "
-                       f"{_mm(b)} |")
-        out.append("")
-    out += ["## The initial state (the published model on the test record)", ""]
-    out += [f"- {k}: {v * 1e3:.3f} mm" for k, v in result["initial_state"].items()]
-    out += ["", "## Why the force-residual extension drifts (test columns after the fact)", "",
-            *result["drift"].to_markdown(pub.test_rmse_m), ""]
-    return "\n".join(out) + "\n"
-
-
-def plot_errors(traces, ax=None):
-    """Measured minus simulated position (mm against s) of each ``(label, Simulation)``."""
-    from experiments import plots
-
-    if ax is None:
-        ax = plots._figure(10.0, 4.0).subplots()
-    for i, (label, s) in enumerate(traces):
-        ax.plot(s.t, (s.y_measured - s.y_simulated) * 1e3, color=plots.PALETTE[i], lw=1.0,
-                label=f"{label}: RMSE {s.score.rmse * 1e3:.3g} mm")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("measured − simulated (mm)")
-    plots._legend_right(ax)
-    return ax

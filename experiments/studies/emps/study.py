@@ -16,9 +16,9 @@ from clm_sim.schema import to_plain
 from experiments.model_files import SimulationModel
 from experiments.records import output_error as oe
 from experiments.records.simulation import simulate_record
-from experiments.studies.emps.benchmark import (BenchmarkSettings, load_benchmark, plot_errors,
-                                                run_benchmark, slug, table, to_markdown,
-                                                verdict)
+from experiments.studies.emps.benchmark import BenchmarkRun, run_benchmark, slug
+from experiments.studies.emps.report import plot_errors, table, to_markdown, verdict
+from experiments.studies.emps.settings import BenchmarkSettings, load_benchmark
 from experiments.studies.emps.drift import plot_drift
 from experiments.studies.protocol import Study
 
@@ -39,22 +39,22 @@ class BenchmarkResult:
     name: str
     command: str
     settings: BenchmarkSettings
-    run: dict
+    run: BenchmarkRun
 
     def to_json(self) -> dict:
         settings, result = self.settings, self.run
-        pick = result["pick"]
+        pick = result.pick
         return {"name": self.name, "command": self.command, "selection": settings.selection,
                 "rule": "the lowest mean left-out-cycle RMSE among the candidates whose "
                         "whole-record fit is a measurement (benchmark.selection in the config, "
                         "with its reason)",
                 "chosen": None if pick is None else pick.name,
-                "rows": [r.to_json() for r in result["rows"]],
+                "rows": [r.to_json() for r in result.rows],
                 "baselines": [dataclasses.asdict(b) for b in settings.baselines],
                 "init_samples": settings.init_samples, "cycles": settings.cycles,
-                "leak": result["leak"], "initial_state_test_rmse_m": result["initial_state"],
-                "sensitivity": [s.to_json() for s in result["sensitivity"]],
-                "cpu_s": result["cpu_s"], "drift": result["drift"].to_json()}
+                "leak": result.leak, "initial_state_test_rmse_m": result.initial_state,
+                "sensitivity": [s.to_json() for s in result.sensitivity],
+                "cpu_s": result.cpu_s, "drift": result.drift.to_json()}
 
 
 def _load(path) -> tuple[Named, BenchmarkSettings]:
@@ -78,7 +78,7 @@ def _files(result: BenchmarkResult, folder: Path, scene=None) -> None:
     the published model, the chosen one and the diagnosis's; the drift)."""
     from experiments import plots
 
-    settings, rows, pick = result.settings, result.run["rows"], result.run["pick"]
+    settings, rows, pick = result.settings, result.run.rows, result.run.pick
     test = load_record(settings.test, columns=settings.columns, scale=settings.scale)
     ts = test.ts
 
@@ -96,8 +96,8 @@ def _files(result: BenchmarkResult, folder: Path, scene=None) -> None:
         traces.append((f"chosen: {pick.name}", sim(pick.plant)))
     traces.append((rows[2].name, sim(rows[2].plant)))
     plots.save(plot_errors(traces).figure, folder / "test_errors.png")
-    if result.run["drift"].traces:
-        plots.save(plot_drift(result.run["drift"]).figure, folder / "drift.png")
+    if result.run.drift.traces:
+        plots.save(plot_drift(result.run.drift).figure, folder / "drift.png")
 
 
 STUDY = Study(
@@ -107,5 +107,5 @@ STUDY = Study(
     figures=_files, workers=lambda: 1,
     resolved=lambda named, settings: {"name": named.name, "benchmark": to_plain(settings)},
     inputs=lambda path, s: (path, s.training, s.test, s.published_model),
-    summary=lambda result, out: "\n".join([*table(result.run["rows"], result.settings), "",
+    summary=lambda result, out: "\n".join([*table(result.run.rows, result.settings), "",
                                            *verdict(result.run, result.settings)]))
