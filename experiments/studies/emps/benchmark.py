@@ -29,9 +29,8 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import resource
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +93,7 @@ class Made:
     fit: oe.SimulationFit
     start: Plant
     note: str = ""
+    cpu_s: float = field(default=0.0, compare=False)  # CPU (s) of the process that made it
 
 
 def make_candidate(c: Candidate, record: Run, settings: BenchmarkSettings, like: Plant,
@@ -308,13 +308,9 @@ def _make_task(payload) -> Made:
     """:func:`make_candidate` on a worker: ``(candidate, record, settings, like, seed
     sequence, published or None)``."""
     c, record, settings, like, seed, published = payload
-    return make_candidate(c, record, settings, like, np.random.default_rng(seed), published)
-
-
-def _cpu() -> float:
-    """CPU seconds of this process and of its ended worker processes."""
-    children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + children.ru_utime + children.ru_stime
+    cpu = time.process_time()
+    made = make_candidate(c, record, settings, like, np.random.default_rng(seed), published)
+    return dataclasses.replace(made, cpu_s=time.process_time() - cpu)
 
 
 def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1
@@ -347,7 +343,8 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1
     streams = [s.spawn(settings.cycles + 1) for s in seeds]
 
     progress(f"whole training record ({len(train)} samples): reference rows")
-    cpu = _cpu()
+    cpu = time.process_time()  # this process's; a worker's is counted by its tasks (the
+    # pool's workers live on, so the operating system has not yet counted them as ended)
     procedure = equation_error(train, settings.published_procedure, published)
     extended, ext_note = diagnosed(train, published)
     rows = [Row("published model", "nothing (the published parameters)", published,
@@ -440,7 +437,9 @@ def run_benchmark(settings: BenchmarkSettings, progress=print, workers: int = 1
                             what="the force-residual fit on 5 contiguous blocks"))
     init = initial_state_effect(published, test, n0)
     return BenchmarkRun(rows=rows, pick=pick, leak=leak, drift=drift, sensitivity=sens,
-                        initial_state=init, cpu_s=_cpu() - cpu,
+                        initial_state=init,
+                        cpu_s=time.process_time() - cpu + (
+                            sum(m.cpu_s for m in done.values()) if workers > 1 else 0.0),
                         folds=[{k: (v.fit if isinstance(v, Made) else v.theta())
                                 for k, v in f.items()} for _, f in folds])
 
