@@ -240,3 +240,11 @@ def test_finding_the_study_kinds_loads_no_study():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=ROOT, check=True).stdout.strip()
     assert out == "[]", out
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_no_library_file_holds_more_than_one_sitting(module):
+    """A module is read in one sitting (STYLE.md): at most 500 lines; a longer one holds more
+    than one job and is cut by job."""
+    lines = len(MODULES[module].read_text("utf-8").splitlines())
+    assert lines <= 500, f"{MODULES[module].relative_to(ROOT)}: {lines} lines"
