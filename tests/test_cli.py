@@ -414,12 +414,20 @@ def test_run_refuses_a_study_config_and_names_the_study_command(tmp_path, capsys
     assert sorted(p.name for p in tmp_path.iterdir()) == ["study.yaml"]
 
 
+def _default_signals() -> None:
+    """The signals a terminal sends, at their default action in the child: a test run started
+    in the background (``nohup``, ``&`` in a script) ignores SIGHUP, SIGINT or SIGQUIT, and the
+    command rightly keeps a signal it was started with ignored."""
+    for sig in (signal.SIGHUP, signal.SIGINT, signal.SIGQUIT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def _clm(args, cwd) -> subprocess.Popen:
     """``clm-sim ARGS`` in a real process of its own session, running this checkout's code."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.Popen([sys.executable, "-m", "experiments.cli", *map(str, args)],
                             cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, env=env)
+                            start_new_session=True, env=env, preexec_fn=_default_signals)
 
 
 def _wait_for(proc, cond) -> bool:
