@@ -24,10 +24,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from clm_sim.errors import UserError
-from clm_sim.plant import THETA_UNITS  # noqa: F401 (re-exported for the studies)
 from controllers.pgnn.fit_record import Start, ThetaPoint, fit_fields
 from controllers.pgnn_settings import LAMBDA_KEYS
-from experiments.stats.paired import holm, t_interval  # noqa: F401 (re-exported for the studies)
 
 if TYPE_CHECKING:  # the record type, for annotations only
     from controllers.pgnn.fit_record import FitRecord

@@ -15,9 +15,9 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.outdir import atomic_folder
+from clm_sim.plant import THETA_UNITS
 from clm_sim.run import Run
 from controllers.idim import CrossTest, IDIMFit, IDIMProtocol, cross_test, fit
-from experiments.table import THETA_UNITS
 
 WHAT = "an identified model"  # the kind of result folder identify writes (clm_sim.outdir)
 

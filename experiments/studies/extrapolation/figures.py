@@ -10,9 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from matplotlib.figure import Figure
 
-from clm_sim.plant import THETA_NAMES
+from clm_sim.plant import THETA_NAMES, THETA_UNITS
 from experiments.plots import MM, PALETTE, UM, _ax, _figure, _legend_right, _panels, color
-from experiments.table import THETA_UNITS
 
 from experiments.studies.extrapolation.result import (
     FEEDBACK, LIP, SEQUENTIAL, ExtrapolationResult, variant_key, variant_label)

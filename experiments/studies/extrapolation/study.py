@@ -21,20 +21,20 @@ import numpy as np
 
 from clm_sim.errors import UserError
 from clm_sim.features import TrainingRange
-from clm_sim.plant import THETA_NAMES
+from clm_sim.plant import THETA_NAMES, THETA_UNITS
 from clm_sim.schema import build, load_yaml, to_plain
 from controllers.pgnn_settings import FILE_KEYS, PGNNSettings
 from experiments import plots
 from experiments.config import ExperimentConfig, FeedforwardSpec, in_file, resolved
 from experiments.results import BeyondRange, ForceSplit
 from experiments.runner import preflight
+from experiments.stats.paired import t_interval
 from experiments.studies.extrapolation import figures
 from experiments.studies.extrapolation.result import (
     FEEDBACK, LIP, SEQUENTIAL, Costs, ExtrapolationResult, NetworkParts, Spread, Trained,
     Variant, variant_key, variant_label)
 from experiments.studies.kinds import refuse_unread, take_kind
 from experiments.studies.protocol import Study
-from experiments.table import THETA_UNITS, t_interval
 from experiments.testbed import Testbed
 
 

@@ -3,11 +3,10 @@ with Holm's correction beside them, the mechanism and the fits' stops."""
 
 from __future__ import annotations
 
-from clm_sim.plant import THETA_NAMES
+from clm_sim.plant import THETA_NAMES, THETA_UNITS
 from experiments.stats.paired import LogRatio
 from experiments.studies.failure_map.result import CellStats, FailureMapResult
 from experiments.studies.failure_map.settings import FailureMapSettings
-from experiments.table import THETA_UNITS
 
 
 def _um(x: float) -> str:

@@ -10,12 +10,12 @@ import numpy as np
 import scipy.stats
 
 from controllers.pgnn_settings import FILE_KEYS
+from experiments.stats.paired import holm
 from experiments.studies.mechanism.result import (CaseSummary, CellResult, Fit, ForceDifference,
                                                    LipSummary, MaeDifference, MechanismResult,
                                                    Outcome, Ratio, RowSummary, UnitsRow,
                                                    WorstFit)
 from experiments.studies.mechanism.settings import MechanismSettings
-from experiments.table import holm
 
 
 def cluster_bootstrap(values: list[list[float]], resamples: int, confidence: float,

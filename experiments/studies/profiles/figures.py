@@ -6,10 +6,9 @@ from __future__ import annotations
 
 from matplotlib.figure import Figure
 
-from clm_sim.plant import THETA_NAMES
+from clm_sim.plant import THETA_NAMES, THETA_UNITS
 from experiments.plots import _ax, _figure, _legend_right, color
 from experiments.studies.profiles.result import SizeRecord
-from experiments.table import THETA_UNITS
 
 
 def plot_profile(ident: dict[int, SizeRecord], name: str, ax=None):

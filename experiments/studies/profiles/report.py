@@ -38,7 +38,7 @@ def to_markdown(sizes: dict[int, SizeRecord]) -> str:
     """The report: per network size the threshold, the profile ranges beside the LIP's
     intervals, the points' convergence tests and stops, the check of the resolution test and
     the sloppy directions of every record's fit."""
-    from experiments.table import THETA_UNITS
+    from clm_sim.plant import THETA_UNITS
 
     lines = ["# What the data determine at λ = 0: converged profiles", ""]
     for hidden, rec in sizes.items():
