@@ -74,7 +74,9 @@ def to_markdown(result: BenchmarkRun, settings: BenchmarkSettings, command: str)
     for r in cands:
         out += [f"**{r.name}** ({r.fit.verdict()}; structure: {_params(r.plant)}"
                 + (f"; diagnosis named {r.note}" if r.note else "") + ")", ""]
-        out += [f"- {s.line()}; test RMSE {t * 1e3:.2f} mm; "
+        out += [f"- {s.line()}; "
+                + (f"test RMSE {t * 1e3:.2f} mm; " if np.isfinite(t) else
+                   "not scored on test (the end is outside the physical range); ")
                 + ", ".join(f"{k} {v:.6g}" for k, v in s.end.items())
                 for s, t in zip(r.fit.stops, r.end_tests_m)]
         if r.fit.held:
