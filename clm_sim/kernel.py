@@ -271,7 +271,7 @@ def advance(x, v, u, p, levels):
 
 @nb.njit(**_JIT)
 def plant_step(x, v, u, p):
-    """Advance the motor ``p`` (``clm_sim.effects.base.KernelPlant``: the plant, each part by
+    """Advance the motor ``p`` (``clm_sim.plant.KernelPlant``: the plant, each part by
     its name) over one held-input sample of ``p.substeps`` sub-steps of ``p.h`` seconds.
 
     ``p.ad`` (2x2) and ``p.bd`` (2,) propagate ``[x, v]`` over one sub-step for a constant

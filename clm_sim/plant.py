@@ -14,12 +14,13 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
 
 from clm_sim.effects import lower_effects, total_force
-from clm_sim.effects.base import Effect, KernelPlant
+from clm_sim.effects.base import Effect, EffectArrays
 from clm_sim.effects.friction import Stribeck
 from clm_sim.effects.position import CableSlab, ForceRipple
 from clm_sim.errors import UserError
@@ -55,6 +56,25 @@ def default_effects() -> tuple[Effect, ...]:
         CableSlab(coefficients=(0.0, 10.0, 0.0, 2000.0), center=0.0),
         Stribeck(peak=1.0, velocity=0.001, exponent=2.0),
     )
+
+
+class KernelPlant(NamedTuple):
+    """A plant as the compiled simulator takes it, each part by its name: the sub-step ``h``
+    (s), ``substeps`` per sample, the exact propagation of the linear part over a sub-step
+    (``[x, v] <- ad @ [x, v] + bd * F``), the rigid-body parameters (kg, N*s/m, N, N/m) and the
+    effects' arrays. Numba's cache index names this type and :class:`EffectArrays` by their
+    modules: a cache written before either moved fails to load (clear
+    ``clm_sim/__pycache__/kernel.*``)."""
+
+    h: float
+    substeps: int
+    ad: np.ndarray
+    bd: np.ndarray
+    mass: float
+    viscous: float
+    coulomb: float
+    stiffness: float
+    effects: EffectArrays
 
 
 @dataclass(frozen=True)

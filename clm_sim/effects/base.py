@@ -97,23 +97,6 @@ class EffectArrays(NamedTuple):
     dahl_state: np.ndarray
 
 
-class KernelPlant(NamedTuple):
-    """A plant as the compiled simulator takes it, each part by its name: the sub-step ``h``
-    (s), ``substeps`` per sample, the exact propagation of the linear part over a sub-step
-    (``[x, v] <- ad @ [x, v] + bd * F``), the rigid-body parameters (kg, N*s/m, N, N/m) and the
-    effects' arrays."""
-
-    h: float
-    substeps: int
-    ad: np.ndarray
-    bd: np.ndarray
-    mass: float
-    viscous: float
-    coulomb: float
-    stiffness: float
-    effects: EffectArrays
-
-
 def check_positive(where: str, **values: float) -> None:
     for key, value in values.items():
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
