@@ -122,7 +122,8 @@ def main(argv=None) -> int:
     import experiments.testbed as testbed
     from controllers import optim
     from controllers.pgnn import PGNNFeedforward
-    from experiments import plots, runner, table
+    from experiments import plots, runner
+    from experiments.report import table_json, table_md
     from experiments.config import load_config
     from experiments.processes import workers
     from clm_sim import features
@@ -157,7 +158,8 @@ def main(argv=None) -> int:
     clock.patch("figures", plots, "tracking_figure", "feedforward_figure", "save")
     clock.patch("writing", runner, "save_npz")
     clock.patch("writing", PGNNFeedforward, "save")
-    clock.patch("writing", table, "to_json", "to_markdown", "to_csv")
+    clock.patch("writing", table_json, "to_json")
+    clock.patch("writing", table_md, "to_markdown", "to_csv")
     evaluate = testbed_cls.evaluate
     fit_lip, seen = testbed_cls.fit_lip, {}
 
