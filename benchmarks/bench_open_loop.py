@@ -28,10 +28,10 @@ from clm_sim.effects import Presliding
 from clm_sim.loop import Dither, simulate
 from clm_sim.open_loop import initial_state, simulate_input
 from clm_sim.plant import Plant
+from clm_sim.records.read import load_record
 from controllers.pid import PIDDesign, design_pid
 from experiments.config import ExperimentConfig
-from clm_sim.records.read import load_record
-from experiments.diagnosis.model import load_model
+from experiments.model_files import load_model
 
 MODELS = ("published_model", "asymmetric_viscous_friction", "the_diagnosis_s_terms")
 CLOSED_LOOP = {"closed loop, default plant": Plant(),
